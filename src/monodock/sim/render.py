@@ -1,0 +1,89 @@
+"""Exact camera images of a World: per-pixel ray casting through the real lens, area-sampled.
+
+Each pixel's value is the mean albedo over its square footprint on the sensor. Every pixel corner is cast
+first; a pixel whose four corners (or a neighbour's) disagree straddles an edge and is supersampled on an
+S x S n-rooks pattern (every sample has its own column and row, so an edge in any direction is resolved
+to 1/S^2 of a pixel). The other pixels lie inside one flat-shaded region and take their corners' mean.
+Sub-sample rays are interpolated bilinearly between the pixel's exactly undistorted corners: the lens map
+is smooth enough that this is accurate to ~1e-4 px.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from monodock.camera import CameraModel
+from monodock.sim.world import World
+
+__all__ = ["render_radiance"]
+
+_CHUNK_SAMPLES = 1 << 20
+
+
+@functools.lru_cache(maxsize=4)
+def _nrooks(S: int) -> NDArray[np.float64]:
+    """S*S sub-pixel offsets in [0, 1)^2: stratified in an S x S grid and with all columns and rows distinct."""
+    a, b = np.meshgrid(np.arange(S), np.arange(S), indexing="ij")
+    ox = (a + (b + 0.5) / S) / S
+    oy = (b + (a + 0.5) / S) / S
+    return np.stack([ox.ravel(), oy.ravel()], axis=1)
+
+
+def render_radiance(
+    world: World,
+    camera: CameraModel,
+    world_T_optical: ArrayLike,
+    *,
+    supersample: int = 16,
+) -> NDArray[np.float32]:
+    """Area-sampled albedo image, shape (height, width), float32 in [0, 1], of the world seen by the camera.
+
+    Args:
+        world: surfaces in world coordinates.
+        camera: intrinsics and lens distortion.
+        world_T_optical: 4x4 pose of the camera's optical frame in the world.
+        supersample: S; edge pixels get S*S samples.
+    """
+    T = np.asarray(world_T_optical, dtype=np.float64)
+    R, centre = T[:3, :3], T[:3, 3]
+    rays = camera.vertex_rays()  # (H+1, W+1, 2) undistorted normalised coordinates of pixel corners
+    H, W = camera.height, camera.width
+
+    def shade(xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        dirs = np.empty((xy.shape[0], 3))
+        dirs[:, :2] = xy
+        dirs[:, 2] = 1.0
+        return world.shade(world.cast(centre, dirs @ R.T))
+
+    vert = shade(rays.reshape(-1, 2)).reshape(H + 1, W + 1)
+    corners = np.stack([vert[:-1, :-1], vert[:-1, 1:], vert[1:, :-1], vert[1:, 1:]])
+    image = corners.mean(axis=0)
+    straddles = (corners.max(axis=0) - corners.min(axis=0)) > 1e-9
+    # A region smaller than a pixel can hide between one pixel's corners; the neighbours' corners see it.
+    straddles = cv2.dilate(straddles.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    rows, cols = np.nonzero(straddles)
+    if rows.size:
+        offsets = _nrooks(supersample)
+        ox, oy = offsets[:, 0], offsets[:, 1]
+        w00 = (1 - ox) * (1 - oy)
+        w01 = ox * (1 - oy)
+        w10 = (1 - ox) * oy
+        w11 = ox * oy
+        per_chunk = max(1, _CHUNK_SAMPLES // len(offsets))
+        for start in range(0, rows.size, per_chunk):
+            r = rows[start : start + per_chunk]
+            c = cols[start : start + per_chunk]
+            r00, r01, r10, r11 = rays[r, c], rays[r, c + 1], rays[r + 1, c], rays[r + 1, c + 1]
+            xy = (
+                w00[None, :, None] * r00[:, None, :]
+                + w01[None, :, None] * r01[:, None, :]
+                + w10[None, :, None] * r10[:, None, :]
+                + w11[None, :, None] * r11[:, None, :]
+            )
+            values = shade(xy.reshape(-1, 2)).reshape(len(r), len(offsets))
+            image[r, c] = values.mean(axis=1)
+    return image.astype(np.float32)

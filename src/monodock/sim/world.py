@@ -1,0 +1,243 @@
+"""The simulated world: textured planar rectangles (charger box, markers, walls, floor) and ray casting.
+
+World coordinates are the ``dock`` frame of DESIGN.md: origin on the floor below marker 2's centre on the
+charger's front face, x into the charger, y left, z up. Both the camera renderer and the LiDAR cast rays
+into the same surfaces, so what one sensor sees the other sees too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from monodock.layout import DockLayout
+
+__all__ = ["ChargerGeometry", "Patch", "Surface", "World", "build_dock_world"]
+
+PAPER_WHITE = 0.85  # albedo of the white print and of the charger face
+INK_BLACK = 0.06  # albedo of the black print
+NO_HIT_ALBEDO = 0.55  # what a ray that leaves the room sees (ceiling light)
+
+
+@dataclass(frozen=True)
+class Patch:
+    """A grid of cells painted on a surface (a marker, a poster, a checkerboard).
+
+    Attributes:
+        s0, t0: the patch's top-left corner in the surface's (s, t) coordinates, metres.
+        width, height: its extent along s and t, metres.
+        values: albedo of each cell, shape (rows, cols); row 0 at t0, column 0 at s0.
+    """
+
+    s0: float
+    t0: float
+    width: float
+    height: float
+    values: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Surface:
+    """A two-sided rectangle ``origin + s * s_axis + t * t_axis`` with s in [0, s_len], t in [0, t_len].
+
+    Seen from its front, s runs to the right and t downwards, like image columns and rows, so a patch's
+    cells appear unmirrored and upright.
+    """
+
+    name: str
+    origin: NDArray[np.float64]
+    s_axis: NDArray[np.float64]
+    t_axis: NDArray[np.float64]
+    s_len: float
+    t_len: float
+    albedo: float
+    patches: tuple[Patch, ...] = ()
+
+    @property
+    def normal(self) -> NDArray[np.float64]:
+        return np.cross(self.s_axis, self.t_axis)
+
+    def point(self, s: float, t: float) -> NDArray[np.float64]:
+        """The 3D point at surface coordinates (s, t)."""
+        return self.origin + s * self.s_axis + t * self.t_axis
+
+    def with_patches(self, *patches: Patch) -> Surface:
+        return replace(self, patches=self.patches + patches)
+
+    def shade(self, s: NDArray[np.float64], t: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Albedo at surface coordinates; later patches paint over earlier ones."""
+        out = np.full(s.shape, self.albedo, dtype=np.float64)
+        for p in self.patches:
+            rows, cols = p.values.shape
+            fs = (s - p.s0) / p.width
+            ft = (t - p.t0) / p.height
+            inside = (fs >= 0.0) & (fs < 1.0) & (ft >= 0.0) & (ft < 1.0)
+            if not inside.any():
+                continue
+            c = np.minimum((fs[inside] * cols).astype(np.intp), cols - 1)
+            r = np.minimum((ft[inside] * rows).astype(np.intp), rows - 1)
+            out[inside] = p.values[r, c]
+        return out
+
+
+def rectangle(
+    name: str,
+    top_left: ArrayLike,
+    right: ArrayLike,
+    down: ArrayLike,
+    width: float,
+    height: float,
+    albedo: float,
+) -> Surface:
+    """A surface from its top-left corner and unit directions to its right and downwards (seen from the front)."""
+    return Surface(
+        name,
+        np.asarray(top_left, dtype=np.float64),
+        np.asarray(right, dtype=np.float64),
+        np.asarray(down, dtype=np.float64),
+        float(width),
+        float(height),
+        float(albedo),
+    )
+
+
+@dataclass
+class Hits:
+    """Result of casting N rays: distance along each ray, the surface hit (-1: none) and where on it."""
+
+    t: NDArray[np.float64]
+    surface: NDArray[np.intp]
+    s: NDArray[np.float64]
+    u: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class World:
+    """A set of surfaces; rays see the nearest one."""
+
+    surfaces: tuple[Surface, ...]
+    no_hit_albedo: float = NO_HIT_ALBEDO
+
+    def with_surfaces(self, *extra: Surface) -> World:
+        return replace(self, surfaces=self.surfaces + extra)
+
+    def surface_index(self, name: str) -> int:
+        for i, s in enumerate(self.surfaces):
+            if s.name == name:
+                return i
+        raise KeyError(name)
+
+    def cast(self, origin: ArrayLike, directions: ArrayLike) -> Hits:
+        """Nearest hit of rays ``origin + t * direction`` (t > 0); origin shape (3,) or (N, 3)."""
+        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        o = np.asarray(origin, dtype=np.float64)
+        n = d.shape[0]
+        best_t = np.full(n, np.inf)
+        best_k = np.full(n, -1, dtype=np.intp)
+        best_s = np.zeros(n)
+        best_u = np.zeros(n)
+        for k, surf in enumerate(self.surfaces):
+            normal = surf.normal
+            rel = o - surf.origin  # (3,) or (N, 3)
+            denom = d @ normal
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = -(rel @ normal) / denom
+            ok = np.isfinite(t) & (t > 1e-9) & (t < best_t)
+            if not ok.any():
+                continue
+            t = np.where(ok, t, 0.0)
+            s = rel @ surf.s_axis + t * (d @ surf.s_axis)
+            u = rel @ surf.t_axis + t * (d @ surf.t_axis)
+            ok &= (s >= 0.0) & (s <= surf.s_len) & (u >= 0.0) & (u <= surf.t_len)
+            best_t = np.where(ok, t, best_t)
+            best_k = np.where(ok, k, best_k)
+            best_s = np.where(ok, s, best_s)
+            best_u = np.where(ok, u, best_u)
+        return Hits(best_t, best_k, best_s, best_u)
+
+    def shade(self, hits: Hits) -> NDArray[np.float64]:
+        """Albedo seen along each ray."""
+        out = np.full(hits.t.shape, self.no_hit_albedo)
+        for k, surf in enumerate(self.surfaces):
+            m = hits.surface == k
+            if m.any():
+                out[m] = surf.shade(hits.s[m], hits.u[m])
+        return out
+
+
+@dataclass(frozen=True)
+class ChargerGeometry:
+    """The charger box: its front face (x = 0) carries the markers and reaches the floor."""
+
+    width: float = 0.60
+    height: float = 0.45
+    depth: float = 0.30
+    face_albedo: float = PAPER_WHITE
+    body_albedo: float = 0.45
+
+
+@dataclass(frozen=True)
+class RoomGeometry:
+    """The room around the charger: a back wall the charger stands against, floor, optional side walls."""
+
+    back_wall: bool = True
+    side_walls: float | None = None  # distance of side walls from the dock's approach axis, metres
+    wall_albedo: float = 0.68
+    floor_albedo: float = 0.32
+    extent: float = 6.0
+    wall_height: float = 2.5
+    extra: tuple[Surface, ...] = field(default=())
+
+
+def marker_patch(layout: DockLayout, marker_id: int, centre_s: float, centre_t: float) -> Patch:
+    """The marker's black/white cells as a patch centred at (centre_s, centre_t) on a surface."""
+    bits = layout.marker_bits(marker_id).astype(np.float64)
+    values = INK_BLACK + bits * (PAPER_WHITE - INK_BLACK)
+    h = layout.marker_size / 2.0
+    return Patch(centre_s - h, centre_t - h, layout.marker_size, layout.marker_size, values)
+
+
+def build_dock_world(
+    layout: DockLayout,
+    charger: ChargerGeometry | None = None,
+    room: RoomGeometry | None = None,
+) -> World:
+    """The charger with the layout's markers on its face, standing against a wall on the floor."""
+    ch = charger or ChargerGeometry()
+    rm = room or RoomGeometry()
+    ys = [m.y for m in layout.markers]
+    zs = [m.z for m in layout.markers]
+    margin = 0.6 * layout.marker_size
+    half_w = max(ch.width / 2.0, max(abs(y) for y in ys) + layout.marker_size / 2.0 + margin)
+    height = max(ch.height, max(zs) + layout.marker_size / 2.0 + margin)
+    # The face, seen from the robot: s runs to the robot's right (-y), t downwards (-z).
+    face = rectangle("charger_face", (0.0, half_w, height), (0, -1, 0), (0, 0, -1), 2 * half_w, height, ch.face_albedo)
+    patches = [marker_patch(layout, m.id, half_w - m.y, height - m.z) for m in layout.markers]
+    face = face.with_patches(*patches)
+    d = ch.depth
+    surfaces = [
+        face,
+        rectangle("charger_left", (0.0, half_w, height), (1, 0, 0), (0, 0, -1), d, height, ch.body_albedo),
+        rectangle("charger_right", (d, -half_w, height), (-1, 0, 0), (0, 0, -1), d, height, ch.body_albedo),
+        rectangle("charger_top", (d, half_w, height), (0, -1, 0), (-1, 0, 0), 2 * half_w, d, ch.body_albedo * 1.2),
+    ]
+    e = rm.extent
+    surfaces.append(
+        rectangle("floor", (d, e, 0.0), (0, -1, 0), (-1, 0, 0), 2 * e, 2 * e, rm.floor_albedo)
+    )
+    if rm.back_wall:
+        surfaces.append(
+            rectangle("back_wall", (d, e, rm.wall_height), (0, -1, 0), (0, 0, -1), 2 * e, rm.wall_height, rm.wall_albedo)
+        )
+    if rm.side_walls is not None:
+        w = rm.side_walls
+        surfaces.append(
+            rectangle("wall_left", (-2 * e, w, rm.wall_height), (1, 0, 0), (0, 0, -1), 2 * e + d, rm.wall_height, rm.wall_albedo)
+        )
+        surfaces.append(
+            rectangle("wall_right", (d, -w, rm.wall_height), (-1, 0, 0), (0, 0, -1), 2 * e + d, rm.wall_height, rm.wall_albedo)
+        )
+    surfaces.extend(rm.extra)
+    return World(tuple(surfaces))
