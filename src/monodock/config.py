@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from monodock.atomic import write_text_atomic
 from monodock.errors import ConfigError
 
 __all__ = ["Fields", "load_yaml", "write_text_atomic"]
@@ -28,22 +28,6 @@ def load_yaml(path: str | os.PathLike[str], what: str) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a YAML mapping at the top level")
     return data
-
-
-def write_text_atomic(path: str | os.PathLike[str], text: str, *, force: bool = False) -> None:
-    """Write a text file through a temporary file and a rename, so a crash never leaves half a file."""
-    p = Path(path)
-    if p.exists() and not force:
-        raise ConfigError(f"{p} exists; pass --force to overwrite it")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, p)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class Fields:

@@ -51,17 +51,18 @@ def as_gray(image: NDArray[np.generic]) -> NDArray[np.uint8]:
     """An 8-bit single-channel view of an image (mono8, BGR8, BGRA8, or 16-bit mono scaled down)."""
     if not isinstance(image, np.ndarray) or image.size == 0:
         raise InputError("empty or invalid image")
-    img = image
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        raise InputError(f"unsupported image type {img.dtype}; expected 8-bit or 16-bit pixels")
+    if image.dtype == np.uint16:
+        img = np.asarray(image // 257, dtype=np.uint8)
+    elif image.dtype == np.uint8:
+        img = np.asarray(image, dtype=np.uint8)
+    else:
+        raise InputError(f"unsupported image type {image.dtype}; expected 8-bit or 16-bit pixels")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     if img.ndim == 3 and img.shape[2] == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        img = np.asarray(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
     elif img.ndim == 3 and img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+        img = np.asarray(cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY), dtype=np.uint8)
     if img.ndim != 2:
         raise InputError(f"unsupported image shape {image.shape}")
     return np.ascontiguousarray(img)

@@ -62,8 +62,13 @@ def _tilt_deg(base_T_dock: NDArray[np.float64]) -> float:
     return math.degrees(math.acos(float(np.clip(base_T_dock[2, 2], -1.0, 1.0))))
 
 
-def _rms(obj: NDArray[np.float64], img: NDArray[np.float64], rvec: NDArray[np.float64],
-         tvec: NDArray[np.float64], camera: CameraModel) -> float:
+def _rms(
+    obj: NDArray[np.float64],
+    img: NDArray[np.float64],
+    rvec: NDArray[np.float64],
+    tvec: NDArray[np.float64],
+    camera: CameraModel,
+) -> float:
     proj, _ = cv2.projectPoints(obj, rvec, tvec, camera.matrix, camera.dist)
     return float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - img) ** 2, axis=1))))
 
@@ -87,8 +92,13 @@ def _choose(cands: list[_Candidate]) -> _Candidate | None:
 
 
 def _candidate(
-    rvec: NDArray[np.float64], tvec: NDArray[np.float64], optical_T_object_to_dock: NDArray[np.float64],
-    robot: RobotConfig, obj: NDArray[np.float64], img: NDArray[np.float64], camera: CameraModel,
+    rvec: NDArray[np.float64],
+    tvec: NDArray[np.float64],
+    optical_T_object_to_dock: NDArray[np.float64],
+    robot: RobotConfig,
+    obj: NDArray[np.float64],
+    img: NDArray[np.float64],
+    camera: CameraModel,
 ) -> _Candidate:
     R, _ = cv2.Rodrigues(rvec)
     optical_T_obj = transforms.transform(R, tvec.ravel())
@@ -101,7 +111,13 @@ def _result(method: str, chosen: _Candidate | None, roles: tuple[str, ...]) -> P
     if chosen is None:
         return PoseEstimate(method, None, "no PnP solution in front of the camera", roles)
     return PoseEstimate(
-        method, DockPose.from_matrix(chosen.base_T_dock), "", roles, chosen.rms, chosen.tilt, chosen.base_T_dock
+        method,
+        DockPose.from_matrix(chosen.base_T_dock),
+        "",
+        roles,
+        chosen.rms,
+        chosen.tilt,
+        chosen.base_T_dock,
     )
 
 
@@ -118,9 +134,7 @@ def estimate_single_marker(
         return PoseEstimate("pnp", None, f"marker {layout.marker(role).number} ({role}) not seen")
     obj = layout.corners_in_marker()
     img = obs.corners
-    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-        obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
-    )
+    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
     if not ok:
         return PoseEstimate("pnp", None, "solvePnP failed", (role,))
     marker_T_dock = transforms.invert(layout.dock_T_marker(role))
@@ -149,11 +163,11 @@ def estimate_board(
     obj = np.concatenate([layout.corners_in_dock(r) for r in roles])
     img = np.concatenate([detection.observations[r].corners for r in roles])
     starts: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
-    ok, rvec, tvec = cv2.solvePnP(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_ITERATIVE)
-    if ok:
-        starts.append((rvec, tvec))
-    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE)
-    if ok:
+    found, rvec, tvec = cv2.solvePnP(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_ITERATIVE)
+    if found:
+        starts.append((np.asarray(rvec, dtype=np.float64), np.asarray(tvec, dtype=np.float64)))
+    count, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE)
+    if count:
         starts += [(np.asarray(r), np.asarray(t)) for r, t in zip(rvecs, tvecs, strict=True)]
     if not starts:
         return PoseEstimate("board", None, "solvePnP failed", roles)

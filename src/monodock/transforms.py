@@ -24,9 +24,7 @@ __all__ = [
 ]
 
 # REP 103: an optical frame (z forward, x right, y down) inside its body frame (x forward, y left, z up).
-LINK_R_OPTICAL: NDArray[np.float64] = np.array(
-    [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]], dtype=np.float64
-)
+LINK_R_OPTICAL: NDArray[np.float64] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]], dtype=np.float64)
 
 
 def rotation_from_rpy(roll: float, pitch: float, yaw: float) -> NDArray[np.float64]:

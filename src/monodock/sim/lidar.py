@@ -33,7 +33,7 @@ class LaserScan:
 
     def angles(self) -> NDArray[np.float64]:
         """Beam angles in the laser frame, radians."""
-        return self.angle_min + self.angle_increment * np.arange(self.ranges.size)
+        return np.asarray(self.angle_min + self.angle_increment * np.arange(self.ranges.size), dtype=np.float64)
 
     def points(self) -> NDArray[np.float64]:
         """(x, y) in the laser frame of the valid returns, shape (N, 2)."""
@@ -93,5 +93,3 @@ def simulate_scan(
         range_max=model.range_max,
         ranges=r.astype(np.float32),
     )
-
-

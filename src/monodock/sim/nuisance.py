@@ -84,12 +84,10 @@ def _motion_kernel(length: float, angle: float) -> NDArray[np.float32]:
         k[y0, x0 + 1] += fx * (1 - fy)
         k[y0 + 1, x0] += (1 - fx) * fy
         k[y0 + 1, x0 + 1] += fx * fy
-    return k / k.sum()
+    return np.asarray(k / k.sum(), dtype=np.float32)
 
 
-def apply_nuisances(
-    radiance: NDArray[np.float32], nuisances: Nuisances, rng: np.random.Generator
-) -> NDArray[np.uint8]:
+def apply_nuisances(radiance: NDArray[np.float32], nuisances: Nuisances, rng: np.random.Generator) -> NDArray[np.uint8]:
     """The 8-bit image a camera would record of a radiance (albedo) image."""
     img = radiance.astype(np.float32, copy=True)
     h, w = img.shape
@@ -98,11 +96,12 @@ def apply_nuisances(
         r2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
         img *= 1.0 - nuisances.vignetting * r2
     if nuisances.defocus_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), nuisances.defocus_px, borderType=cv2.BORDER_REFLECT)
+        img = np.asarray(cv2.GaussianBlur(img, (0, 0), nuisances.defocus_px, borderType=cv2.BORDER_REFLECT))
     if nuisances.motion_blur_px > 0:
         angle = nuisances.motion_blur_angle_deg
         theta = math.radians(angle) if angle is not None else float(rng.uniform(0, math.pi))
-        img = cv2.filter2D(img, -1, _motion_kernel(nuisances.motion_blur_px, theta), borderType=cv2.BORDER_REFLECT)
+        kernel = _motion_kernel(nuisances.motion_blur_px, theta)
+        img = np.asarray(cv2.filter2D(img, -1, kernel, borderType=cv2.BORDER_REFLECT))
     gain = nuisances.exposure
     if nuisances.exposure_jitter > 0:
         gain *= float(np.exp(rng.normal(0.0, nuisances.exposure_jitter)))
@@ -113,4 +112,4 @@ def apply_nuisances(
     dn = np.clip(dn, 0.0, 255.0)
     if nuisances.gamma != 1.0:
         dn = 255.0 * (dn / 255.0) ** (1.0 / nuisances.gamma)
-    return np.rint(dn).astype(np.uint8)
+    return np.asarray(np.rint(dn), dtype=np.uint8)

@@ -86,4 +86,4 @@ def render_radiance(
             )
             values = shade(xy.reshape(-1, 2)).reshape(len(r), len(offsets))
             image[r, c] = values.mean(axis=1)
-    return image.astype(np.float32)
+    return np.asarray(image, dtype=np.float32)

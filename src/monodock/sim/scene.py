@@ -73,5 +73,3 @@ def occluder_for(
     height = layout.marker_size * 3.0
     top_left = centre - right * width / 2 + np.array([0.0, 0.0, height / 2])
     return rectangle("occluder", top_left, right, (0, 0, -1), width, height, float(rng.uniform(0.1, 0.5)))
-
-

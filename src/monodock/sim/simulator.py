@@ -152,23 +152,39 @@ class Simulator:
                 return pose
         raise RuntimeError("pose distribution never keeps the required markers in view; widen it")
 
-    def render(self, pose: DockPose, world: World | None = None) -> NDArray[np.uint8]:
+    def render(
+        self, pose: DockPose, world: World | None = None, rng: np.random.Generator | None = None
+    ) -> NDArray[np.uint8]:
         """The camera image (mono8) for a robot at this DockPose, with the simulator's nuisances."""
         radiance = render_radiance(
-            world or self.world, self.camera, self.world_T_optical(pose), supersample=self.nuisances.supersample
+            world or self.world,
+            self.camera,
+            self.world_T_optical(pose),
+            supersample=self.nuisances.supersample,
         )
-        return apply_nuisances(radiance, self.nuisances, self.rng)
+        return apply_nuisances(radiance, self.nuisances, rng or self.rng)
 
-    def scan(self, pose: DockPose, world: World | None = None, stamp: float = 0.0) -> LaserScan:
+    def scan(
+        self,
+        pose: DockPose,
+        world: World | None = None,
+        stamp: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> LaserScan:
         """The LiDAR scan for a robot at this DockPose."""
         world_T_laser = transforms.invert(pose.matrix()) @ self.robot.base_T_laser()
-        return simulate_scan(world or self.world, world_T_laser, self.lidar, self.rng, stamp)
+        return simulate_scan(world or self.world, world_T_laser, self.lidar, rng or self.rng, stamp)
 
-    def frame(self, pose: DockPose, stamp: float = 0.0) -> SimFrame:
-        """Image, scan and truth for one robot pose; an occluder is added with the configured chance."""
+    def frame(self, pose: DockPose, stamp: float = 0.0, rng: np.random.Generator | None = None) -> SimFrame:
+        """Image, scan and truth for one robot pose; an occluder is added with the configured chance.
+
+        ``rng`` (default: the simulator's own) drives every random draw of this frame, so a frame can be
+        reproduced on its own, in any process, from its seed.
+        """
+        rng = rng or self.rng
         world = self.world
-        if self.nuisances.occluder_probability > 0 and self.rng.random() < self.nuisances.occluder_probability:
-            world = world.with_surfaces(occluder_for(self.layout, self.world_T_optical(pose)[:3, 3], self.rng))
+        if self.nuisances.occluder_probability > 0 and rng.random() < self.nuisances.occluder_probability:
+            world = world.with_surfaces(occluder_for(self.layout, self.world_T_optical(pose)[:3, 3], rng))
         corners = self.true_corners(pose)
         truth = FrameTruth(
             pose=pose,
@@ -176,4 +192,4 @@ class Simulator:
             in_view={r: self.in_view(c) for r, c in corners.items()},
             visible_fraction={r: self._visible_fraction(world, pose, r) for r in ROLES},
         )
-        return SimFrame(self.render(pose, world), self.scan(pose, world, stamp), truth)
+        return SimFrame(self.render(pose, world, rng), self.scan(pose, world, stamp, rng), truth)

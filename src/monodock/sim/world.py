@@ -224,20 +224,42 @@ def build_dock_world(
         rectangle("charger_top", (d, half_w, height), (0, -1, 0), (-1, 0, 0), 2 * half_w, d, ch.body_albedo * 1.2),
     ]
     e = rm.extent
-    surfaces.append(
-        rectangle("floor", (d, e, 0.0), (0, -1, 0), (-1, 0, 0), 2 * e, 2 * e, rm.floor_albedo)
-    )
+    surfaces.append(rectangle("floor", (d, e, 0.0), (0, -1, 0), (-1, 0, 0), 2 * e, 2 * e, rm.floor_albedo))
     if rm.back_wall:
         surfaces.append(
-            rectangle("back_wall", (d, e, rm.wall_height), (0, -1, 0), (0, 0, -1), 2 * e, rm.wall_height, rm.wall_albedo)
+            rectangle(
+                "back_wall",
+                (d, e, rm.wall_height),
+                (0, -1, 0),
+                (0, 0, -1),
+                2 * e,
+                rm.wall_height,
+                rm.wall_albedo,
+            )
         )
     if rm.side_walls is not None:
         w = rm.side_walls
         surfaces.append(
-            rectangle("wall_left", (-2 * e, w, rm.wall_height), (1, 0, 0), (0, 0, -1), 2 * e + d, rm.wall_height, rm.wall_albedo)
+            rectangle(
+                "wall_left",
+                (-2 * e, w, rm.wall_height),
+                (1, 0, 0),
+                (0, 0, -1),
+                2 * e + d,
+                rm.wall_height,
+                rm.wall_albedo,
+            )
         )
         surfaces.append(
-            rectangle("wall_right", (d, -w, rm.wall_height), (-1, 0, 0), (0, 0, -1), 2 * e + d, rm.wall_height, rm.wall_albedo)
+            rectangle(
+                "wall_right",
+                (d, -w, rm.wall_height),
+                (-1, 0, 0),
+                (0, 0, -1),
+                2 * e + d,
+                rm.wall_height,
+                rm.wall_albedo,
+            )
         )
     surfaces.extend(rm.extra)
     return World(tuple(surfaces))

@@ -1,0 +1,194 @@
+"""Per-frame cost on one core: marker detection + features, single-marker PnP, board PnP, and the renderer.
+
+First renders ``--frames`` default-nuisance 640x480 frames at random poses (in 2 processes, outside any
+timing). Then, in this process, pinned to one CPU with OpenCV and the BLAS/OpenMP pools limited to one
+thread, times per frame with time.perf_counter, each call repeated ``--repeat`` times and the minimum kept:
+
+(a) detection + features: MarkerDetector(layout).detect (sub-pixel corners) + features.feature_vector,
+    also split into its two parts;
+(b) single-marker PnP: pnp.estimate_single_marker, on the frames where marker 2 was detected;
+(c) board PnP: pnp.estimate_board, on the frames where at least one dock marker was detected;
+(d) for information, the simulator: Simulator.frame (render + nuisances + LiDAR scan + truth) on
+    ``--render-frames`` further poses, one call each.
+
+Reports median and p90 milliseconds per frame, and ratios of medians measured in the same run.
+
+Run from the repo root:
+
+    python bench/speed.py [--frames 200] [--seed 0] [--out FILE.md]
+"""
+
+from __future__ import annotations
+
+import os
+
+# One thread everywhere, set before numpy and OpenCV are imported.
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
+from typing import Any  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from _common import chunk_seed, chunks, emit, environment, fmt, markdown_table, parallel_map  # noqa: E402
+from monodock.detect import Detection, MarkerDetector  # noqa: E402
+from monodock.features import feature_vector  # noqa: E402
+from monodock.pnp import estimate_board, estimate_single_marker  # noqa: E402
+from monodock.sim import Simulator  # noqa: E402
+
+CHUNK = 20
+
+
+def render_chunk(task: tuple[int, int, int]) -> list[np.ndarray]:
+    """The images of one chunk of default-nuisance frames at random poses."""
+    seed, chunk, n = task
+    sim = Simulator(seed=chunk_seed(seed, chunk))
+    return [sim.frame(sim.sample_pose()).image for _ in range(n)]
+
+
+def best_of(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
+    """The fastest of ``repeat`` calls, in seconds, and the last result."""
+    best = float("inf")
+    result = None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        result = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, result
+
+
+def _stat(ms: list[float]) -> dict[str, float]:
+    a = np.asarray(ms)
+    if a.size == 0:
+        return {"n": 0, "median_ms": float("nan"), "p90_ms": float("nan"), "min_ms": float("nan")}
+    return {
+        "n": int(a.size),
+        "median_ms": float(np.median(a)),
+        "p90_ms": float(np.percentile(a, 90)),
+        "min_ms": float(a.min()),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--frames", type=int, default=200, help="pre-rendered frames to time on (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
+    p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
+    p.add_argument("--repeat", type=int, default=5, help="calls per frame; the fastest counts (default 5)")
+    p.add_argument("--render-frames", type=int, default=10, help="frames to time the renderer on (default 10)")
+    p.add_argument("--workers", type=int, default=2, help="processes for the pre-render (default 2)")
+    args = p.parse_args(argv)
+    if args.frames < 1 or args.repeat < 1 or args.render_frames < 0:
+        p.error("--frames and --repeat must be at least 1, --render-frames at least 0")
+
+    tasks = [(args.seed, c, n) for c, n in chunks(args.frames, CHUNK)]
+    images: list[np.ndarray] = []
+    for part in parallel_map(render_chunk, tasks, lambda t: t[2], workers=args.workers, desc="pre-render"):
+        images += part
+
+    # Timing from here on: one thread, one CPU.
+    cv2.setNumThreads(1)
+    pinned = "no"
+    if hasattr(os, "sched_setaffinity"):
+        cpu = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {cpu})
+        pinned = f"cpu {cpu}"
+
+    sim = Simulator(seed=chunk_seed(args.seed, 10**6))
+    camera, layout, robot = sim.camera, sim.layout, sim.robot
+    detector = MarkerDetector(layout)
+    for _ in range(3):  # warm-up: lazy initialisation, caches
+        d0 = detector.detect(images[0])
+        feature_vector(d0, camera)
+        estimate_board(d0, camera, layout, robot)
+        estimate_single_marker(d0, camera, layout, robot)
+
+    from tqdm import tqdm
+
+    times: dict[str, list[float]] = {k: [] for k in ("detect_features", "detect", "features", "pnp", "board")}
+    markers_seen: list[int] = []
+    for img in tqdm(images, desc="timing", unit="frame", file=sys.stderr, dynamic_ncols=True):
+        t, _ = best_of(lambda img=img: feature_vector(detector.detect(img), camera), args.repeat)
+        times["detect_features"].append(1e3 * t)
+        t, det = best_of(lambda img=img: detector.detect(img), args.repeat)
+        times["detect"].append(1e3 * t)
+        assert isinstance(det, Detection)
+        t, _ = best_of(lambda det=det: feature_vector(det, camera), args.repeat)
+        times["features"].append(1e3 * t)
+        markers_seen.append(len(det.roles_seen))
+        if det.seen("center"):
+            t, _ = best_of(lambda det=det: estimate_single_marker(det, camera, layout, robot), args.repeat)
+            times["pnp"].append(1e3 * t)
+        if det.roles_seen:
+            t, _ = best_of(lambda det=det: estimate_board(det, camera, layout, robot), args.repeat)
+            times["board"].append(1e3 * t)
+
+    render_ms: list[float] = []
+    bar = tqdm(range(args.render_frames), desc="renderer", unit="frame", file=sys.stderr, dynamic_ncols=True)
+    for _ in bar:
+        pose = sim.sample_pose()
+        t0 = time.perf_counter()
+        sim.frame(pose)
+        render_ms.append(1e3 * (time.perf_counter() - t0))
+    times["render"] = render_ms
+
+    stats = {k: _stat(v) for k, v in times.items()}
+    labels = {
+        "detect_features": "(a) detection + features",
+        "detect": "    detection only (MarkerDetector.detect)",
+        "features": "    features only (feature_vector)",
+        "pnp": "(b) single-marker PnP (IPPE_SQUARE)",
+        "board": "(c) board PnP (iterative + IPPE starts, LM)",
+        "render": "(d) simulator: Simulator.frame",
+    }
+    rows = [
+        [labels[k], str(stats[k]["n"]), fmt(stats[k]["median_ms"], 3), fmt(stats[k]["p90_ms"], 3)]
+        for k in labels
+    ]
+    med = {k: s["median_ms"] for k, s in stats.items()}
+    ratios = {
+        "board PnP / (detection + features)": med["board"] / med["detect_features"],
+        "single-marker PnP / (detection + features)": med["pnp"] / med["detect_features"],
+        "board PnP / single-marker PnP": med["board"] / med["pnp"],
+        "features / detection": med["features"] / med["detect"],
+        "simulator frame / (detection + features)": med["render"] / med["detect_features"],
+    }
+    env = environment()
+    counts = np.bincount(markers_seen, minlength=4)
+    lines = [
+        "### Per-frame cost on one core (640x480, default nuisances)",
+        "",
+        f"`python bench/speed.py --frames {args.frames} --seed {args.seed}` — {env['date_utc']} UTC, "
+        f"OpenCV {env['opencv']}, {env['machine']}, timing pinned to {pinned}, 1 thread, "
+        f"best of {args.repeat} calls per frame. Dock markers detected per frame: "
+        + ", ".join(f"{i}: {counts[i]}" for i in range(4))
+        + ".",
+        "",
+        markdown_table(["stage", "frames", "median ms", "p90 ms"], rows),
+        "",
+        markdown_table(
+            ["ratio (medians, same run)", "value"], [[k, fmt(v, 3)] for k, v in ratios.items()]
+        ),
+    ]
+    report = "\n".join(lines)
+    raw = {
+        "benchmark": "speed",
+        "args": vars(args),
+        "environment": env,
+        "pinned": pinned,
+        "stats": stats,
+        "ratios": ratios,
+        "markers_seen_histogram": counts.tolist(),
+        "times_ms": times,
+    }
+    emit(report, raw, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,64 @@
+"""Writing outputs so that nothing the user has is lost: temp file or folder, then one rename.
+
+Existing outputs are replaced only with ``force``; a crash half-way leaves the old output untouched.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from monodock.errors import InputError
+
+__all__ = ["atomic_directory", "check_writable", "write_bytes_atomic", "write_text_atomic"]
+
+
+def check_writable(path: str | os.PathLike[str], *, force: bool) -> Path:
+    """The path, or InputError when it exists and ``force`` is not given."""
+    p = Path(path)
+    if p.exists() and not force:
+        raise InputError(f"{p} exists; pass --force to overwrite it")
+    return p
+
+
+def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, force: bool = False) -> None:
+    """Write a file through a temporary file in the same folder and a rename."""
+    p = check_writable(path, force=force)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_text_atomic(path: str | os.PathLike[str], text: str, *, force: bool = False) -> None:
+    """Write a UTF-8 text file atomically."""
+    write_bytes_atomic(path, text.encode("utf-8"), force=force)
+
+
+@contextmanager
+def atomic_directory(path: str | os.PathLike[str], *, force: bool = False) -> Iterator[Path]:
+    """Yield a fresh temporary folder beside ``path``; on success it replaces ``path`` in one rename."""
+    p = check_writable(path, force=force)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", dir=p.parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = None
+    if p.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{p.name}.old.", dir=p.parent))
+        os.replace(p, old / "x")
+    os.replace(tmp, p)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)

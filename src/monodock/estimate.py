@@ -1,0 +1,121 @@
+"""Per-frame estimation: detect the markers once, then run each requested method on the detection."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monodock.camera import CameraModel
+from monodock.detect import Detection, MarkerDetector
+from monodock.errors import InputError
+from monodock.layout import DockLayout
+from monodock.pnp import PoseEstimate, estimate_board, estimate_single_marker
+from monodock.robot import RobotConfig
+
+__all__ = ["CSV_COLUMNS", "METHODS", "Estimator", "FrameEstimates", "estimates_csv"]
+
+Method = Callable[[Detection, CameraModel, DockLayout, RobotConfig], PoseEstimate]
+
+# The geometric methods; the regression of the papers joins them with its model bundle.
+METHODS: dict[str, Method] = {"pnp": estimate_single_marker, "board": estimate_board}
+
+CSV_COLUMNS = (
+    "frame",
+    "stamp",
+    "method",
+    "valid",
+    "x_m",
+    "y_m",
+    "yaw_deg",
+    "markers_seen",
+    "reprojection_px",
+    "tilt_deg",
+    "reason",
+)
+
+
+@dataclass(frozen=True)
+class FrameEstimates:
+    """One frame's detection and every method's estimate."""
+
+    name: str
+    stamp: float
+    detection: Detection | None
+    estimates: dict[str, PoseEstimate]
+
+
+class Estimator:
+    """Detector plus the calibration every method shares (camera, layout, mounts)."""
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        layout: DockLayout,
+        robot: RobotConfig,
+        methods: Sequence[str] = ("board",),
+        *,
+        refinement: str = "subpix",
+    ) -> None:
+        unknown = [m for m in methods if m not in METHODS]
+        if unknown:
+            raise InputError(f"unknown method '{unknown[0]}' (available: {', '.join(METHODS)})")
+        self.camera, self.layout, self.robot = camera, layout, robot
+        self.methods = tuple(methods)
+        self.detector = MarkerDetector(layout, refinement=refinement)
+
+    def check_image(self, image: NDArray[np.generic], name: str) -> None:
+        """InputError when the image's size is not the calibrated camera's."""
+        h, w = image.shape[:2]
+        if (w, h) != self.camera.size:
+            raise InputError(
+                f"{name}: image is {w}x{h} but the camera file is for {self.camera.width}x{self.camera.height}"
+            )
+
+    def estimate(self, name: str, stamp: float, image: NDArray[np.generic]) -> FrameEstimates:
+        """Detection and the estimates of every method for one image."""
+        self.check_image(image, name)
+        det = self.detector.detect(image)
+        ests = {m: METHODS[m](det, self.camera, self.layout, self.robot) for m in self.methods}
+        return FrameEstimates(name, stamp, det, ests)
+
+    def failed(self, name: str, stamp: float, reason: str) -> FrameEstimates:
+        """The invalid result of a frame that could not be read."""
+        return FrameEstimates(name, stamp, None, {m: PoseEstimate(m, None, reason) for m in self.methods})
+
+
+def estimates_csv(results: Iterable[FrameEstimates]) -> str:
+    """The EST.csv text of DESIGN.md: a header and one row per frame and method."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CSV_COLUMNS)
+
+    def num(v: float, fmt: str) -> str:
+        return format(v, fmt) if math.isfinite(v) else ""
+
+    for r in results:
+        for method, e in r.estimates.items():
+            p = e.pose
+            w.writerow(
+                [
+                    r.name,
+                    num(r.stamp, ".6f"),
+                    method,
+                    "true" if p is not None else "false",
+                    num(p.x, ".5f") if p else "",
+                    num(p.y, ".5f") if p else "",
+                    num(p.yaw_deg, ".4f") if p else "",
+                    " ".join(e.markers_seen)
+                    if e.markers_seen
+                    else (" ".join(r.detection.roles_seen) if r.detection else ""),
+                    num(e.reprojection_px, ".4f"),
+                    num(e.tilt_deg, ".3f"),
+                    e.reason,
+                ]
+            )
+    return buf.getvalue()

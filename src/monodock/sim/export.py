@@ -1,0 +1,177 @@
+"""Writing a simulated data set to a folder: PNG images, LiDAR scans, calibration files, ground truth.
+
+Layout of the folder (documented in the README)::
+
+    images/frame_000000.png ...   mono8 camera images
+    scans.npz                     LaserScan fields; ranges shape (frames, beams), NaN/inf as in REP 117
+    camera.yaml                   ROS camera_info YAML
+    robot.yaml, layout.yaml       the robot description and dock layout used
+    ground_truth.csv              one row per frame: DockPose, robot pose, true corners, visibility
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import multiprocessing as mp
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from monodock.atomic import atomic_directory
+from monodock.layout import ROLE_NUMBER, ROLES
+from monodock.pose import DockPose
+from monodock.sim.simulator import SimFrame, Simulator
+
+__all__ = ["GROUND_TRUTH_COLUMNS", "FrameRecord", "render_frames", "write_frame_folder"]
+
+_CORNERS = ("tl", "tr", "br", "bl")
+
+
+def _gt_columns() -> list[str]:
+    cols = [
+        "frame",
+        "index",
+        "stamp",
+        "x_m",
+        "y_m",
+        "yaw_deg",
+        "depth_m",
+        "robot_x_m",
+        "robot_y_m",
+        "robot_yaw_deg",
+    ]
+    for role in ROLES:
+        m = f"m{ROLE_NUMBER[role]}"
+        cols += [f"{m}_in_view", f"{m}_visible_fraction"]
+        cols += [f"{m}_{c}_{a}" for c in _CORNERS for a in ("u", "v")]
+    return cols
+
+
+GROUND_TRUTH_COLUMNS: tuple[str, ...] = tuple(_gt_columns())
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """A rendered frame with its place in the set."""
+
+    index: int
+    name: str
+    stamp: float
+    frame: SimFrame
+
+
+_WORKER: Simulator | None = None
+
+
+def _init_worker(sim: Simulator) -> None:
+    global _WORKER  # noqa: PLW0603 - one simulator per worker process, built once
+    _WORKER = sim
+
+
+def _render_one(args: tuple[int, DockPose, float, int]) -> tuple[int, SimFrame]:
+    index, pose, stamp, seed = args
+    assert _WORKER is not None
+    return index, _WORKER.frame(pose, stamp, np.random.default_rng([seed, index]))
+
+
+def render_frames(
+    sim: Simulator,
+    poses: Sequence[DockPose],
+    *,
+    seed: int,
+    rate_hz: float = 10.0,
+    jobs: int = 1,
+    progress: bool = True,
+) -> Iterator[FrameRecord]:
+    """Render frames for the poses, in order; frame i draws its noise from seed (seed, i) whatever ``jobs``."""
+    tasks = [(i, p, i / rate_hz, seed) for i, p in enumerate(poses)]
+    bar = tqdm(total=len(tasks), desc="simulate", unit="frame", disable=None if progress else True, leave=False)
+    try:
+        if jobs <= 1:
+            _init_worker(sim)
+            results: Iterator[tuple[int, SimFrame]] = map(_render_one, tasks)
+            for index, frame in results:
+                bar.update()
+                yield FrameRecord(index, f"frame_{index:06d}.png", tasks[index][2], frame)
+            return
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        with ctx.Pool(jobs, initializer=_init_worker, initargs=(sim,)) as pool:
+            for index, frame in pool.imap(_render_one, tasks, chunksize=4):
+                bar.update()
+                yield FrameRecord(index, f"frame_{index:06d}.png", tasks[index][2], frame)
+    finally:
+        bar.close()
+
+
+def _gt_row(rec: FrameRecord, sim: Simulator) -> list[object]:
+    t = rec.frame.truth
+    rx, ry, ryaw = t.pose.robot_in_dock()
+    row: list[object] = [
+        rec.name,
+        rec.index,
+        f"{rec.stamp:.6f}",
+        f"{t.pose.x:.6f}",
+        f"{t.pose.y:.6f}",
+        f"{math.degrees(t.pose.yaw):.6f}",
+        f"{t.pose.x - sim.robot.camera_mount.x:.6f}",
+        f"{rx:.6f}",
+        f"{ry:.6f}",
+        f"{math.degrees(ryaw):.6f}",
+    ]
+    for role in ROLES:
+        row += [int(t.in_view[role]), f"{t.visible_fraction[role]:.4f}"]
+        row += [f"{v:.5f}" for v in t.corners[role].ravel()]
+    return row
+
+
+def write_frame_folder(
+    out: str | Path,
+    sim: Simulator,
+    poses: Sequence[DockPose],
+    *,
+    seed: int,
+    jobs: int = 1,
+    force: bool = False,
+    progress: bool = True,
+) -> list[FrameRecord]:
+    """Render the poses and write the folder atomically; returns the records (images kept in memory)."""
+    records: list[FrameRecord] = []
+    with atomic_directory(out, force=force) as tmp:
+        (tmp / "images").mkdir()
+        ranges = []
+        gt = io.StringIO()
+        writer = csv.writer(gt, lineterminator="\n")
+        writer.writerow(GROUND_TRUTH_COLUMNS)
+        for rec in render_frames(sim, poses, seed=seed, jobs=jobs, progress=progress):
+            if not cv2.imwrite(str(tmp / "images" / rec.name), rec.frame.image):
+                raise OSError(f"cannot write {tmp / 'images' / rec.name}")
+            ranges.append(rec.frame.scan.ranges)
+            writer.writerow(_gt_row(rec, sim))
+            records.append(rec)
+        (tmp / "ground_truth.csv").write_text(gt.getvalue(), encoding="utf-8")
+        if records:
+            s = records[0].frame.scan
+            np.savez_compressed(
+                tmp / "scans.npz",
+                frame=np.array([r.name for r in records]),
+                stamp=np.array([r.stamp for r in records]),
+                ranges=np.stack(ranges).astype(np.float32),
+                frame_id=np.array(s.frame_id),
+                angle_min=np.float64(s.angle_min),
+                angle_max=np.float64(s.angle_max),
+                angle_increment=np.float64(s.angle_increment),
+                time_increment=np.float64(s.time_increment),
+                scan_time=np.float64(s.scan_time),
+                range_min=np.float64(s.range_min),
+                range_max=np.float64(s.range_max),
+            )
+        sim.camera.save(tmp / "camera.yaml")
+        sim.robot.save(tmp / "robot.yaml")
+        sim.layout.save(tmp / "layout.yaml")
+    return records
