@@ -110,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from tqdm import tqdm
 
+    load_before = os.getloadavg()
     times: dict[str, list[float]] = {k: [] for k in ("detect_features", "detect", "features", "pnp", "board")}
     markers_seen: list[int] = []
     for img in tqdm(images, desc="timing", unit="frame", file=sys.stderr, dynamic_ncols=True):
@@ -136,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         sim.frame(pose)
         render_ms.append(1e3 * (time.perf_counter() - t0))
     times["render"] = render_ms
+    load_after = os.getloadavg()
 
     stats = {k: _stat(v) for k, v in times.items()}
     labels = {
@@ -165,9 +167,9 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"`python bench/speed.py --frames {args.frames} --seed {args.seed}` — {env['date_utc']} UTC, "
         f"OpenCV {env['opencv']}, {env['machine']}, timing pinned to {pinned}, 1 thread, "
-        f"best of {args.repeat} calls per frame. Dock markers detected per frame: "
-        + ", ".join(f"{i}: {counts[i]}" for i in range(4))
-        + ".",
+        f"best of {args.repeat} calls per frame; 1-min load average {load_before[0]:.2f} before, "
+        f"{load_after[0]:.2f} after (above 1 means other work shared the CPU). "
+        "Dock markers detected per frame: " + ", ".join(f"{i}: {counts[i]}" for i in range(4)) + ".",
         "",
         markdown_table(["stage", "frames", "median ms", "p90 ms"], rows),
         "",
@@ -181,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
         "args": vars(args),
         "environment": env,
         "pinned": pinned,
+        "loadavg_before": load_before,
+        "loadavg_after": load_after,
         "stats": stats,
         "ratios": ratios,
         "markers_seen_histogram": counts.tolist(),

@@ -24,8 +24,25 @@ def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, 
 def sim_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small simulated set written by the CLI itself (clean renders, 0.4-1.2 m)."""
     out = tmp_path_factory.mktemp("sim") / "set"
-    code = main(["simulate", "--out", str(out), "--frames", "6", "--seed", "3", "--clean",
-                 "--depth", "0.4", "1.2", "--jobs", "1", "--preview", "2"])
+    code = main(
+        [
+            "simulate",
+            "--out",
+            str(out),
+            "--frames",
+            "6",
+            "--seed",
+            "3",
+            "--clean",
+            "--depth",
+            "0.4",
+            "1.2",
+            "--jobs",
+            "1",
+            "--preview",
+            "2",
+        ]
+    )
     assert code == 0
     return out
 
@@ -53,9 +70,23 @@ def test_simulate_refuses_to_overwrite(sim_folder: Path, capsys: pytest.CaptureF
 
 def test_estimate_board_matches_truth(sim_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     est = tmp_path / "est.csv"
-    code, _, _ = run(["estimate", str(sim_folder / "images"), "--method", "board",
-                      "--camera", str(sim_folder / "camera.yaml"), "--layout", str(sim_folder / "layout.yaml"),
-                      "--robot", str(sim_folder / "robot.yaml"), "--out", str(est)], capsys)
+    code, _, _ = run(
+        [
+            "estimate",
+            str(sim_folder / "images"),
+            "--method",
+            "board",
+            "--camera",
+            str(sim_folder / "camera.yaml"),
+            "--layout",
+            str(sim_folder / "layout.yaml"),
+            "--robot",
+            str(sim_folder / "robot.yaml"),
+            "--out",
+            str(est),
+        ],
+        capsys,
+    )
     assert code == 0
     truth = {r["frame"]: r for r in csv.DictReader((sim_folder / "ground_truth.csv").open())}
     rows = list(csv.DictReader(est.open()))
@@ -69,13 +100,20 @@ def test_estimate_board_matches_truth(sim_folder: Path, tmp_path: Path, capsys: 
 
 
 def _calib(sim_folder: Path) -> list[str]:
-    return ["--camera", str(sim_folder / "camera.yaml"), "--layout", str(sim_folder / "layout.yaml"),
-            "--robot", str(sim_folder / "robot.yaml")]
+    return [
+        "--camera",
+        str(sim_folder / "camera.yaml"),
+        "--layout",
+        str(sim_folder / "layout.yaml"),
+        "--robot",
+        str(sim_folder / "robot.yaml"),
+    ]
 
 
 def test_missing_input_file(sim_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    code, _, err = run(["estimate", str(tmp_path / "nope.png"), *_calib(sim_folder), "--out",
-                        str(tmp_path / "e.csv")], capsys)
+    code, _, err = run(
+        ["estimate", str(tmp_path / "nope.png"), *_calib(sim_folder), "--out", str(tmp_path / "e.csv")], capsys
+    )
     assert code != 0
     assert "nope.png" in err
     assert len(err.strip().splitlines()) == 1
@@ -90,8 +128,9 @@ def test_unreadable_image(sim_folder: Path, tmp_path: Path, capsys: pytest.Captu
     assert len(err.strip().splitlines()) == 1
     assert not (tmp_path / "e.csv").exists()
     # With --skip-bad the frame becomes an invalid row instead.
-    code, _, _ = run(["estimate", str(bad), *_calib(sim_folder), "--out", str(tmp_path / "e.csv"), "--skip-bad"],
-                     capsys)
+    code, _, _ = run(
+        ["estimate", str(bad), *_calib(sim_folder), "--out", str(tmp_path / "e.csv"), "--skip-bad"], capsys
+    )
     assert code == 0
     rows = list(csv.DictReader((tmp_path / "e.csv").open()))
     assert rows[0]["valid"] == "false"
@@ -112,24 +151,49 @@ def test_image_of_another_size(sim_folder: Path, tmp_path: Path, capsys: pytest.
 @pytest.mark.parametrize(
     ("text", "needle"),
     [
-        ("dictionary: DICT_4X4_50\nmarker_size: 0.1\nmarkers:\n  left: {id: 1, y: 0.2, z: 0.3}\n"
-         "  center: {id: 1, y: 0.0, z: 0.3}\n  right: {id: 3, y: -0.2, z: 0.3}\n", "distinct"),
-        ("dictionary: DICT_9X9_7\nmarker_size: 0.1\nmarkers:\n  left: {id: 1, y: 0.2, z: 0.3}\n"
-         "  center: {id: 2, y: 0.0, z: 0.3}\n  right: {id: 3, y: -0.2, z: 0.3}\n", "DICT_9X9_7"),
-        ("dictionary: DICT_4X4_50\nmarker_size: 0.1\nmarkers:\n  left: {id: 1, y: 0.2, z: 0.3}\n"
-         "  right: {id: 3, y: -0.2, z: 0.3}\n", "markers.center"),
-        ("dictionary: DICT_4X4_50\nmarker_size: 0.1\nmarkers:\n  left: {id: 1, y: 0.2, z: 0.3}\n"
-         "  center: {id: 2, y: 0.0, z: 0.3}\n  right: {id: 77, y: -0.2, z: 0.3}\n", "77"),
+        (
+            "dictionary: DICT_4X4_50\nmarker_size: 0.1\nmarkers:\n  left: {id: 1, y: 0.2, z: 0.3}\n"
+            "  center: {id: 1, y: 0.0, z: 0.3}\n  right: {id: 3, y: -0.2, z: 0.3}\n",
+            "distinct",
+        ),
+        (
+            "dictionary: DICT_9X9_7\nmarker_size: 0.1\nmarkers:\n  left: {id: 1, y: 0.2, z: 0.3}\n"
+            "  center: {id: 2, y: 0.0, z: 0.3}\n  right: {id: 3, y: -0.2, z: 0.3}\n",
+            "DICT_9X9_7",
+        ),
+        (
+            "dictionary: DICT_4X4_50\nmarker_size: 0.1\nmarkers:\n  left: {id: 1, y: 0.2, z: 0.3}\n"
+            "  right: {id: 3, y: -0.2, z: 0.3}\n",
+            "markers.center",
+        ),
+        (
+            "dictionary: DICT_4X4_50\nmarker_size: 0.1\nmarkers:\n  left: {id: 1, y: 0.2, z: 0.3}\n"
+            "  center: {id: 2, y: 0.0, z: 0.3}\n  right: {id: 77, y: -0.2, z: 0.3}\n",
+            "77",
+        ),
         ("dictionary: DICT_4X4_50\nmarker_size: -1\nmarkers: {}\n", "marker_size"),
     ],
 )
-def test_bad_layout(text: str, needle: str, sim_folder: Path, tmp_path: Path,
-                    capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_layout(
+    text: str, needle: str, sim_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     layout = tmp_path / "layout.yaml"
     layout.write_text(text)
-    code, _, err = run(["estimate", str(sim_folder / "images"), "--camera", str(sim_folder / "camera.yaml"),
-                        "--layout", str(layout), "--robot", str(sim_folder / "robot.yaml"),
-                        "--out", str(tmp_path / "e.csv")], capsys)
+    code, _, err = run(
+        [
+            "estimate",
+            str(sim_folder / "images"),
+            "--camera",
+            str(sim_folder / "camera.yaml"),
+            "--layout",
+            str(layout),
+            "--robot",
+            str(sim_folder / "robot.yaml"),
+            "--out",
+            str(tmp_path / "e.csv"),
+        ],
+        capsys,
+    )
     assert code != 0
     assert needle in err
     assert len(err.strip().splitlines()) == 1
@@ -142,9 +206,21 @@ def test_camera_without_camera_matrix(sim_folder: Path, tmp_path: Path, capsys: 
     data = yaml.safe_load((sim_folder / "camera.yaml").read_text())
     del data["camera_matrix"]
     cam.write_text(yaml.safe_dump(data))
-    code, _, err = run(["estimate", str(sim_folder / "images"), "--camera", str(cam),
-                        "--layout", str(sim_folder / "layout.yaml"), "--robot", str(sim_folder / "robot.yaml"),
-                        "--out", str(tmp_path / "e.csv")], capsys)
+    code, _, err = run(
+        [
+            "estimate",
+            str(sim_folder / "images"),
+            "--camera",
+            str(cam),
+            "--layout",
+            str(sim_folder / "layout.yaml"),
+            "--robot",
+            str(sim_folder / "robot.yaml"),
+            "--out",
+            str(tmp_path / "e.csv"),
+        ],
+        capsys,
+    )
     assert code != 0
     assert "camera_matrix" in err
     assert len(err.strip().splitlines()) == 1
@@ -166,10 +242,24 @@ def test_show_overlay(sim_folder: Path, tmp_path: Path, capsys: pytest.CaptureFi
 def test_console_script_reports_without_traceback(tmp_path: Path) -> None:
     """Through a real process: the user sees one line, never a Python traceback."""
     proc = subprocess.run(
-        [sys.executable, "-m", "monodock.cli", "show", str(tmp_path / "missing.png"), "--camera",
-         str(tmp_path / "c.yaml"), "--layout", str(tmp_path / "l.yaml"), "--robot", str(tmp_path / "r.yaml"),
-         "--out", str(tmp_path / "o.png")],
-        capture_output=True, text=True, check=False,
+        [
+            sys.executable,
+            "-m",
+            "monodock.cli",
+            "show",
+            str(tmp_path / "missing.png"),
+            "--camera",
+            str(tmp_path / "c.yaml"),
+            "--layout",
+            str(tmp_path / "l.yaml"),
+            "--robot",
+            str(tmp_path / "r.yaml"),
+            "--out",
+            str(tmp_path / "o.png"),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
     )
     assert proc.returncode != 0
     assert "Traceback" not in proc.stderr

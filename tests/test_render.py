@@ -89,9 +89,7 @@ def _shoelace(poly: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
     return abs(float(a)), centroid
 
 
-def _darkness_moments(
-    image: NDArray[np.generic], white: float, black: float
-) -> tuple[float, NDArray[np.float64]]:
+def _darkness_moments(image: NDArray[np.generic], white: float, black: float) -> tuple[float, NDArray[np.float64]]:
     """Sum and centroid (x = column, y = row, pixel centres at integers) of (white - I) / (white - black)."""
     d = (white - image.astype(np.float64)) / (white - black)
     rows, cols = np.mgrid[0 : image.shape[0], 0 : image.shape[1]]

@@ -196,8 +196,13 @@ class CameraModel:
         p = Path(path)
         if not p.is_file():
             raise ConfigError(f"camera file not found: {p}")
-        head = p.read_bytes()[:64]
-        if head.lstrip().startswith((b"%YAML:1.", b"<?xml")) or p.suffix.lower() in (".xml", ".json"):
+        data = p.read_bytes()
+        # OpenCV writes "%YAML:1.0" (3.x/4.x) or "%YAML 1.2" (5.x) and tags matrices !!opencv-matrix.
+        if (
+            data.lstrip().startswith((b"%YAML", b"<?xml"))
+            or b"opencv-matrix" in data
+            or p.suffix.lower() in (".xml", ".json")
+        ):
             return _load_opencv_storage(p)
         return cls.from_ros_dict(load_yaml(p, "camera"), str(p))
 
@@ -250,8 +255,12 @@ def _load_opencv_storage(path: Path) -> CameraModel:
             sn = node("image_size", "imageSize")
             if sn is None:
                 raise ConfigError(f"{path}: missing field 'image_width'")
-            size = np.asarray(sn.mat()).ravel() if sn.isMap() is False and sn.mat() is not None else None
-            if size is None or size.size != 2:
+            if sn.isSeq() and sn.size() == 2:
+                size = np.array([sn.at(0).real(), sn.at(1).real()])
+            else:
+                m = sn.mat() if not sn.isSeq() and not sn.isMap() else None
+                size = np.asarray(m).ravel() if m is not None else np.zeros(0)
+            if size.size != 2:
                 raise ConfigError(f"{path}: image_size: expected [width, height]")
             width, height = int(size[0]), int(size[1])
         else:

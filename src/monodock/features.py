@@ -15,7 +15,7 @@ from monodock.camera import CameraModel
 from monodock.detect import Detection
 from monodock.layout import ROLE_NUMBER, ROLES
 
-__all__ = ["FEATURE_NAMES", "MarkerFeatures", "feature_vector", "marker_features"]
+__all__ = ["FEATURE_NAMES", "MarkerFeatures", "feature_vector", "lens_centre", "marker_features"]
 
 CORNER_NAMES = ("tl", "tr", "br", "bl")
 SIDE_NAMES = ("top", "bottom", "left", "right")
@@ -69,11 +69,22 @@ def _names() -> tuple[str, ...]:
 FEATURE_NAMES: tuple[str, ...] = _names()
 
 
+def lens_centre(corners: NDArray[np.float64], camera: CameraModel) -> NDArray[np.float64]:
+    """The pixel of a marker's centre through the lens: diagonals intersected in undistorted coordinates.
+
+    Lens distortion bends the diagonals, so intersecting them in raw pixels is off by a few tenths of a
+    pixel away from the image centre; undistorting first makes it exact for exact corners.
+    """
+    n = camera.normalize(corners)
+    c = _centre(n)
+    return np.asarray(camera.project(np.array([[c[0], c[1], 1.0]]))[0], dtype=np.float64)
+
+
 def feature_vector(detection: Detection, camera: CameraModel) -> NDArray[np.float64]:
     """Features of one image in the order of FEATURE_NAMES.
 
-    ``m2_offset_u`` is the papers' P: marker 2's centre minus the principal point, pixels (+ right);
-    ``m2_offset_v`` the same downwards.
+    ``m2_offset_u`` is the papers' P: marker 2's centre (through the lens, see lens_centre) minus the
+    principal point, pixels (+ right); ``m2_offset_v`` the same downwards.
     """
     out = np.full(len(FEATURE_NAMES), np.nan)
     i = 0
@@ -88,6 +99,6 @@ def feature_vector(detection: Detection, camera: CameraModel) -> NDArray[np.floa
         i += 15
     centre = detection.observations.get("center")
     if centre is not None:
-        c = marker_features(centre.corners).centre
+        c = lens_centre(centre.corners, camera)
         out[i : i + 2] = (c[0] - camera.cx, c[1] - camera.cy)
     return out
