@@ -378,3 +378,58 @@ def test_dock_pose_robot_in_dock_inverse() -> None:
         np.testing.assert_allclose(pose.robot_in_dock(), (x, y, yaw), atol=1e-12)
         again = DockPose.from_robot_in_dock(*pose.robot_in_dock())
         np.testing.assert_allclose((again.x, again.y, again.yaw), (pose.x, pose.y, pose.yaw), atol=1e-12)
+
+
+# Variants met in the wild: the camera_calibration_parsers wiki example (prosilica), a file with the
+# distortion as a plain list and no distortion_model, and the hybrid that OpenCV-based tools write
+# (a %YAML:1.0 header, !!opencv-matrix for K and D, plain mappings for the rest).
+CAMERA_VARIANTS = {
+    "prosilica": (
+        "image_width: 2448\nimage_height: 2050\ncamera_name: prosilica\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+        "  data: [4827.94, 0, 1223.5, 0, 4835.62, 1024.5, 0, 0, 1]\ndistortion_model: plumb_bob\n"
+        "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [-0.41527, 0.31874, -0.00197, 0.00071, 0]\n"
+        "rectification_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n"
+        "projection_matrix:\n  rows: 3\n  cols: 4\n  data: [4827.94, 0, 1223.5, 0, 0, 4835.62, 1024.5, 0, 0, 0, 1, 0]\n",
+        (2448, 2050, 4827.94, 4835.62, 1223.5, 1024.5, [-0.41527, 0.31874, -0.00197, 0.00071, 0.0]),
+    ),
+    "plain_list": (
+        "image_width: 800\nimage_height: 600\ncamera_matrix:\n  rows: 3\n  cols: 3\n"
+        "  data: [579.3, 0.0, 382.7, 0.0, 578.0, 294.3, 0.0, 0.0, 1.0]\n"
+        "distortion_coefficients: [-0.1747, 0.1064, 0.0052, -0.0003, 0.0]\n",
+        (800, 600, 579.3, 578.0, 382.7, 294.3, [-0.1747, 0.1064, 0.0052, -0.0003, 0.0]),
+    ),
+    "opencv_hybrid": (
+        "%YAML:1.0\nimage_width: 640\nimage_height: 480\ncamera_name: narrow_stereo/left\n"
+        "camera_matrix: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n"
+        "  data: [369.40269, 0, 310.549287, 0, 371.158263, 230.099198, 0, 0, 1]\n"
+        "distortion_model: plumb_bob\ndistortion_coefficients: !!opencv-matrix\n  rows: 1\n  cols: 5\n  dt: d\n"
+        "  data: [-0.331914, 0.068294, -0.00294, 0.004949, 0]\n"
+        "rectification_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n",
+        (640, 480, 369.40269, 371.158263, 310.549287, 230.099198, [-0.331914, 0.068294, -0.00294, 0.004949, 0.0]),
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CAMERA_VARIANTS))
+def test_camera_file_variants(tmp_path: Path, name: str) -> None:
+    """Each variant's literal numbers come back as written."""
+    text, (w, h, fx, fy, cx, cy, d) = CAMERA_VARIANTS[name]
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(text, encoding="utf-8")
+
+    cam = CameraModel.load(path)
+
+    assert (cam.width, cam.height) == (w, h)
+    np.testing.assert_allclose([cam.fx, cam.fy, cam.cx, cam.cy], [fx, fy, cx, cy], rtol=1e-12)
+    np.testing.assert_allclose(cam.dist, d, rtol=1e-12)
+
+
+def test_camera_four_coefficient_plumb_bob(tmp_path: Path) -> None:
+    """k1 k2 p1 p2 without k3 (OpenCV accepts it) reads with k3 = 0."""
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        "image_width: 320\nimage_height: 240\ncamera_matrix: {rows: 3, cols: 3, data: [300, 0, 160, 0, 300, 120, 0, 0, 1]}\n"
+        "distortion_model: plumb_bob\ndistortion_coefficients: {rows: 1, cols: 4, data: [-0.2, 0.05, 0.001, 0.002]}\n",
+        encoding="utf-8",
+    )
+    np.testing.assert_array_equal(CameraModel.load(path).dist, [-0.2, 0.05, 0.001, 0.002, 0.0])

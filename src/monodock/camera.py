@@ -183,7 +183,9 @@ class CameraModel:
         counts = _DISTORTION_COUNTS.get(model)
         if counts is None:
             raise f.error("distortion_model", f"'{model}' is not supported (plumb_bob, rational_polynomial)")
-        D = matrix_field(("distortion_coefficients", "D", "d"), counts)
+        D = matrix_field(("distortion_coefficients", "D", "d"), (4, *counts) if model == "plumb_bob" else counts)
+        if len(D) == 4:  # k1 k2 p1 p2 without k3, as some calibrators write it
+            D.append(0.0)
         name = f.string("camera_name", "camera")
         try:
             return cls(width, height, tuple(K), tuple(D), model, name)

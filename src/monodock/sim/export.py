@@ -100,6 +100,7 @@ def render_frames(
                 bar.update()
                 yield FrameRecord(index, f"frame_{index:06d}.png", tasks[index][2], frame)
             return
+        sim.camera.vertex_rays()  # computed once here; forked workers inherit the cache
         ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
         with ctx.Pool(jobs, initializer=_init_worker, initargs=(sim,)) as pool:
             for index, frame in pool.imap(_render_one, tasks, chunksize=4):
