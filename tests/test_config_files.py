@@ -389,7 +389,8 @@ CAMERA_VARIANTS = {
         "  data: [4827.94, 0, 1223.5, 0, 4835.62, 1024.5, 0, 0, 1]\ndistortion_model: plumb_bob\n"
         "distortion_coefficients:\n  rows: 1\n  cols: 5\n  data: [-0.41527, 0.31874, -0.00197, 0.00071, 0]\n"
         "rectification_matrix:\n  rows: 3\n  cols: 3\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n"
-        "projection_matrix:\n  rows: 3\n  cols: 4\n  data: [4827.94, 0, 1223.5, 0, 0, 4835.62, 1024.5, 0, 0, 0, 1, 0]\n",
+        "projection_matrix:\n  rows: 3\n  cols: 4\n"
+        "  data: [4827.94, 0, 1223.5, 0, 0, 4835.62, 1024.5, 0, 0, 0, 1, 0]\n",
         (2448, 2050, 4827.94, 4835.62, 1223.5, 1024.5, [-0.41527, 0.31874, -0.00197, 0.00071, 0.0]),
     ),
     "plain_list": (
@@ -428,7 +429,8 @@ def test_camera_four_coefficient_plumb_bob(tmp_path: Path) -> None:
     """k1 k2 p1 p2 without k3 (OpenCV accepts it) reads with k3 = 0."""
     path = tmp_path / "c.yaml"
     path.write_text(
-        "image_width: 320\nimage_height: 240\ncamera_matrix: {rows: 3, cols: 3, data: [300, 0, 160, 0, 300, 120, 0, 0, 1]}\n"
+        "image_width: 320\nimage_height: 240\n"
+        "camera_matrix: {rows: 3, cols: 3, data: [300, 0, 160, 0, 300, 120, 0, 0, 1]}\n"
         "distortion_model: plumb_bob\ndistortion_coefficients: {rows: 1, cols: 4, data: [-0.2, 0.05, 0.001, 0.002]}\n",
         encoding="utf-8",
     )
