@@ -8,7 +8,7 @@ monodock.detect.MarkerDetector. For every corner of a detected dock marker that 
 - error = detected - true (FrameTruth.corners[role], ArUco order TL, TR, BR, BL), pixels;
 - outward = unit vector from the true marker centre in the image (the intersection of the true corners'
   diagonals) to the true corner; the signed outward error is error . outward (negative: inside the marker);
-- perpendicular = error . (outward rotated by +90 degrees in image coordinates).
+- perpendicular = error . (-o_y, o_x), the outward direction o turned 90 degrees clockwise on screen.
 
 Reports per method (and per marker side-length band in pixels): markers in view, detection rate,
 corners measured, RMS of the 2D error, mean and RMS of the outward error, mean of the perpendicular error.

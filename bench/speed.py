@@ -142,8 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     stats = {k: _stat(v) for k, v in times.items()}
     labels = {
         "detect_features": "(a) detection + features",
-        "detect": "    detection only (MarkerDetector.detect)",
-        "features": "    features only (feature_vector)",
+        "detect": "(a1) detection only (MarkerDetector.detect)",
+        "features": "(a2) features only (feature_vector)",
         "pnp": "(b) single-marker PnP (IPPE_SQUARE)",
         "board": "(c) board PnP (iterative + IPPE starts, LM)",
         "render": "(d) simulator: Simulator.frame",
