@@ -57,8 +57,10 @@ def band_table(
     rows = []
     bands = [(lo, hi, f"{lo * 100:.0f}-{hi * 100:.0f} cm") for lo, hi in itertools.pairwise(edges)]
     bands.append((-math.inf, math.inf, "all"))
+    last = edges[-1]
     for lo, hi, name in bands:
-        m = (depth >= lo) & (depth < hi)
+        # Bands are [lo, hi); the last one also takes its upper edge, so 250 cm lands in 225-250.
+        m = (depth >= lo) & ((depth < hi) | ((hi == last) & (depth <= hi)))
         if not m.any():
             continue
         e = errors[m]
