@@ -19,8 +19,8 @@ Run from the repo root:
 
     python bench/corner_accuracy.py [--frames 200] [--seed 0] [--out FILE.md]
 
-Rendering (~0.3 s a frame) runs in 2 processes; each chunk of frames has its own Simulator seeded from
-(seed, chunk index), so the numbers do not depend on the number of workers.
+Rendering dominates the run time and runs in 2 processes; each chunk of frames has its own Simulator
+seeded from (seed, chunk index), so the numbers do not depend on the number of workers.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ thread, times per frame with time.perf_counter, each call repeated ``--repeat`` 
 (b) single-marker PnP: pnp.estimate_single_marker, on the frames where marker 2 was detected;
 (c) board PnP: pnp.estimate_board, on the frames where at least one dock marker was detected;
 (d) for information, the simulator: Simulator.frame (render + nuisances + LiDAR scan + truth) on
-    ``--render-frames`` further poses, one call each.
+    ``--render-frames`` (default 20) further poses, one call each.
 
 Reports median and p90 milliseconds per frame, and ratios of medians measured in the same run.
 
@@ -62,6 +62,23 @@ def best_of(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:
     return best, result
 
 
+def _busy_seconds() -> float | None:
+    """CPU seconds all processes on the machine have used since boot (Linux /proc/stat), or None."""
+    try:
+        with open("/proc/stat", encoding="ascii") as fh:
+            fields = fh.readline().split()
+    except OSError:
+        return None
+    # user nice system idle iowait irq softirq steal ...: everything but idle and iowait is busy.
+    busy = sum(int(v) for i, v in enumerate(fields[1:9]) if i not in (3, 4))
+    return busy / os.sysconf("SC_CLK_TCK")
+
+
+def _own_seconds() -> float:
+    t = os.times()
+    return t.user + t.system
+
+
 def _stat(ms: list[float]) -> dict[str, float]:
     a = np.asarray(ms)
     if a.size == 0:
@@ -80,7 +97,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     p.add_argument("--repeat", type=int, default=5, help="calls per frame; the fastest counts (default 5)")
-    p.add_argument("--render-frames", type=int, default=10, help="frames to time the renderer on (default 10)")
+    p.add_argument(
+        "--render-frames", type=int, default=20, help="frames to time the renderer on (default 20)"
+    )
     p.add_argument("--workers", type=int, default=2, help="processes for the pre-render (default 2)")
     args = p.parse_args(argv)
     if args.frames < 1 or args.repeat < 1 or args.render_frames < 0:
@@ -110,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from tqdm import tqdm
 
-    load_before = os.getloadavg()
+    busy0, own0, wall0 = _busy_seconds(), _own_seconds(), time.perf_counter()
     times: dict[str, list[float]] = {k: [] for k in ("detect_features", "detect", "features", "pnp", "board")}
     markers_seen: list[int] = []
     for img in tqdm(images, desc="timing", unit="frame", file=sys.stderr, dynamic_ncols=True):
@@ -137,7 +156,12 @@ def main(argv: list[str] | None = None) -> int:
         sim.frame(pose)
         render_ms.append(1e3 * (time.perf_counter() - t0))
     times["render"] = render_ms
-    load_after = os.getloadavg()
+    busy1, own1, wall1 = _busy_seconds(), _own_seconds(), time.perf_counter()
+    others = (
+        max(0.0, (busy1 - busy0) - (own1 - own0)) / (wall1 - wall0)
+        if busy0 is not None and busy1 is not None
+        else float("nan")
+    )
 
     stats = {k: _stat(v) for k, v in times.items()}
     labels = {
@@ -167,8 +191,8 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"`python bench/speed.py --frames {args.frames} --seed {args.seed}` — {env['date_utc']} UTC, "
         f"OpenCV {env['opencv']}, {env['machine']}, timing pinned to {pinned}, 1 thread, "
-        f"best of {args.repeat} calls per frame; 1-min load average {load_before[0]:.2f} before, "
-        f"{load_after[0]:.2f} after (above 1 means other work shared the CPU). "
+        f"best of {args.repeat} calls per frame; other processes used {fmt(others)} CPU cores on average "
+        "while it timed (0 = a quiet machine). "
         "Dock markers detected per frame: " + ", ".join(f"{i}: {counts[i]}" for i in range(4)) + ".",
         "",
         markdown_table(["stage", "frames", "median ms", "p90 ms"], rows),
@@ -183,8 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         "args": vars(args),
         "environment": env,
         "pinned": pinned,
-        "loadavg_before": load_before,
-        "loadavg_after": load_after,
+        "other_processes_cores": others,
         "stats": stats,
         "ratios": ratios,
         "markers_seen_histogram": counts.tolist(),

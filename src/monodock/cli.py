@@ -331,7 +331,7 @@ def _parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demo", help="simulate, estimate with every method, and write the report")
     d.add_argument("--out", default="demo_report", help="report folder (default: demo_report)")
-    d.add_argument("--frames", type=int, default=150)
+    d.add_argument("--frames", type=int, default=300)
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--jobs", type=int)
     d.add_argument("--force", action="store_true", help="replace an existing report folder")
