@@ -154,9 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     p.add_argument("--workers", type=int, default=2, help="render processes (default 2)")
-    p.add_argument(
-        "--gross", type=float, default=3.0, help="corner errors above this (px) are mis-detections"
-    )
+    p.add_argument("--gross", type=float, default=3.0, help="corner errors above this (px) are mis-detections")
     args = p.parse_args(argv)
     if args.frames < 1:
         p.error("--frames must be at least 1")

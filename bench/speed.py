@@ -97,9 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     p.add_argument("--repeat", type=int, default=5, help="calls per frame; the fastest counts (default 5)")
-    p.add_argument(
-        "--render-frames", type=int, default=20, help="frames to time the renderer on (default 20)"
-    )
+    p.add_argument("--render-frames", type=int, default=20, help="frames to time the renderer on (default 20)")
     p.add_argument("--workers", type=int, default=2, help="processes for the pre-render (default 2)")
     args = p.parse_args(argv)
     if args.frames < 1 or args.repeat < 1 or args.render_frames < 0:
@@ -172,10 +170,7 @@ def main(argv: list[str] | None = None) -> int:
         "board": "(c) board PnP (iterative + IPPE starts, LM)",
         "render": "(d) simulator: Simulator.frame",
     }
-    rows = [
-        [labels[k], str(stats[k]["n"]), fmt(stats[k]["median_ms"], 3), fmt(stats[k]["p90_ms"], 3)]
-        for k in labels
-    ]
+    rows = [[labels[k], str(stats[k]["n"]), fmt(stats[k]["median_ms"], 3), fmt(stats[k]["p90_ms"], 3)] for k in labels]
     med = {k: s["median_ms"] for k, s in stats.items()}
     ratios = {
         "board PnP / (detection + features)": med["board"] / med["detect_features"],
@@ -197,9 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         "",
         markdown_table(["stage", "frames", "median ms", "p90 ms"], rows),
         "",
-        markdown_table(
-            ["ratio (medians, same run)", "value"], [[k, fmt(v, 3)] for k, v in ratios.items()]
-        ),
+        markdown_table(["ratio (medians, same run)", "value"], [[k, fmt(v, 3)] for k, v in ratios.items()]),
     ]
     report = "\n".join(lines)
     raw = {

@@ -16,7 +16,7 @@ from monodock import transforms
 from monodock.detect import MarkerDetector, as_gray
 from monodock.errors import InputError
 from monodock.features import FEATURE_NAMES, feature_vector, marker_features
-from monodock.layout import ROLES
+from monodock.layout import ROLES, DockLayout
 from monodock.pose import DockPose
 from monodock.sim import Nuisances, SimFrame, Simulator, World
 from monodock.sim.world import marker_patch
@@ -151,3 +151,12 @@ def test_as_gray_converts_bgr_and_16bit() -> None:
     assert gray.dtype == np.uint8
     np.testing.assert_allclose(gray, levels * 255.0 / 65535.0, atol=1.0)
     assert (gray[0, 0], gray[0, -1]) == (0, 255)
+
+
+def test_detector_leaves_callers_parameters_alone() -> None:
+    """Parameters passed in keep their own refinement; the detector uses a copy with the caller's thresholds."""
+    params = cv2.aruco.DetectorParameters()
+    params.adaptiveThreshWinSizeMax = 31
+    detector = MarkerDetector(DockLayout.default(), refinement="subpix", parameters=params)
+    assert params.cornerRefinementMethod == cv2.aruco.CORNER_REFINE_NONE
+    assert detector._detector.getDetectorParameters().adaptiveThreshWinSizeMax == 31

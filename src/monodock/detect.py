@@ -88,7 +88,7 @@ class MarkerDetector:
             raise ValueError(f"unknown corner refinement '{refinement}' (one of {', '.join(REFINEMENTS)})")
         self.layout = layout
         self.refinement = refinement
-        params = parameters or cv2.aruco.DetectorParameters()
+        params = _copy_parameters(parameters) if parameters is not None else cv2.aruco.DetectorParameters()
         params.cornerRefinementMethod = REFINEMENTS[refinement]
         if refinement == "subpix":
             # Tight convergence: the default 0.1 px stopping accuracy is coarser than the corners deserve.
@@ -114,6 +114,15 @@ class MarkerDetector:
                     continue
                 found[role] = MarkerObservation(role, int(marker_id), c)
         return Detection(found, tuple(sorted(ignored)), (gray.shape[1], gray.shape[0]))
+
+
+def _copy_parameters(p: cv2.aruco.DetectorParameters) -> cv2.aruco.DetectorParameters:
+    """A copy, so that the caller's parameters are never changed behind their back."""
+    out = cv2.aruco.DetectorParameters()
+    for name in dir(p):
+        if not name.startswith("_") and not callable(getattr(p, name)):
+            setattr(out, name, getattr(p, name))
+    return out
 
 
 def _area(c: NDArray[np.float64]) -> float:

@@ -32,6 +32,7 @@ class BandRow:
     band: str
     frames: int
     valid: int
+    depth_bias_cm: float
     depth_mae_cm: float
     depth_p95_cm: float
     lateral_mae_cm: float
@@ -66,18 +67,20 @@ def band_table(
         e = errors[m]
         ok = np.isfinite(e[:, 0])
         dx, dy, dyaw = _stats(e[ok, 0] * 100), _stats(e[ok, 1] * 100), _stats(np.degrees(e[ok, 2]))
-        rows.append(BandRow(method, name, int(m.sum()), int(ok.sum()), *dx, *dy, *dyaw))
+        bias = float(np.mean(e[ok, 0])) * 100 if ok.any() else math.nan
+        rows.append(BandRow(method, name, int(m.sum()), int(ok.sum()), bias, *dx, *dy, *dyaw))
     return rows
 
 
 def markdown_table(rows: Sequence[BandRow]) -> str:
     """The rows as a GitHub-flavoured markdown table."""
     head = (
-        "| method | depth band | frames | valid | depth MAE cm | depth p95 cm | lateral MAE cm | lateral p95 cm "
-        "| yaw MAE ° | yaw p95 ° |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|\n"
+        "| method | depth band | frames | valid | depth bias cm | depth MAE cm | depth p95 cm | lateral MAE cm "
+        "| lateral p95 cm | yaw MAE ° | yaw p95 ° |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
     )
     body = "".join(
-        f"| {r.method} | {r.band} | {r.frames} | {r.valid} | {r.depth_mae_cm:.2f} | {r.depth_p95_cm:.2f} "
+        f"| {r.method} | {r.band} | {r.frames} | {r.valid} | {r.depth_bias_cm:+.2f} | {r.depth_mae_cm:.2f} "
+        f"| {r.depth_p95_cm:.2f} "
         f"| {r.lateral_mae_cm:.2f} | {r.lateral_p95_cm:.2f} | {r.yaw_mae_deg:.2f} | {r.yaw_p95_deg:.2f} |\n"
         for r in rows
     )
