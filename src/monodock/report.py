@@ -117,9 +117,10 @@ def write_html_report(
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}}
 table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}
 td:first-child,th:first-child{{text-align:left}}tr.all{{font-weight:bold;background:#eef}}
+td{{white-space:nowrap}}table.settings td{{text-align:left;white-space:normal}}
 figure{{display:inline-block;margin:0.5em}}</style></head><body>
 <h1>{html.escape(title)}</h1>
-<h2>Settings</h2><table>{settings_html}</table>
+<h2>Settings</h2><table class="settings">{settings_html}</table>
 <h2>Headline: mean absolute error, all depths</h2>
 <table><tr><th>method</th><th>depth MAE cm</th><th>yaw MAE °</th></tr>{ours}{paper}</table>
 <p>The papers' figures are against LiDAR labels on their robot, with a SolvePnP whose depths are ~1.5x the
