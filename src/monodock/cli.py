@@ -57,6 +57,7 @@ def _add_nuisances(p: argparse.ArgumentParser) -> None:
     g.add_argument("--vignetting", type=float, help="relative fall-off at the image corners")
     g.add_argument("--occluder-probability", type=float, help="chance per frame of an object hiding a marker")
     g.add_argument("--no-clutter", action="store_true", help="no posters or foreign markers around the charger")
+    g.add_argument("--side-walls", type=float, metavar="DIST", help="side walls DIST metres either side of the dock")
 
 
 def _nuisances(args: argparse.Namespace) -> Nuisances:
@@ -91,7 +92,7 @@ def _jobs(value: int | None) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from monodock.sim import PoseDistribution, Simulator
+    from monodock.sim import PoseDistribution, RoomGeometry, Simulator
     from monodock.sim.export import write_frame_folder
 
     camera, layout, robot = _load_calibration(args)
@@ -101,7 +102,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     for name, (lo, hi) in (("depth", args.depth), ("lateral", args.lateral), ("yaw", args.yaw)):
         if not lo <= hi:
             raise MonodockError(f"--{name}: the first value must not exceed the second ({lo} > {hi})")
-    sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=_nuisances(args), seed=args.seed)
+    room = RoomGeometry()
+    if args.side_walls is not None:
+        if not (math.isfinite(args.side_walls) and args.side_walls > 0.5):
+            raise MonodockError(
+                f"--side-walls must be more than 0.5 m (the charger is in between), got {args.side_walls}"
+            )
+        room = RoomGeometry(side_walls=args.side_walls)
+    sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=_nuisances(args), room=room, seed=args.seed)
     try:
         poses = [sim.sample_pose(dist) for _ in range(args.frames)]
     except RuntimeError as exc:
