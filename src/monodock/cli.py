@@ -104,10 +104,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             raise MonodockError(f"--{name}: the first value must not exceed the second ({lo} > {hi})")
     room = RoomGeometry()
     if args.side_walls is not None:
-        if not (math.isfinite(args.side_walls) and args.side_walls > 0.5):
-            raise MonodockError(
-                f"--side-walls must be more than 0.5 m (the charger is in between), got {args.side_walls}"
-            )
         room = RoomGeometry(side_walls=args.side_walls)
     sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=_nuisances(args), room=room, seed=args.seed)
     try:

@@ -7,11 +7,13 @@ into the same surfaces, so what one sensor sees the other sees too.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from monodock.errors import ConfigError
 from monodock.layout import DockLayout
 
 __all__ = ["ChargerGeometry", "Patch", "Surface", "World", "build_dock_world"]
@@ -239,6 +241,8 @@ def build_dock_world(
         )
     if rm.side_walls is not None:
         w = rm.side_walls
+        if not (math.isfinite(w) and w > half_w):
+            raise ConfigError(f"side walls must stand farther than the charger's half width ({half_w:.2f} m), got {w}")
         surfaces.append(
             rectangle(
                 "wall_left",
