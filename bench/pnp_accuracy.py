@@ -43,7 +43,6 @@ from monodock.report import error_plot, method_tables
 from monodock.sim import Simulator
 
 METHODS: tuple[str, ...] = ("pnp", "board")
-METHOD_LABEL = {"pnp": "single-marker PnP", "board": "board PnP"}
 CHUNK = 20
 PAPERS_NOTE = (
     "For reference, the papers' headline (Oh & Kim, Sensors 2025), mean errors over their test set: "
@@ -113,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     # The same error and band code as `monodock demo`, so the two can never disagree.
     truth = [DockPose(r["true"]["x"], r["true"]["y"], r["true"]["yaw"]) for r in records]
     depth = np.array([r["depth"] for r in records])
-    errs = {METHOD_LABEL[m]: pose_errors(truth, [_pose(r[m]) for r in records]) for m in METHODS}
+    errs = {m: pose_errors(truth, [_pose(r[m]) for r in records]) for m in METHODS}
     rows = method_tables(depth, errs)
 
     env = environment()

@@ -269,7 +269,11 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="monodock", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="monodock",
+        description="Dock a robot onto its charger with one camera and three ArUco markers.",
+        epilog="Every command prints one line and exits 2 on bad input; outputs are never overwritten without --force.",
+    )
     p.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -318,9 +322,16 @@ def _parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("estimate", help="estimate the DockPose in images, folders or videos")
     e.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders of images, or videos")
-    e.add_argument("--method", choices=("pnp", "board"), default="board")
+    e.add_argument(
+        "--method",
+        choices=("pnp", "board"),
+        default="board",
+        help="pnp: marker 2 alone (IPPE_SQUARE), the papers' baseline; board: all visible markers (default)",
+    )
     e.add_argument("--out", required=True, help="EST.csv to write")
-    e.add_argument("--refinement", choices=("none", "subpix", "contour"), default="subpix")
+    e.add_argument(
+        "--refinement", choices=("none", "subpix", "contour"), default="subpix", help="ArUco corner refinement"
+    )
     e.add_argument("--skip-bad", action="store_true", help="an unreadable image gives an invalid row, not an error")
     e.add_argument("--force", action="store_true", help="overwrite an existing output")
     _add_calibration(e, required=True)
