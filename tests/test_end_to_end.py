@@ -1,0 +1,115 @@
+"""End to end: the demo's report, and estimation from a video, against the simulator's truth."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from monodock.cli import main
+from monodock.pose import DockPose
+from monodock.sim import PoseDistribution, Simulator
+
+
+def test_demo_writes_report_with_truthful_numbers(tmp_path: Path) -> None:
+    """`monodock demo` on 40 frames: the report's files exist and the board errors are what PnP can do.
+
+    Bounds: the 1,000-frame benchmark measures board MAE 1.5 cm depth and 0.9 deg yaw; 40 frames of the
+    same distribution must stay well inside twice that.
+    """
+    out = tmp_path / "report"
+    assert main(["demo", "--out", str(out), "--frames", "40", "--jobs", "2"]) == 0
+    for name in ("report.html", "report.md", "summary.json", "errors_vs_depth.png", "overlay_near.png"):
+        assert (out / name).is_file(), name
+    rows = {(r["method"], r["band"]): r for r in json.loads((out / "summary.json").read_text())["rows"]}
+    board, pnp = rows[("board", "all")], rows[("pnp", "all")]
+    assert board["frames"] == pnp["frames"] == 40
+    assert board["valid"] >= 39
+    assert board["depth_mae_cm"] < 3.0
+    assert board["yaw_mae_deg"] < 2.0
+    assert board["lateral_mae_cm"] < 0.5
+    # A second run must not replace the report without --force.
+    assert main(["demo", "--out", str(out), "--frames", "2"]) != 0
+
+
+def test_estimate_on_a_video_names_frames_by_index(tmp_path: Path) -> None:
+    """A video of simulated frames: rows are named 0, 1, 2 ... and match the truth of each frame."""
+    sim = Simulator(seed=11)
+    poses = [sim.sample_pose(PoseDistribution(depth=(0.4, 1.2))) for _ in range(6)]
+    video = tmp_path / "drive.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, sim.camera.size)
+    assert writer.isOpened()
+    for pose in poses:
+        writer.write(cv2.cvtColor(sim.frame(pose).image, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    for name, save in (
+        ("camera.yaml", sim.camera.save),
+        ("layout.yaml", sim.layout.save),
+        ("robot.yaml", sim.robot.save),
+    ):
+        save(tmp_path / name)
+    est = tmp_path / "est.csv"
+    code = main(
+        [
+            "estimate",
+            str(video),
+            "--method",
+            "board",
+            "--camera",
+            str(tmp_path / "camera.yaml"),
+            "--layout",
+            str(tmp_path / "layout.yaml"),
+            "--robot",
+            str(tmp_path / "robot.yaml"),
+            "--out",
+            str(est),
+        ]
+    )
+    assert code == 0
+    rows = list(csv.DictReader(est.open()))
+    assert [r["frame"] for r in rows] == [str(i) for i in range(len(poses))]
+    for r, truth in zip(rows, poses, strict=True):
+        assert r["valid"] == "true"
+        got = DockPose(float(r["x_m"]), float(r["y_m"]), math.radians(float(r["yaw_deg"])))
+        # JPEG compression costs a little accuracy; 1.2 m at most.
+        assert abs(got.x - truth.x) < 0.02
+        assert abs(got.y - truth.y) < 0.01
+        assert abs(math.degrees(got.yaw - truth.yaw)) < 1.5
+        assert np.isfinite(float(r["stamp"]))
+
+
+@pytest.mark.parametrize("bad", ["not a video at all", ""])
+def test_estimate_on_a_broken_video(tmp_path: Path, bad: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """A file with a video suffix that is not a video: one line, non-zero exit."""
+    video = tmp_path / "broken.mp4"
+    video.write_text(bad)
+    sim = Simulator()
+    for name, save in (
+        ("camera.yaml", sim.camera.save),
+        ("layout.yaml", sim.layout.save),
+        ("robot.yaml", sim.robot.save),
+    ):
+        save(tmp_path / name)
+    code = main(
+        [
+            "estimate",
+            str(video),
+            "--camera",
+            str(tmp_path / "camera.yaml"),
+            "--layout",
+            str(tmp_path / "layout.yaml"),
+            "--robot",
+            str(tmp_path / "robot.yaml"),
+            "--out",
+            str(tmp_path / "e.csv"),
+        ]
+    )
+    err = capsys.readouterr().err
+    assert code != 0
+    assert "broken.mp4" in err
+    assert len(err.strip().splitlines()) == 1
