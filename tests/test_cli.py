@@ -99,6 +99,30 @@ def test_estimate_board_matches_truth(sim_folder: Path, tmp_path: Path, capsys: 
         assert abs(float(r["yaw_deg"]) - float(t["yaw_deg"])) < 1.0
 
 
+def estimate_cmd(
+    sim_folder: Path, out: Path, *inputs: str, camera: Path | None = None, layout: Path | None = None
+) -> list[str]:
+    """An `estimate` command on the simulated folder, with some calibration file swapped."""
+    return [
+        "estimate",
+        *(inputs or (str(sim_folder / "images"),)),
+        "--camera",
+        str(camera or sim_folder / "camera.yaml"),
+        "--layout",
+        str(layout or sim_folder / "layout.yaml"),
+        "--robot",
+        str(sim_folder / "robot.yaml"),
+        "--out",
+        str(out),
+    ]
+
+
+def assert_one_line_error(code: int, err: str, needle: str) -> None:
+    assert code != 0
+    assert needle in err
+    assert len(err.strip().splitlines()) == 1
+
+
 def _calib(sim_folder: Path) -> list[str]:
     return [
         "--camera",
@@ -179,24 +203,8 @@ def test_bad_layout(
 ) -> None:
     layout = tmp_path / "layout.yaml"
     layout.write_text(text)
-    code, _, err = run(
-        [
-            "estimate",
-            str(sim_folder / "images"),
-            "--camera",
-            str(sim_folder / "camera.yaml"),
-            "--layout",
-            str(layout),
-            "--robot",
-            str(sim_folder / "robot.yaml"),
-            "--out",
-            str(tmp_path / "e.csv"),
-        ],
-        capsys,
-    )
-    assert code != 0
-    assert needle in err
-    assert len(err.strip().splitlines()) == 1
+    code, _, err = run(estimate_cmd(sim_folder, tmp_path / "e.csv", layout=layout), capsys)
+    assert_one_line_error(code, err, needle)
 
 
 def test_camera_without_camera_matrix(sim_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -206,24 +214,8 @@ def test_camera_without_camera_matrix(sim_folder: Path, tmp_path: Path, capsys: 
     data = yaml.safe_load((sim_folder / "camera.yaml").read_text())
     del data["camera_matrix"]
     cam.write_text(yaml.safe_dump(data))
-    code, _, err = run(
-        [
-            "estimate",
-            str(sim_folder / "images"),
-            "--camera",
-            str(cam),
-            "--layout",
-            str(sim_folder / "layout.yaml"),
-            "--robot",
-            str(sim_folder / "robot.yaml"),
-            "--out",
-            str(tmp_path / "e.csv"),
-        ],
-        capsys,
-    )
-    assert code != 0
-    assert "camera_matrix" in err
-    assert len(err.strip().splitlines()) == 1
+    code, _, err = run(estimate_cmd(sim_folder, tmp_path / "e.csv", camera=cam), capsys)
+    assert_one_line_error(code, err, "camera_matrix")
 
 
 def test_show_overlay(sim_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -16,6 +16,21 @@ from monodock.pose import DockPose
 from monodock.sim import PoseDistribution, Simulator
 
 
+def write_calibration(sim: Simulator, folder: Path) -> list[str]:
+    """Save the simulator's camera, layout and robot files; return the matching CLI options."""
+    sim.camera.save(folder / "camera.yaml")
+    sim.layout.save(folder / "layout.yaml")
+    sim.robot.save(folder / "robot.yaml")
+    return [
+        "--camera",
+        str(folder / "camera.yaml"),
+        "--layout",
+        str(folder / "layout.yaml"),
+        "--robot",
+        str(folder / "robot.yaml"),
+    ]
+
+
 def test_demo_writes_report_with_truthful_numbers(tmp_path: Path) -> None:
     """`monodock demo` on 40 frames: the report's files exist and the board errors are what PnP can do.
 
@@ -47,29 +62,8 @@ def test_estimate_on_a_video_names_frames_by_index(tmp_path: Path) -> None:
     for pose in poses:
         writer.write(cv2.cvtColor(sim.frame(pose).image, cv2.COLOR_GRAY2BGR))
     writer.release()
-    for name, save in (
-        ("camera.yaml", sim.camera.save),
-        ("layout.yaml", sim.layout.save),
-        ("robot.yaml", sim.robot.save),
-    ):
-        save(tmp_path / name)
     est = tmp_path / "est.csv"
-    code = main(
-        [
-            "estimate",
-            str(video),
-            "--method",
-            "board",
-            "--camera",
-            str(tmp_path / "camera.yaml"),
-            "--layout",
-            str(tmp_path / "layout.yaml"),
-            "--robot",
-            str(tmp_path / "robot.yaml"),
-            "--out",
-            str(est),
-        ]
-    )
+    code = main(["estimate", str(video), "--method", "board", *write_calibration(sim, tmp_path), "--out", str(est)])
     assert code == 0
     rows = list(csv.DictReader(est.open()))
     assert [r["frame"] for r in rows] == [str(i) for i in range(len(poses))]
@@ -88,27 +82,8 @@ def test_estimate_on_a_broken_video(tmp_path: Path, bad: str, capsys: pytest.Cap
     """A file with a video suffix that is not a video: one line, non-zero exit."""
     video = tmp_path / "broken.mp4"
     video.write_text(bad)
-    sim = Simulator()
-    for name, save in (
-        ("camera.yaml", sim.camera.save),
-        ("layout.yaml", sim.layout.save),
-        ("robot.yaml", sim.robot.save),
-    ):
-        save(tmp_path / name)
-    code = main(
-        [
-            "estimate",
-            str(video),
-            "--camera",
-            str(tmp_path / "camera.yaml"),
-            "--layout",
-            str(tmp_path / "layout.yaml"),
-            "--robot",
-            str(tmp_path / "robot.yaml"),
-            "--out",
-            str(tmp_path / "e.csv"),
-        ]
-    )
+    calibration = write_calibration(Simulator(), tmp_path)
+    code = main(["estimate", str(video), *calibration, "--out", str(tmp_path / "e.csv")])
     err = capsys.readouterr().err
     assert code != 0
     assert "broken.mp4" in err
