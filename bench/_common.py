@@ -40,15 +40,6 @@ def chunks(frames: int, size: int) -> list[tuple[int, int]]:
     return out
 
 
-def _worker_init() -> None:
-    import cv2
-    from threadpoolctl import threadpool_limits
-
-    # Each worker owns a core; BLAS or OpenCV threads inside it only contend (2.3x slower measured).
-    cv2.setNumThreads(1)
-    threadpool_limits(1)
-
-
 def parallel_map(
     fn: Callable[[Any], list[T]],
     tasks: Sequence[Any],
@@ -63,15 +54,14 @@ def parallel_map(
     total = sum(frames_of(t) for t in tasks)
     with tqdm(total=total, desc=desc, unit="frame", file=sys.stderr, dynamic_ncols=True) as bar:
         if workers <= 1:
-            _worker_init()
             for t in tasks:
                 out = fn(t)
                 bar.update(frames_of(t))
                 yield out
             return
-        with mp.get_context("fork" if sys.platform.startswith("linux") else "spawn").Pool(
-            workers, initializer=_worker_init
-        ) as pool:
+        from monodock.parallel import worker_pool
+
+        with worker_pool(workers) as pool:
             for t, out in zip(tasks, pool.imap(fn, tasks), strict=True):
                 bar.update(frames_of(t))
                 yield out

@@ -14,18 +14,17 @@ from __future__ import annotations
 import csv
 import io
 import math
-import multiprocessing as mp
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
-from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
 from monodock.atomic import atomic_directory
 from monodock.layout import ROLE_NUMBER, ROLES
+from monodock.parallel import worker_pool
 from monodock.pose import DockPose
 from monodock.sim.simulator import SimFrame, Simulator
 
@@ -70,14 +69,9 @@ class FrameRecord:
 _WORKER: Simulator | None = None
 
 
-def _init_worker(sim: Simulator, single_thread: bool = False) -> None:
+def _init_worker(sim: Simulator) -> None:
     global _WORKER  # noqa: PLW0603 - one simulator per worker process, built once
     _WORKER = sim
-    if single_thread:
-        # Worker processes already use every core; BLAS and OpenCV threads inside each only contend
-        # (measured: 2 workers with threaded BLAS ran 2.3x slower than one process).
-        threadpool_limits(1)
-        cv2.setNumThreads(1)
 
 
 def _render_one(args: tuple[int, DockPose, float, int]) -> tuple[int, SimFrame]:
@@ -106,9 +100,7 @@ def render_frames(
                 bar.update()
                 yield FrameRecord(index, f"frame_{index:06d}.png", tasks[index][2], frame)
             return
-        sim.camera.vertex_rays()  # computed once here; forked workers inherit the cache
-        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-        with ctx.Pool(jobs, initializer=_init_worker, initargs=(sim, True)) as pool:
+        with worker_pool(jobs, _init_worker, (sim,)) as pool:
             for index, frame in pool.imap(_render_one, tasks, chunksize=4):
                 bar.update()
                 yield FrameRecord(index, f"frame_{index:06d}.png", tasks[index][2], frame)
