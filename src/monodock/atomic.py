@@ -18,10 +18,18 @@ __all__ = ["atomic_directory", "check_writable", "write_bytes_atomic", "write_te
 
 
 def check_writable(path: str | os.PathLike[str], *, force: bool) -> Path:
-    """The path, or InputError when it exists and ``force`` is not given."""
+    """The path, checked before any work is done: InputError when it exists and ``force`` is not given,
+    or when its folder cannot be made (a file stands where a folder should be)."""
     p = Path(path)
     if p.exists() and not force:
         raise InputError(f"{p} exists; pass --force to overwrite it")
+    for parent in p.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"cannot write {p}: {parent} is a file, not a folder")
+            if not os.access(parent, os.W_OK):
+                raise InputError(f"cannot write {p}: no permission to write in {parent}")
+            break
     return p
 
 

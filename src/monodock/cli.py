@@ -9,7 +9,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 
@@ -17,6 +17,7 @@ from monodock.errors import MonodockError
 
 if TYPE_CHECKING:
     from monodock.camera import CameraModel
+    from monodock.estimate import Estimator, FrameEstimates
     from monodock.layout import DockLayout
     from monodock.robot import RobotConfig
     from monodock.sim import Nuisances
@@ -57,6 +58,7 @@ def _add_nuisances(p: argparse.ArgumentParser) -> None:
     g.add_argument("--vignetting", type=float, help="relative fall-off at the image corners")
     g.add_argument("--occluder-probability", type=float, help="chance per frame of an object hiding a marker")
     g.add_argument("--no-clutter", action="store_true", help="no posters or foreign markers around the charger")
+    g.add_argument("--supersample", type=int, help="S: edge pixels get SxS area samples (default 16; lower is faster)")
     g.add_argument("--side-walls", type=float, metavar="DIST", help="side walls DIST metres either side of the dock")
 
 
@@ -81,7 +83,22 @@ def _nuisances(args: argparse.Namespace) -> Nuisances:
             raise MonodockError(f"--{k.replace('_', '-')} must be a non-negative number, got {v}")
     if args.no_clutter:
         changes["clutter"] = False
+    if args.supersample is not None:
+        if args.supersample < 1:
+            raise MonodockError(f"--supersample must be at least 1, got {args.supersample}")
+        changes["supersample"] = args.supersample
     return n.updated(**changes)
+
+
+def _range_option(p: argparse.ArgumentParser, flag: str, default: tuple[float, float], what: str) -> None:
+    p.add_argument(
+        flag,
+        type=float,
+        nargs=2,
+        default=default,
+        metavar=("MIN", "MAX"),
+        help=f"{what} (default {default[0]:g} {default[1]:g})",
+    )
 
 
 def _jobs(value: int | None) -> int:
@@ -92,12 +109,16 @@ def _jobs(value: int | None) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from monodock.atomic import atomic_directory
+    from monodock.estimate import Estimator
     from monodock.sim import PoseDistribution, RoomGeometry, Simulator
-    from monodock.sim.export import write_frame_folder
+    from monodock.sim.export import FrameRecord, write_frame_folder
 
     camera, layout, robot = _load_calibration(args)
     if args.frames < 1:
         raise MonodockError("--frames must be at least 1")
+    if args.preview < 0:
+        raise MonodockError("--preview must not be negative")
     dist = PoseDistribution(depth=tuple(args.depth), lateral=tuple(args.lateral), yaw_deg=tuple(args.yaw))
     for name, (lo, hi) in (("depth", args.depth), ("lateral", args.lateral), ("yaw", args.yaw)):
         if not lo <= hi:
@@ -110,44 +131,57 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         poses = [sim.sample_pose(dist) for _ in range(args.frames)]
     except RuntimeError as exc:
         raise MonodockError(str(exc)) from None
-    t0 = time.perf_counter()
-    records = write_frame_folder(args.out, sim, poses, seed=args.seed, jobs=_jobs(args.jobs), force=args.force)
-    dt = time.perf_counter() - t0
-    print(f"wrote {len(records)} frames to {args.out} in {dt:.1f} s ({dt / len(records) * 1000:.0f} ms/frame)")
-    if args.preview:
-        from monodock.atomic import atomic_directory
+    previews: list[tuple[str, bytes]] = []
+    estimator = Estimator(camera, layout, robot, ("board",))
 
+    def preview(rec: FrameRecord) -> None:
+        if rec.index < args.preview:
+            result = estimator.estimate(rec.name, rec.stamp, rec.frame.image)
+            previews.append((rec.name, _overlay_png(rec.frame.image, result, estimator, rec.frame.truth.corners)))
+
+    t0 = time.perf_counter()
+    infos = write_frame_folder(
+        args.out, sim, poses, seed=args.seed, jobs=_jobs(args.jobs), force=args.force, on_frame=preview
+    )
+    dt = time.perf_counter() - t0
+    print(f"wrote {len(infos)} frames to {args.out} in {dt:.1f} s ({dt / len(infos) * 1000:.0f} ms/frame)")
+    if previews:
         with atomic_directory(Path(args.out) / "preview", force=True) as tmp:
-            for rec in records[: args.preview]:
-                _write_overlay(tmp / rec.name, rec.frame.image, camera, layout, robot, rec.frame.truth.corners)
+            for name, png in previews:
+                (tmp / name).write_bytes(png)
         print(f"preview overlays: {Path(args.out) / 'preview'}")
     return 0
 
 
-def _write_overlay(
-    path: Path,
+def _overlay_png(
     image: np.ndarray,
-    camera: CameraModel,
-    layout: DockLayout,
-    robot: RobotConfig,
+    result: FrameEstimates,
+    estimator: Estimator,
     truth_corners: dict[str, np.ndarray] | None = None,
-    force: bool = True,
-) -> str:
+) -> bytes:
+    """The overlay of one estimated frame (its detection and board estimate), PNG-encoded."""
     import cv2
 
-    from monodock.atomic import write_bytes_atomic
-    from monodock.estimate import Estimator
     from monodock.overlay import draw_overlay
 
-    est = Estimator(camera, layout, robot, ("board",))
-    r = est.estimate(path.name, math.nan, image)
-    assert r.detection is not None
-    pic = draw_overlay(image, r.detection, layout, camera, robot, r.estimates["board"], truth_corners)
+    assert result.detection is not None
+    pic = draw_overlay(
+        image,
+        result.detection,
+        estimator.layout,
+        estimator.camera,
+        estimator.robot,
+        result.estimates.get("board"),
+        truth_corners,
+    )
     ok, buf = cv2.imencode(".png", pic)
     if not ok:
-        raise MonodockError(f"cannot encode {path}")
-    write_bytes_atomic(path, buf.tobytes(), force=force)
-    e = r.estimates["board"]
+        raise MonodockError("cannot encode the overlay PNG")
+    return bytes(buf.tobytes())
+
+
+def _summary(result: FrameEstimates, method: str = "board") -> str:
+    e = result.estimates[method]
     return f"{e.pose}" if e.pose else e.reason
 
 
@@ -158,6 +192,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from monodock.atomic import check_writable, write_text_atomic
+    from monodock.errors import InputError
     from monodock.estimate import Estimator, estimates_csv
     from monodock.inputs import iter_frames
 
@@ -172,9 +207,15 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         leave=False,
         disable=None,
     ):
-        results.append(
-            est.failed(f.name, f.stamp, f.error) if f.image is None else est.estimate(f.name, f.stamp, f.image)
-        )
+        if f.image is None:
+            results.append(est.failed(f.name, f.stamp, f.error))
+            continue
+        try:
+            results.append(est.estimate(f.name, f.stamp, f.image))
+        except InputError as exc:
+            if not args.skip_bad:
+                raise
+            results.append(est.failed(f.name, f.stamp, str(exc)))
     write_text_atomic(args.out, estimates_csv(results), force=args.force)
     valid = sum(1 for r in results for e in r.estimates.values() if e.valid)
     print(f"{args.method}: {valid}/{len(results)} frames with an estimate -> {args.out}")
@@ -182,17 +223,17 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    from monodock.atomic import check_writable
+    from monodock.atomic import check_writable, write_bytes_atomic
+    from monodock.estimate import Estimator
     from monodock.inputs import read_image
 
     camera, layout, robot = _load_calibration(args)
     check_writable(args.out, force=args.force)
     image = read_image(args.image)
-    from monodock.estimate import Estimator
-
-    Estimator(camera, layout, robot).check_image(image, str(args.image))
-    summary = _write_overlay(Path(args.out), image, camera, layout, robot, force=args.force)
-    print(f"board: {summary} -> {args.out}")
+    estimator = Estimator(camera, layout, robot, ("board",))
+    result = estimator.estimate(Path(args.image).name, math.nan, image)
+    write_bytes_atomic(args.out, _overlay_png(image, result, estimator), force=args.force)
+    print(f"board: {_summary(result)} -> {args.out}")
     return 0
 
 
@@ -205,31 +246,41 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from monodock.metrics import pose_errors
     from monodock.report import error_plot, method_tables, write_html_report
     from monodock.sim import Nuisances, PoseDistribution, Simulator
-    from monodock.sim.export import write_frame_folder
+    from monodock.sim.export import FrameRecord, write_frame_folder
 
+    if args.frames < 1:
+        raise MonodockError("--frames must be at least 1")
     t0 = time.perf_counter()
     sim = Simulator(nuisances=Nuisances(), seed=args.seed)
     dist = PoseDistribution()
     poses = [sim.sample_pose(dist) for _ in range(args.frames)]
+    depth = np.array([p.x - sim.robot.camera_mount.x for p in poses])
+    picks = {
+        int(np.argmin(np.abs(depth - target))): label for label, target in (("near", 0.4), ("mid", 1.2), ("far", 2.3))
+    }
+    estimator = Estimator(sim.camera, sim.layout, sim.robot, ("pnp", "board"))
+    results: list[FrameEstimates] = []
+    overlays: list[tuple[str, str, bytes]] = []
+
+    def estimate(rec: FrameRecord) -> None:
+        results.append(estimator.estimate(rec.name, rec.stamp, rec.frame.image))
+        if rec.index in picks:
+            label = picks[rec.index]
+            caption = (
+                f"{label}: depth {depth[rec.index]:.2f} m; truth {rec.frame.truth.pose}; board {_summary(results[-1])}"
+            )
+            png = _overlay_png(rec.frame.image, results[-1], estimator, rec.frame.truth.corners)
+            overlays.append((f"overlay_{label}.png", caption, png))
+
     with atomic_directory(args.out, force=args.force) as out:
         print(f"simulating {args.frames} frames (default nuisances) ...", file=sys.stderr)
-        records = write_frame_folder(out / "sim", sim, poses, seed=args.seed, jobs=_jobs(args.jobs))
-        est = Estimator(sim.camera, sim.layout, sim.robot, ("pnp", "board"))
-        results = [est.estimate(r.name, r.stamp, r.frame.image) for r in records]
-        truth = [r.frame.truth.pose for r in records]
-        depth = np.array([p.x - sim.robot.camera_mount.x for p in truth])
+        infos = write_frame_folder(out / "sim", sim, poses, seed=args.seed, jobs=_jobs(args.jobs), on_frame=estimate)
+        truth = [i.truth.pose for i in infos]
         errors = {m: pose_errors(truth, [r.estimates[m].pose for r in results]) for m in ("pnp", "board")}
         rows = method_tables(depth, errors)
         error_plot(depth, errors, out / "errors_vs_depth.png")
-        overlays = []
-        for label, target in (("near", 0.4), ("mid", 1.2), ("far", 2.3)):
-            i = int(np.argmin(np.abs(depth - target)))
-            rec = records[i]
-            name = f"overlay_{label}.png"
-            summary = _write_overlay(
-                out / name, rec.frame.image, sim.camera, sim.layout, sim.robot, rec.frame.truth.corners
-            )
-            overlays.append((name, f"{label}: depth {depth[i]:.2f} m; truth {rec.frame.truth.pose}; board {summary}"))
+        for name, _, png in overlays:
+            (out / name).write_bytes(png)
         settings = {
             "frames": args.frames,
             "seed": args.seed,
@@ -252,7 +303,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
             settings=settings,
             rows=rows,
             plot="errors_vs_depth.png",
-            overlays=overlays,
+            overlays=[(name, caption) for name, caption, _ in sorted(overlays)],
             notes=notes,
         )
     overall = {r.method: r for r in rows if r.band == "all"}
@@ -268,8 +319,15 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 # --- parser -------------------------------------------------------------------------------------
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the usage error on one line, like every other monodock error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="monodock",
         description="Dock a robot onto its charger with one camera and three ArUco markers.",
         epilog="Every command prints one line and exits 2 on bad input; outputs are never overwritten without --force.",
@@ -281,30 +339,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output folder")
     s.add_argument("--frames", type=int, default=200)
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument(
-        "--depth",
-        type=float,
-        nargs=2,
-        default=(0.25, 2.5),
-        metavar=("MIN", "MAX"),
-        help="depth from the camera, metres (default 0.25 2.5)",
-    )
-    s.add_argument(
-        "--lateral",
-        type=float,
-        nargs=2,
-        default=(-0.4, 0.4),
-        metavar=("MIN", "MAX"),
-        help="DockPose y, metres (default -0.4 0.4)",
-    )
-    s.add_argument(
-        "--yaw",
-        type=float,
-        nargs=2,
-        default=(-30.0, 30.0),
-        metavar=("MIN", "MAX"),
-        help="DockPose yaw, degrees (default -30 30)",
-    )
+    _range_option(s, "--depth", (0.25, 2.5), "depth from the camera, metres")
+    _range_option(s, "--lateral", (-0.4, 0.4), "DockPose y, metres")
+    _range_option(s, "--yaw", (-30.0, 30.0), "DockPose yaw, degrees")
     s.add_argument(
         "--preview",
         type=int,
@@ -362,6 +399,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args))
     except MonodockError as exc:
         print(f"monodock {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        # A file the user named could not be read or written (permissions, disk full, a folder in the way).
+        where = f" {exc.filename}" if exc.filename else ""
+        print(f"monodock {args.command}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("monodock: interrupted", file=sys.stderr)

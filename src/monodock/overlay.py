@@ -34,11 +34,13 @@ def draw_overlay(
     robot: RobotConfig | None = None,
     estimate: PoseEstimate | None = None,
     truth_corners: Mapping[str, NDArray[np.float64]] | None = None,
-    scale: float = 2.0,
+    scale: float | None = None,
 ) -> NDArray[np.uint8]:
     """A BGR picture: detected corners (green, corner 0 filled), marker ids, true corners (red crosses),
-    and the dock axes of the estimate (x red into the charger, y green left, z blue up), scaled up.
+    and the dock axes of the estimate (x red into the charger, y green left, z blue up), about 1280 px wide.
     """
+    if scale is None:  # about 1280 px wide: small cameras scaled up to see sub-pixel corners, large ones kept
+        scale = max(1.0, min(2.0, 1280.0 / image.shape[1]))
     base = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
     out = cv2.resize(base, None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
     for role, obs in detection.observations.items():

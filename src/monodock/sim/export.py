@@ -14,7 +14,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,9 +26,10 @@ from monodock.atomic import atomic_directory
 from monodock.layout import ROLE_NUMBER, ROLES
 from monodock.parallel import worker_pool
 from monodock.pose import DockPose
-from monodock.sim.simulator import SimFrame, Simulator
+from monodock.sim.lidar import LaserScan
+from monodock.sim.simulator import FrameTruth, SimFrame, Simulator
 
-__all__ = ["GROUND_TRUTH_COLUMNS", "FrameRecord", "render_frames", "write_frame_folder"]
+__all__ = ["GROUND_TRUTH_COLUMNS", "FrameInfo", "FrameRecord", "render_frames", "write_frame_folder"]
 
 _CORNERS = ("tl", "tr", "br", "bl")
 
@@ -54,6 +55,16 @@ def _gt_columns() -> list[str]:
 
 
 GROUND_TRUTH_COLUMNS: tuple[str, ...] = tuple(_gt_columns())
+
+
+@dataclass(frozen=True)
+class FrameInfo:
+    """What stays of a written frame: its place in the set and its truth (the pixels are on disk)."""
+
+    index: int
+    name: str
+    stamp: float
+    truth: FrameTruth
 
 
 @dataclass(frozen=True)
@@ -138,28 +149,38 @@ def write_frame_folder(
     jobs: int = 1,
     force: bool = False,
     progress: bool = True,
-) -> list[FrameRecord]:
-    """Render the poses and write the folder atomically; returns the records (images kept in memory)."""
-    records: list[FrameRecord] = []
+    on_frame: Callable[[FrameRecord], None] | None = None,
+) -> list[FrameInfo]:
+    """Render the poses and write the folder atomically.
+
+    Frames stream through: each image is written and handed to ``on_frame`` (to estimate on it, or draw a
+    preview) and then dropped, so memory does not grow with the number of frames. Returns each frame's
+    name, stamp and truth.
+    """
+    infos: list[FrameInfo] = []
     with atomic_directory(out, force=force) as tmp:
         (tmp / "images").mkdir()
         ranges = []
+        first_scan: LaserScan | None = None
         gt = io.StringIO()
         writer = csv.writer(gt, lineterminator="\n")
         writer.writerow(GROUND_TRUTH_COLUMNS)
         for rec in render_frames(sim, poses, seed=seed, jobs=jobs, progress=progress):
             if not cv2.imwrite(str(tmp / "images" / rec.name), rec.frame.image):
                 raise OSError(f"cannot write {tmp / 'images' / rec.name}")
+            first_scan = first_scan or rec.frame.scan
             ranges.append(rec.frame.scan.ranges)
             writer.writerow(_gt_row(rec, sim))
-            records.append(rec)
+            infos.append(FrameInfo(rec.index, rec.name, rec.stamp, rec.frame.truth))
+            if on_frame is not None:
+                on_frame(rec)
         (tmp / "ground_truth.csv").write_text(gt.getvalue(), encoding="utf-8")
-        if records:
-            s = records[0].frame.scan
+        if first_scan is not None:
+            s = first_scan
             np.savez_compressed(
                 tmp / "scans.npz",
-                frame=np.array([r.name for r in records]),
-                stamp=np.array([r.stamp for r in records]),
+                frame=np.array([i.name for i in infos]),
+                stamp=np.array([i.stamp for i in infos]),
                 ranges=np.stack(ranges).astype(np.float32),
                 frame_id=np.array(s.frame_id),
                 angle_min=np.float64(s.angle_min),
@@ -173,4 +194,4 @@ def write_frame_folder(
         sim.camera.save(tmp / "camera.yaml")
         sim.robot.save(tmp / "robot.yaml")
         sim.layout.save(tmp / "layout.yaml")
-    return records
+    return infos
