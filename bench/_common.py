@@ -6,6 +6,7 @@ script there is run as ``python bench/<name>.py``).
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import multiprocessing as mp
@@ -65,6 +66,16 @@ def parallel_map(
             for t, out in zip(tasks, pool.imap(fn, tasks), strict=True):
                 bar.update(frames_of(t))
                 yield out
+
+
+def bench_parser(doc: str, *, frames: int, frames_help: str, seed: int) -> argparse.ArgumentParser:
+    """The options every benchmark shares: --frames, --seed, --out, --workers."""
+    p = argparse.ArgumentParser(description=doc.split("\n\n", maxsplit=1)[0])
+    p.add_argument("--frames", type=int, default=frames, help=f"{frames_help} (default {frames})")
+    p.add_argument("--seed", type=int, default=seed, help=f"seed of the run (default {seed})")
+    p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
+    p.add_argument("--workers", type=int, default=DEFAULT_WORKERS, help="render processes (default 2)")
+    return p
 
 
 def fmt(value: float, digits: int = 2) -> str:

@@ -25,13 +25,12 @@ seeded from (seed, chunk index), so the numbers do not depend on the number of w
 
 from __future__ import annotations
 
-import argparse
 import sys
 from typing import Any
 
 import numpy as np
 
-from _common import chunk_seed, chunks, emit, environment, fmt, markdown_table, parallel_map
+from _common import bench_parser, chunk_seed, chunks, emit, environment, fmt, markdown_table, parallel_map
 from monodock.detect import MarkerDetector
 from monodock.features import marker_features
 from monodock.layout import ROLES
@@ -149,11 +148,7 @@ COLUMNS = [
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--frames", type=int, default=200, help="random poses to render (default 200)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
-    p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
-    p.add_argument("--workers", type=int, default=2, help="render processes (default 2)")
+    p = bench_parser(__doc__, frames=200, frames_help="random poses to render", seed=0)
     p.add_argument("--gross", type=float, default=3.0, help="corner errors above this (px) are mis-detections")
     args = p.parse_args(argv)
     if args.frames < 1:

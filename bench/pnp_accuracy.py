@@ -26,7 +26,6 @@ not depend on the number of workers.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -34,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from _common import chunk_seed, chunks, emit, environment, parallel_map
+from _common import bench_parser, chunk_seed, chunks, emit, environment, parallel_map
 from monodock.detect import MarkerDetector
 from monodock.metrics import markdown_table, pose_errors
 from monodock.pnp import PoseEstimate, estimate_board, estimate_single_marker
@@ -94,12 +93,8 @@ def _pose(rec: dict[str, Any]) -> DockPose | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--frames", type=int, default=1000, help="held-out frames to simulate (default 1000)")
-    p.add_argument("--seed", type=int, default=1, help="seed of the run (default 1)")
-    p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
+    p = bench_parser(__doc__, frames=1000, frames_help="held-out frames to simulate", seed=1)
     p.add_argument("--plot", help="write an error plot PNG here")
-    p.add_argument("--workers", type=int, default=2, help="render processes (default 2)")
     args = p.parse_args(argv)
     if args.frames < 1:
         p.error("--frames must be at least 1")

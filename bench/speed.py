@@ -26,7 +26,6 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
@@ -35,7 +34,7 @@ from typing import Any  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from _common import chunk_seed, chunks, emit, environment, fmt, markdown_table, parallel_map  # noqa: E402
+from _common import bench_parser, chunk_seed, chunks, emit, environment, fmt, markdown_table, parallel_map  # noqa: E402
 from monodock.detect import Detection, MarkerDetector  # noqa: E402
 from monodock.features import feature_vector  # noqa: E402
 from monodock.pnp import estimate_board, estimate_single_marker  # noqa: E402
@@ -92,13 +91,9 @@ def _stat(ms: list[float]) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--frames", type=int, default=200, help="pre-rendered frames to time on (default 200)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the run (default 0)")
-    p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
+    p = bench_parser(__doc__, frames=200, frames_help="pre-rendered frames to time on", seed=0)
     p.add_argument("--repeat", type=int, default=5, help="calls per frame; the fastest counts (default 5)")
     p.add_argument("--render-frames", type=int, default=20, help="frames to time the renderer on (default 20)")
-    p.add_argument("--workers", type=int, default=2, help="processes for the pre-render (default 2)")
     args = p.parse_args(argv)
     if args.frames < 1 or args.repeat < 1 or args.render_frames < 0:
         p.error("--frames and --repeat must be at least 1, --render-frames at least 0")
