@@ -68,10 +68,28 @@ def parallel_map(
                 yield out
 
 
+def _positive(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def simulate_chunks(
+    run_chunk: Callable[[tuple[int, int, int]], list[T]], args: argparse.Namespace, desc: str, chunk: int
+) -> list[T]:
+    """``run_chunk((seed, chunk index, frames))`` over the run's frames in chunks, concatenated in order."""
+    tasks = [(args.seed, c, n) for c, n in chunks(args.frames, chunk)]
+    out: list[T] = []
+    for part in parallel_map(run_chunk, tasks, lambda t: t[2], workers=args.workers, desc=desc):
+        out += part
+    return out
+
+
 def bench_parser(doc: str, *, frames: int, frames_help: str, seed: int) -> argparse.ArgumentParser:
     """The options every benchmark shares: --frames, --seed, --out, --workers."""
     p = argparse.ArgumentParser(description=doc.split("\n\n", maxsplit=1)[0])
-    p.add_argument("--frames", type=int, default=frames, help=f"{frames_help} (default {frames})")
+    p.add_argument("--frames", type=_positive, default=frames, help=f"{frames_help} (default {frames})")
     p.add_argument("--seed", type=int, default=seed, help=f"seed of the run (default {seed})")
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     p.add_argument("--workers", type=int, default=DEFAULT_WORKERS, help="render processes (default 2)")

@@ -30,7 +30,15 @@ from typing import Any
 
 import numpy as np
 
-from _common import bench_parser, chunk_seed, chunks, emit, environment, fmt, markdown_table, parallel_map
+from _common import (
+    bench_parser,
+    chunk_seed,
+    emit,
+    environment,
+    fmt,
+    markdown_table,
+    simulate_chunks,
+)
 from monodock.detect import MarkerDetector
 from monodock.features import marker_features
 from monodock.layout import ROLES
@@ -151,13 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     p = bench_parser(__doc__, frames=200, frames_help="random poses to render", seed=0)
     p.add_argument("--gross", type=float, default=3.0, help="corner errors above this (px) are mis-detections")
     args = p.parse_args(argv)
-    if args.frames < 1:
-        p.error("--frames must be at least 1")
 
-    tasks = [(args.seed, c, n) for c, n in chunks(args.frames, CHUNK)]
-    records: list[dict[str, Any]] = []
-    for part in parallel_map(run_chunk, tasks, lambda t: t[2], workers=args.workers, desc="corner_accuracy"):
-        records += part
+    records: list[dict[str, Any]] = simulate_chunks(run_chunk, args, "corner_accuracy", CHUNK)
 
     overall = {m: _stats(records, m, args.gross) for m in METHODS}
     by_band: dict[str, dict[str, dict[str, float]]] = {}

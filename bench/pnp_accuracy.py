@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from _common import bench_parser, chunk_seed, chunks, emit, environment, parallel_map
+from _common import bench_parser, chunk_seed, emit, environment, simulate_chunks
 from monodock.detect import MarkerDetector
 from monodock.metrics import markdown_table, pose_errors
 from monodock.pnp import PoseEstimate, estimate_board, estimate_single_marker
@@ -96,13 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     p = bench_parser(__doc__, frames=1000, frames_help="held-out frames to simulate", seed=1)
     p.add_argument("--plot", help="write an error plot PNG here")
     args = p.parse_args(argv)
-    if args.frames < 1:
-        p.error("--frames must be at least 1")
 
-    tasks = [(args.seed, c, n) for c, n in chunks(args.frames, CHUNK)]
-    records: list[dict[str, Any]] = []
-    for part in parallel_map(run_chunk, tasks, lambda t: t[2], workers=args.workers, desc="pnp_accuracy"):
-        records += part
+    records: list[dict[str, Any]] = simulate_chunks(run_chunk, args, "pnp_accuracy", CHUNK)
 
     # The same error and band code as `monodock demo`, so the two can never disagree.
     truth = [DockPose(r["true"]["x"], r["true"]["y"], r["true"]["yaw"]) for r in records]

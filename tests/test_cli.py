@@ -55,6 +55,19 @@ def assert_estimates_match_truth(est: Path, truth_csv: Path, *, xy_m: float, yaw
         assert abs(float(r["yaw_deg"]) - float(t["yaw_deg"])) < yaw_deg
 
 
+def estimate_folder(
+    sim_folder: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    *,
+    camera: Path | None = None,
+    layout: Path | None = None,
+) -> tuple[int, str, str]:
+    """`estimate` on the simulated images with one calibration file swapped."""
+    calib = calibration(sim_folder, camera=camera, layout=layout)
+    return run(["estimate", str(sim_folder / "images"), *calib, "--out", str(tmp_path / "e.csv")], capsys)
+
+
 @pytest.fixture(scope="module")
 def sim_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small simulated set written by the CLI itself (clean renders, 0.4-1.2 m)."""
@@ -254,16 +267,7 @@ def test_bad_layout(
 ) -> None:
     layout = tmp_path / "layout.yaml"
     layout.write_text(text)
-    code, _, err = run(
-        [
-            "estimate",
-            str(sim_folder / "images"),
-            *calibration(sim_folder, layout=layout),
-            "--out",
-            str(tmp_path / "e.csv"),
-        ],
-        capsys,
-    )
+    code, _, err = estimate_folder(sim_folder, tmp_path, capsys, layout=layout)
     assert_one_line_error(code, err, needle)
 
 
@@ -272,16 +276,7 @@ def test_camera_without_camera_matrix(sim_folder: Path, tmp_path: Path, capsys: 
     data = yaml.safe_load((sim_folder / "camera.yaml").read_text())
     del data["camera_matrix"]
     cam.write_text(yaml.safe_dump(data))
-    code, _, err = run(
-        [
-            "estimate",
-            str(sim_folder / "images"),
-            *calibration(sim_folder, camera=cam),
-            "--out",
-            str(tmp_path / "e.csv"),
-        ],
-        capsys,
-    )
+    code, _, err = estimate_folder(sim_folder, tmp_path, capsys, camera=cam)
     assert_one_line_error(code, err, "camera_matrix")
 
 
