@@ -34,7 +34,7 @@ from typing import Any  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from _common import bench_parser, chunk_seed, chunks, emit, environment, fmt, markdown_table, parallel_map  # noqa: E402
+from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks  # noqa: E402
 from monodock.detect import Detection, MarkerDetector  # noqa: E402
 from monodock.features import feature_vector  # noqa: E402
 from monodock.pnp import estimate_board, estimate_single_marker  # noqa: E402
@@ -95,13 +95,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeat", type=int, default=5, help="calls per frame; the fastest counts (default 5)")
     p.add_argument("--render-frames", type=int, default=20, help="frames to time the renderer on (default 20)")
     args = p.parse_args(argv)
-    if args.frames < 1 or args.repeat < 1 or args.render_frames < 0:
-        p.error("--frames and --repeat must be at least 1, --render-frames at least 0")
+    if args.repeat < 1 or args.render_frames < 0:
+        p.error("--repeat must be at least 1, --render-frames at least 0")
 
-    tasks = [(args.seed, c, n) for c, n in chunks(args.frames, CHUNK)]
-    images: list[np.ndarray] = []
-    for part in parallel_map(render_chunk, tasks, lambda t: t[2], workers=args.workers, desc="pre-render"):
-        images += part
+    images: list[np.ndarray] = simulate_chunks(render_chunk, args, "pre-render", CHUNK)
 
     # Timing from here on: one thread, one CPU.
     cv2.setNumThreads(1)
