@@ -2,8 +2,8 @@
 
 Both take the same calibration (camera model, layout, mounts) and return a DockPose in base_link.
 Choosing between IPPE's two solutions uses reprojection error first and, when both fit the corners about
-equally well (the frontal-view ambiguity), the one that stands the dock upright on the floor the robot
-stands on: the dock's z axis must be close to base_link's.
+equally well (the frontal-view ambiguity), the one that stands the dock clearly more upright on the floor
+the robot stands on (the dock's z axis close to base_link's).
 """
 
 from __future__ import annotations
@@ -27,6 +27,8 @@ __all__ = ["PoseEstimate", "estimate_board", "estimate_single_marker"]
 # Two solutions whose RMS reprojection errors differ by less than this are "equally good" fits.
 AMBIGUITY_RATIO = 2.0
 AMBIGUITY_FLOOR_PX = 0.3
+# How much more upright (degrees) an equally good fit must be to win over the best reprojection.
+UPRIGHT_MARGIN_DEG = 3.0
 _LM_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
 
 
@@ -82,13 +84,20 @@ class _Candidate:
 
 
 def _choose(cands: list[_Candidate]) -> _Candidate | None:
-    """Best reprojection; among fits as good as it (the IPPE ambiguity), the most upright dock."""
+    """Best reprojection, unless a fit about as good stands the dock clearly more upright.
+
+    "Clearly" matters: seen from the marker's own height both IPPE solutions are upright and differ by a
+    yaw flip, so their tilts differ only by noise and preferring the smaller one is a coin toss that
+    costs accuracy; seen from above or below, the wrong one is tilted by several degrees and the prior
+    picks the right one (measured in tests/test_pnp.py::test_ippe_choice_*).
+    """
     cands = [c for c in cands if c.in_front and math.isfinite(c.rms)]
     if not cands:
         return None
-    best = min(c.rms for c in cands)
-    tied = [c for c in cands if c.rms <= max(AMBIGUITY_RATIO * best, best + AMBIGUITY_FLOOR_PX)]
-    return min(tied, key=lambda c: c.tilt)
+    best = min(cands, key=lambda c: c.rms)
+    tied = [c for c in cands if c.rms <= max(AMBIGUITY_RATIO * best.rms, best.rms + AMBIGUITY_FLOOR_PX)]
+    upright = min(tied, key=lambda c: c.tilt)
+    return upright if upright.tilt < best.tilt - UPRIGHT_MARGIN_DEG else best
 
 
 def _candidate(
