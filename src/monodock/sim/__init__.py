@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from monodock.sim.lidar import LaserScan, LidarModel, simulate_scan
+from monodock.scan import LaserScan
+from monodock.sim.lidar import LidarModel, simulate_scan
 from monodock.sim.nuisance import Nuisances, apply_nuisances
 from monodock.sim.render import render_radiance
 from monodock.sim.simulator import FrameTruth, PoseDistribution, SimFrame, Simulator

@@ -26,7 +26,7 @@ from monodock.atomic import atomic_directory
 from monodock.layout import ROLE_NUMBER, ROLES
 from monodock.parallel import worker_pool
 from monodock.pose import DockPose
-from monodock.sim.lidar import LaserScan
+from monodock.scan import LaserScan
 from monodock.sim.simulator import FrameTruth, SimFrame, Simulator
 
 __all__ = ["GROUND_TRUTH_COLUMNS", "FrameInfo", "FrameRecord", "render_frames", "write_frame_folder"]

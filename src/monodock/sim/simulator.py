@@ -13,7 +13,8 @@ from monodock.camera import CameraModel
 from monodock.layout import ROLES, DockLayout
 from monodock.pose import DockPose
 from monodock.robot import RobotConfig
-from monodock.sim.lidar import LaserScan, LidarModel, simulate_scan
+from monodock.scan import LaserScan
+from monodock.sim.lidar import LidarModel, simulate_scan
 from monodock.sim.nuisance import Nuisances, apply_nuisances
 from monodock.sim.render import render_radiance
 from monodock.sim.scene import add_clutter, occluder_for
