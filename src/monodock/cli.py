@@ -16,11 +16,13 @@ import numpy as np
 from monodock.errors import MonodockError
 
 if TYPE_CHECKING:
+    from monodock.bundle import Bundle
     from monodock.camera import CameraModel
+    from monodock.dataset import Dataset
     from monodock.estimate import Estimator, FrameEstimates
     from monodock.layout import DockLayout
     from monodock.robot import RobotConfig
-    from monodock.sim import Nuisances
+    from monodock.sim import Nuisances, PoseDistribution, SimFrame, Simulator
 
 __all__ = ["main"]
 
@@ -128,7 +130,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         room = RoomGeometry(side_walls=args.side_walls)
     sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=_nuisances(args), room=room, seed=args.seed)
     try:
-        poses = [sim.sample_pose(dist) for _ in range(args.frames)]
+        poses = [sim.sample_pose(dist) for _ in range(args.frames)] if args.format == "folder" else []
     except RuntimeError as exc:
         raise MonodockError(str(exc)) from None
     previews: list[tuple[str, bytes]] = []
@@ -140,6 +142,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             previews.append((rec.name, _overlay_png(rec.frame.image, result, estimator, rec.frame.truth.corners)))
 
     t0 = time.perf_counter()
+    if args.format == "rosbag2":
+        return _simulate_recording(args, sim, estimator, dist)
     infos = write_frame_folder(
         args.out, sim, poses, seed=args.seed, jobs=_jobs(args.jobs), force=args.force, on_frame=preview
     )
@@ -150,6 +154,65 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             for name, png in previews:
                 (tmp / name).write_bytes(png)
         print(f"preview overlays: {Path(args.out) / 'preview'}")
+    return 0
+
+
+def _simulate_recording(args: argparse.Namespace, sim: Simulator, estimator: Estimator, dist: PoseDistribution) -> int:
+    """``simulate --format rosbag2``: a stop-and-go data-collection drive written as a rosbag2 recording."""
+    from monodock.atomic import atomic_directory
+    from monodock.recording import write_recording
+    from monodock.sim.drive import DriveConfig, plan_drive
+
+    density: str | tuple[float, ...] = args.density
+    if "," in args.density:
+        try:
+            density = tuple(float(w) for w in args.density.split(","))
+        except ValueError:
+            raise MonodockError(f"--density: not a list of numbers: {args.density}") from None
+    config = DriveConfig(
+        stops=args.frames,
+        depth=dist.depth,
+        lateral=dist.lateral,
+        yaw_deg=dist.yaw_deg,
+        density=density,
+        camera_rate_hz=args.camera_rate,
+        lidar_rate_hz=args.lidar_rate,
+    )
+    try:
+        stops = plan_drive(sim, config, np.random.default_rng([args.seed, 2]))
+    except RuntimeError as exc:
+        raise MonodockError(str(exc)) from None
+    previews: list[tuple[str, bytes]] = []
+
+    def preview(index: int, frame: SimFrame) -> None:
+        if index < args.preview:
+            name = f"frame_{index:06d}.png"
+            result = estimator.estimate(name, 0.0, frame.image)
+            previews.append((name, _overlay_png(frame.image, result, estimator, frame.truth.corners)))
+
+    t0 = time.perf_counter()
+    summary = write_recording(
+        args.out,
+        sim,
+        stops,
+        seed=args.seed,
+        jobs=_jobs(args.jobs),
+        storage=args.storage,
+        encoding=args.encoding,
+        force=args.force,
+        on_frame=preview,
+    )
+    dt = time.perf_counter() - t0
+    print(
+        f"wrote a {summary.duration_s:.0f} s recording ({summary.images} images, {summary.scans} scans, "
+        f"{summary.bytes / 1e6:.0f} MB) to {args.out} in {dt:.1f} s"
+    )
+    if previews:
+        target = Path(str(args.out).rstrip("/") + "_preview")
+        with atomic_directory(target, force=True) as tmp:
+            for name, png in previews:
+                (tmp / name).write_bytes(png)
+        print(f"preview overlays: {target}")
     return 0
 
 
@@ -196,9 +259,26 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from monodock.estimate import Estimator, estimates_csv
     from monodock.inputs import iter_frames
 
-    camera, layout, robot = _load_calibration(args)
+    extra = {}
+    if args.model:
+        from monodock.regression import RegressionEstimator
+
+        bundle = _load_bundle(args.model)
+        camera, layout, robot = _bundle_calibration(args, bundle)
+        method = args.method or "regression"
+        extra["regression"] = RegressionEstimator(bundle, camera, robot).estimate
+    else:
+        missing = [f"--{k}" for k in ("camera", "layout", "robot") if not getattr(args, k)]
+        if args.method == "regression" or missing:
+            raise MonodockError(
+                "the regression needs --model BUNDLE"
+                if args.method == "regression"
+                else f"without --model, give {' '.join(missing)} (the PnP methods need the calibration)"
+            )
+        camera, layout, robot = _load_calibration(args)
+        method = args.method or "board"
     check_writable(args.out, force=args.force)
-    est = Estimator(camera, layout, robot, (args.method,), refinement=args.refinement)
+    est = Estimator(camera, layout, robot, (method,), refinement=args.refinement, extra=extra)
     results = []
     for f in tqdm(
         iter_frames(args.inputs, skip_bad=args.skip_bad),
@@ -218,7 +298,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             results.append(est.failed(f.name, f.stamp, str(exc)))
     write_text_atomic(args.out, estimates_csv(results), force=args.force)
     valid = sum(1 for r in results for e in r.estimates.values() if e.valid)
-    print(f"{args.method}: {valid}/{len(results)} frames with an estimate -> {args.out}")
+    print(f"{method}: {valid}/{len(results)} frames with an estimate -> {args.out}")
     return 0
 
 
@@ -237,82 +317,205 @@ def _cmd_show(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- label / train / evaluate -------------------------------------------------------------------
+
+
+def _add_topics(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("recording topics (default: found by message type)")
+    g.add_argument("--image-topic", help="sensor_msgs/Image or CompressedImage topic")
+    g.add_argument("--camera-info-topic", help="sensor_msgs/CameraInfo topic")
+    g.add_argument("--scan-topic", help="sensor_msgs/LaserScan topic")
+    g.add_argument(
+        "--tolerance", type=float, default=0.05, help="pair an image with a scan at most this far in stamp, s (0.05)"
+    )
+
+
+def _label(args: argparse.Namespace, layout: DockLayout, camera: CameraModel | None) -> Dataset:
+    """Label a recording (shared by label and evaluate); prints the reader's warnings and the counts."""
+    from monodock.camera import CameraModel
+    from monodock.dataset import label_recording
+    from monodock.robot import RobotConfig
+
+    if camera is None and getattr(args, "camera", None):
+        camera = CameraModel.load(args.camera)
+    robot = RobotConfig.load(args.robot) if getattr(args, "robot", None) else None
+    ds, run, warnings = label_recording(
+        args.recording,
+        layout,
+        camera=camera,
+        robot=robot,
+        image_topic=args.image_topic,
+        camera_info_topic=args.camera_info_topic,
+        scan_topic=args.scan_topic,
+        tolerance_s=args.tolerance,
+    )
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    reasons = ", ".join(f"{n} {k}" for k, n in run.invalid_labels.most_common())
+    print(
+        f"{run.images} images: {run.paired} paired with a scan within {args.tolerance * 1000:.0f} ms, "
+        f"{run.unpaired} unpaired, {run.unreadable} unreadable, {run.no_marker2} without marker 2; "
+        f"{run.labelled} labelled" + (f" ({reasons} not)" if reasons else "")
+    )
+    return ds
+
+
+def _cmd_label(args: argparse.Namespace) -> int:
+    from monodock.atomic import check_writable
+    from monodock.dataset import label_error_table, label_errors, write_dataset
+    from monodock.layout import DockLayout
+
+    layout = DockLayout.load(args.layout)
+    check_writable(args.out, force=args.force)
+    ds = _label(args, layout, None)
+    if len(ds) == 0:
+        raise MonodockError(f"{args.recording}: no images")
+    write_dataset(args.out, ds, force=args.force)
+    errs = label_errors(ds)
+    if errs:
+        print("label error against the recording's ground truth:")
+        print(label_error_table(errs), end="")
+    print(f"dataset: {len(ds)} rows -> {args.out}")
+    return 0
+
+
+def _sets(value: str) -> tuple[str, ...]:
+    from monodock.features import MARKER_SETS
+
+    names = tuple(v.strip() for v in value.split(",") if v.strip())
+    bad = [n for n in names if n not in MARKER_SETS]
+    if bad or not names:
+        raise MonodockError(f"--sets: unknown marker set '{bad[0] if bad else value}' (from {', '.join(MARKER_SETS)})")
+    if "m2" not in names:
+        raise MonodockError("--sets must include m2: marker 2 alone is what the last half-metre of a docking sees")
+    return names
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    from monodock.atomic import check_writable
+    from monodock.bundle import save_bundle
+    from monodock.dataset import read_dataset
+    from monodock.regression import bundle_metadata, training_sets
+    from monodock.train import TrainConfig, train
+    from monodock.train_report import write_training_report
+
+    if args.trials < 1:
+        raise MonodockError("--trials must be at least 1")
+    check_writable(args.out, force=args.force)
+    ds = read_dataset(args.dataset)
+    sets = training_sets(ds, _sets(args.sets), depth_label=args.depth_label, angle_label=args.angle_label)
+    for s in sets:
+        if len(s.depth) < 20:
+            raise MonodockError(
+                f"{args.dataset}: only {len(s.depth)} labelled rows with markers {s.name} seen; record more"
+            )
+    t0 = time.perf_counter()
+    config = TrainConfig(trials=args.trials, seed=args.seed, jobs=_jobs(args.jobs) if args.jobs else 0)
+    result = train(sets, config)
+    dt = time.perf_counter() - t0
+    meta = bundle_metadata(ds, depth_label=args.depth_label, angle_label=args.angle_label, source=str(args.dataset))
+    path = save_bundle(args.out, result, metadata=meta, force=args.force)
+    write_training_report(Path(path) / "report", result, title=f"monodock training report: {args.dataset}")
+    size = sum(f.stat().st_size for f in Path(path).glob("*.onnx"))
+    print(f"trained in {dt:.0f} s; bundle {size / 1e6:.1f} MB -> {path} (report: {Path(path) / 'report'})")
+    return 0
+
+
+def _load_bundle(path: str) -> Bundle:
+    from monodock.bundle import Bundle
+    from monodock.features import MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
+
+    return Bundle.load(
+        path,
+        expected_feature_names={s: model_feature_names(s) for s in MARKER_SETS},
+        feature_schema=MODEL_FEATURE_SCHEMA,
+    )
+
+
+def _bundle_calibration(args: argparse.Namespace, bundle: Bundle) -> tuple[CameraModel, DockLayout, RobotConfig]:
+    """The bundle's camera, layout and mounts; --camera and --robot override, --layout must match."""
+    from monodock.camera import CameraModel
+    from monodock.errors import InputError
+    from monodock.layout import DockLayout
+    from monodock.robot import RobotConfig
+
+    meta = bundle.manifest["metadata"]
+    layout = DockLayout.from_dict(meta["layout"], f"{args.model}: layout")
+    if getattr(args, "layout", None):
+        given = DockLayout.load(args.layout)
+        if given != layout:
+            raise InputError(
+                f"{args.model} was trained for another dock layout ({layout.dictionary}, ids "
+                f"{'/'.join(str(m.id) for m in layout.markers)}, {layout.marker_size * 100:g} cm) than {args.layout} "
+                f"({given.dictionary}, ids {'/'.join(str(m.id) for m in given.markers)}, "
+                f"{given.marker_size * 100:g} cm)"
+            )
+    camera = (
+        CameraModel.load(args.camera)
+        if getattr(args, "camera", None)
+        else CameraModel.from_ros_dict(meta["camera"], f"{args.model}: camera")
+    )
+    robot = (
+        RobotConfig.load(args.robot)
+        if getattr(args, "robot", None)
+        else RobotConfig.from_dict(meta["robot"], f"{args.model}: robot")
+    )
+    return camera, layout, robot
+
+
+def _cmd_evaluate(args: argparse.Namespace) -> int:
+    from monodock.atomic import atomic_directory
+    from monodock.dataset import read_dataset
+    from monodock.evaluate import evaluate_report
+    from monodock.regression import RegressionEstimator
+
+    bundle = _load_bundle(args.model)
+    camera, layout, robot = _bundle_calibration(args, bundle)
+    if str(args.recording).endswith(".parquet"):
+        ds = read_dataset(args.recording)
+    else:
+        ds = _label(args, layout, camera if args.camera else None)
+    regression = RegressionEstimator(bundle, ds.camera(), robot)
+    with atomic_directory(args.out, force=args.force) as out:
+        summary = evaluate_report(ds, regression, out, title=f"monodock evaluation: {args.recording}")
+    for method, row in summary["against_truth" if "against_truth" in summary else "against_lidar"].items():
+        print(
+            f"{method:10s} valid {row['valid']}/{row['frames']}  depth MAE {row['depth_mae_cm']:.2f} cm  "
+            f"lateral MAE {row['lateral_mae_cm']:.2f} cm  yaw MAE {row['yaw_mae_deg']:.2f} deg"
+        )
+    print(f"report: {Path(args.out) / 'report.html'}")
+    return 0
+
+
 # --- demo ---------------------------------------------------------------------------------------
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
-    from monodock.atomic import atomic_directory
-    from monodock.estimate import Estimator
-    from monodock.metrics import pose_errors
-    from monodock.report import error_plot, method_tables, write_html_report
-    from monodock.sim import Nuisances, PoseDistribution, Simulator
-    from monodock.sim.export import FrameRecord, write_frame_folder
+    from monodock.atomic import check_writable
+    from monodock.demo import DemoConfig, run_demo
 
-    if args.frames < 1:
-        raise MonodockError("--frames must be at least 1")
-    t0 = time.perf_counter()
-    sim = Simulator(nuisances=Nuisances(), seed=args.seed)
-    dist = PoseDistribution()
-    poses = [sim.sample_pose(dist) for _ in range(args.frames)]
-    depth = np.array([p.x - sim.robot.camera_mount.x for p in poses])
-    picks = {
-        int(np.argmin(np.abs(depth - target))): label for label, target in (("near", 0.4), ("mid", 1.2), ("far", 2.3))
-    }
-    estimator = Estimator(sim.camera, sim.layout, sim.robot, ("pnp", "board"))
-    results: list[FrameEstimates] = []
-    overlays: list[tuple[str, str, bytes]] = []
-
-    def estimate(rec: FrameRecord) -> None:
-        results.append(estimator.estimate(rec.name, rec.stamp, rec.frame.image))
-        if rec.index in picks:
-            label = picks[rec.index]
-            caption = (
-                f"{label}: depth {depth[rec.index]:.2f} m; truth {rec.frame.truth.pose}; board {_summary(results[-1])}"
-            )
-            png = _overlay_png(rec.frame.image, results[-1], estimator, rec.frame.truth.corners)
-            overlays.append((f"overlay_{label}.png", caption, png))
-
-    with atomic_directory(args.out, force=args.force) as out:
-        print(f"simulating {args.frames} frames (default nuisances) ...", file=sys.stderr)
-        infos = write_frame_folder(out / "sim", sim, poses, seed=args.seed, jobs=_jobs(args.jobs), on_frame=estimate)
-        truth = [i.truth.pose for i in infos]
-        errors = {m: pose_errors(truth, [r.estimates[m].pose for r in results]) for m in ("pnp", "board")}
-        rows = method_tables(depth, errors)
-        error_plot(depth, errors, out / "errors_vs_depth.png")
-        for name, _, png in overlays:
-            (out / name).write_bytes(png)
-        settings = {
-            "frames": args.frames,
-            "seed": args.seed,
-            "camera": f"{sim.camera.width}x{sim.camera.height}",
-            "layout": f"{sim.layout.dictionary}, marker {sim.layout.marker_size * 100:.0f} cm",
-            "pose distribution": (
-                f"depth {dist.depth} m from the camera, lateral {dist.lateral} m, yaw {dist.yaw_deg} deg"
-            ),
-            "nuisances": str(sim.nuisances),
-        }
-        notes = [
-            "pnp: marker 2 alone, SOLVEPNP_IPPE_SQUARE, the IPPE ambiguity resolved by reprojection error and "
-            "the dock standing upright on the robot's floor.",
-            "board: the corners of all visible markers jointly, iterative PnP refined by Levenberg-Marquardt.",
-            "The regression of the papers, the fused estimator and docking join this report in later releases.",
-        ]
-        write_html_report(
-            out,
-            title="monodock demo: SolvePnP baselines on the simulator",
-            settings=settings,
-            rows=rows,
-            plot="errors_vs_depth.png",
-            overlays=[(name, caption) for name, caption, _ in sorted(overlays)],
-            notes=notes,
-        )
-    overall = {r.method: r for r in rows if r.band == "all"}
-    for m, r in overall.items():
+    for flag, value in (
+        ("--train-stops", args.train_stops),
+        ("--test-stops", args.test_stops),
+        ("--trials", args.trials),
+    ):
+        if value < 1:
+            raise MonodockError(f"{flag} must be at least 1")
+    check_writable(args.out, force=args.force)
+    config = DemoConfig(
+        train_stops=args.train_stops,
+        test_stops=args.test_stops,
+        trials=args.trials,
+        seed=args.seed,
+        jobs=_jobs(args.jobs),
+    )
+    summary = run_demo(args.out, config, force=args.force)
+    for method, r in summary.get("against_truth", summary.get("against_lidar", {})).items():
         print(
-            f"{m:6s} valid {r.valid}/{r.frames}  depth MAE {r.depth_mae_cm:.2f} cm  lateral MAE "
-            f"{r.lateral_mae_cm:.2f} cm  yaw MAE {r.yaw_mae_deg:.2f} deg"
+            f"{method:10s} valid {r['valid']}/{r['frames']}  depth MAE {r['depth_mae_cm']:.2f} cm  lateral MAE "
+            f"{r['lateral_mae_cm']:.2f} cm  yaw MAE {r['yaw_mae_deg']:.2f} deg  (against the simulator's truth)"
         )
-    print(f"report: {Path(args.out) / 'report.html'}  ({time.perf_counter() - t0:.0f} s)")
+    print(f"report: {Path(args.out) / 'report.html'}  ({summary['seconds']:.0f} s)")
     return 0
 
 
@@ -351,19 +554,42 @@ def _parser() -> argparse.ArgumentParser:
         metavar="N",
         help="also write overlay PNGs of the first N frames (default 5) to OUT/preview",
     )
+    s.add_argument(
+        "--format",
+        choices=("folder", "rosbag2"),
+        default="folder",
+        help="folder: PNGs, scans.npz and ground_truth.csv (default); rosbag2: a stop-and-go data-collection "
+        "recording (Image, CameraInfo, LaserScan, /tf_static, ground truth on /monodock/ground_truth)",
+    )
+    g = s.add_argument_group("recording (--format rosbag2)")
+    g.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="rosbag2 storage (default mcap)")
+    g.add_argument(
+        "--encoding",
+        choices=("mono8", "bgr8", "png", "jpeg"),
+        default="mono8",
+        help="mono8/bgr8: sensor_msgs/Image; png/jpeg: sensor_msgs/CompressedImage (default mono8)",
+    )
+    g.add_argument(
+        "--density",
+        default="uniform",
+        help="stops per 5 cm depth segment: uniform (default), paper (Table 2's N), or 45 comma-separated weights",
+    )
+    g.add_argument("--camera-rate", type=float, default=15.0, help="camera frame rate, Hz (default 15)")
+    g.add_argument("--lidar-rate", type=float, default=10.0, help="LiDAR scan rate, Hz (default 10)")
     s.add_argument("--jobs", type=int, help="worker processes (default: cores, at most 4)")
     s.add_argument("--force", action="store_true", help="replace an existing output folder")
     _add_calibration(s, required=False)
     _add_nuisances(s)
     s.set_defaults(func=_cmd_simulate)
 
-    e = sub.add_parser("estimate", help="estimate the DockPose in images, folders or videos")
-    e.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders of images, or videos")
+    e = sub.add_parser("estimate", help="estimate the DockPose in images, folders, videos or recordings")
+    e.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders of images, videos, or recordings")
+    e.add_argument("--model", help="model bundle (carries its camera, layout and mounts; --camera may override)")
     e.add_argument(
         "--method",
-        choices=("pnp", "board"),
-        default="board",
-        help="pnp: marker 2 alone (IPPE_SQUARE), the papers' baseline; board: all visible markers (default)",
+        choices=("regression", "pnp", "board"),
+        help="regression: the papers' models (default with --model); pnp: marker 2 alone (IPPE_SQUARE), the "
+        "papers' baseline; board: all visible markers (default without --model)",
     )
     e.add_argument("--out", required=True, help="EST.csv to write")
     e.add_argument(
@@ -371,7 +597,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     e.add_argument("--skip-bad", action="store_true", help="an unreadable image gives an invalid row, not an error")
     e.add_argument("--force", action="store_true", help="overwrite an existing output")
-    _add_calibration(e, required=True)
+    _add_calibration(e, required=False)
     e.set_defaults(func=_cmd_estimate)
 
     w = sub.add_parser("show", help="overlay PNG: detected markers, ids and the board estimate's dock axes")
@@ -381,9 +607,48 @@ def _parser() -> argparse.ArgumentParser:
     _add_calibration(w, required=True)
     w.set_defaults(func=_cmd_show)
 
-    d = sub.add_parser("demo", help="simulate, estimate with every method, and write the report")
+    lb = sub.add_parser("label", help="LiDAR labels for a recording: detect, pair with scans, write the dataset")
+    lb.add_argument("recording", help="rosbag2 (directory, .mcap, .db3) or ROS 1 .bag")
+    lb.add_argument("--layout", required=True, help="dock layout YAML")
+    lb.add_argument("--out", required=True, help="dataset Parquet file to write")
+    lb.add_argument("--camera", help="camera file, instead of the recording's CameraInfo")
+    lb.add_argument("--robot", help="robot YAML, instead of the recording's /tf_static mounts")
+    lb.add_argument("--force", action="store_true", help="overwrite an existing dataset")
+    _add_topics(lb)
+    lb.set_defaults(func=_cmd_label)
+
+    tr = sub.add_parser("train", help="the papers' seven regressors per segment, best by MSE, into an ONNX bundle")
+    tr.add_argument("dataset", help="dataset Parquet file from monodock label")
+    tr.add_argument("--out", required=True, help="bundle directory to write")
+    tr.add_argument("--trials", type=int, default=10, help="hyperparameter draws per model (default 10)")
+    tr.add_argument(
+        "--sets",
+        default="m1m2m3,m2",
+        help="marker sets to train, comma-separated, from m1m2m3, m1m2, m2m3, m2 (default m1m2m3,m2)",
+    )
+    tr.add_argument("--depth-label", choices=("point", "line"), default="point", help="point: the papers' (default)")
+    tr.add_argument("--angle-label", choices=("line", "endpoints"), default="line", help="endpoints: the papers'")
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--jobs", type=int, help="worker processes (default: all cores)")
+    tr.add_argument("--force", action="store_true", help="replace an existing bundle")
+    tr.set_defaults(func=_cmd_train)
+
+    ev = sub.add_parser("evaluate", help="every method on a held-out recording against LiDAR labels and truth")
+    ev.add_argument("recording", help="held-out recording, or a dataset .parquet from monodock label")
+    ev.add_argument("--model", required=True, help="model bundle directory")
+    ev.add_argument("--out", required=True, help="report folder")
+    ev.add_argument("--camera", help="camera file, instead of the recording's CameraInfo")
+    ev.add_argument("--robot", help="robot YAML, instead of the bundle's mounts")
+    ev.add_argument("--layout", help="dock layout YAML (must match the bundle's)")
+    ev.add_argument("--force", action="store_true", help="replace an existing report folder")
+    _add_topics(ev)
+    ev.set_defaults(func=_cmd_evaluate)
+
+    d = sub.add_parser("demo", help="simulate, label, train, evaluate every method, and write the report")
     d.add_argument("--out", default="demo_report", help="report folder (default: demo_report)")
-    d.add_argument("--frames", type=int, default=300)
+    d.add_argument("--train-stops", type=int, default=3000, help="stops of the data-collection drive (3000)")
+    d.add_argument("--test-stops", type=int, default=500, help="stops of the held-out drive (500)")
+    d.add_argument("--trials", type=int, default=4, help="hyperparameter draws per model (4)")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--jobs", type=int)
     d.add_argument("--force", action="store_true", help="replace an existing report folder")

@@ -51,7 +51,11 @@ class FrameEstimates:
 
 
 class Estimator:
-    """Detector plus the calibration every method shares (camera, layout, mounts)."""
+    """Detector plus the calibration every method shares (camera, layout, mounts).
+
+    ``extra`` adds methods that need more than the calibration, e.g.
+    ``{"regression": RegressionEstimator(...).estimate}``.
+    """
 
     def __init__(
         self,
@@ -61,10 +65,13 @@ class Estimator:
         methods: Sequence[str] = ("board",),
         *,
         refinement: str = "subpix",
+        extra: dict[str, Callable[[Detection], PoseEstimate]] | None = None,
     ) -> None:
-        unknown = [m for m in methods if m not in METHODS]
+        self.extra = dict(extra or {})
+        available = {**METHODS, **self.extra}
+        unknown = [m for m in methods if m not in available]
         if unknown:
-            raise InputError(f"unknown method '{unknown[0]}' (available: {', '.join(METHODS)})")
+            raise InputError(f"unknown method '{unknown[0]}' (available: {', '.join(available)})")
         self.camera, self.layout, self.robot = camera, layout, robot
         self.methods = tuple(methods)
         self.detector = MarkerDetector(layout, refinement=refinement)
@@ -81,7 +88,10 @@ class Estimator:
         """Detection and the estimates of every method for one image."""
         self.check_image(image, name)
         det = self.detector.detect(image)
-        ests = {m: METHODS[m](det, self.camera, self.layout, self.robot) for m in self.methods}
+        ests = {
+            m: self.extra[m](det) if m in self.extra else METHODS[m](det, self.camera, self.layout, self.robot)
+            for m in self.methods
+        }
         return FrameEstimates(name, stamp, det, ests)
 
     def failed(self, name: str, stamp: float, reason: str) -> FrameEstimates:

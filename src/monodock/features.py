@@ -2,6 +2,10 @@
 
 Markers are numbered as in the papers: m1 left, m2 centre (the docking point), m3 right. Corners follow
 ArUco order: tl, tr, br, bl. A marker not seen has NaN features and ``m{i}_seen`` = 0.
+
+Two layers: the *raw* features (``FEATURE_NAMES``, pixels, what the dataset stores and the papers list) and the
+*model inputs* of each marker set (``model_features``): the same geometry through the lens, in normalised image
+coordinates, with the inverse sizes, side ratios and centre separations that make depth and yaw nearly linear.
 """
 
 from __future__ import annotations
@@ -12,10 +16,23 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.camera import CameraModel
-from monodock.detect import Detection
-from monodock.layout import ROLE_NUMBER, ROLES
+from monodock.detect import Detection, MarkerObservation
+from monodock.layout import ROLE_NUMBER, ROLES, DockLayout
 
-__all__ = ["FEATURE_NAMES", "MarkerFeatures", "feature_vector", "lens_centre", "marker_features"]
+__all__ = [
+    "DEFAULT_MARKER_SETS",
+    "FEATURE_NAMES",
+    "MARKER_SETS",
+    "MODEL_FEATURE_SCHEMA",
+    "MarkerFeatures",
+    "choose_marker_set",
+    "detection_from_features",
+    "feature_vector",
+    "lens_centre",
+    "marker_features",
+    "model_feature_names",
+    "model_features",
+]
 
 CORNER_NAMES = ("tl", "tr", "br", "bl")
 SIDE_NAMES = ("top", "bottom", "left", "right")
@@ -102,3 +119,119 @@ def feature_vector(detection: Detection, camera: CameraModel) -> NDArray[np.floa
         c = lens_centre(centre.corners, camera)
         out[i : i + 2] = (c[0] - camera.cx, c[1] - camera.cy)
     return out
+
+
+def detection_from_features(raw: NDArray[np.float64], layout: DockLayout, image_size: tuple[int, int]) -> Detection:
+    """The Detection a raw feature vector was made from (its corners), so a dataset row can feed PnP too."""
+    obs = {}
+    for role in ROLES:
+        m = f"m{ROLE_NUMBER[role]}"
+        if raw[FEATURE_NAMES.index(f"{m}_seen")] == 1.0:
+            cols = [FEATURE_NAMES.index(f"{m}_{c}_{a}") for c in CORNER_NAMES for a in ("u", "v")]
+            obs[role] = MarkerObservation(
+                role, layout.marker(role).id, np.asarray(raw[cols], dtype=np.float64).reshape(4, 2)
+            )
+    return Detection(obs, (), image_size)
+
+
+# --- model inputs ---------------------------------------------------------------------------------
+
+# Bumped whenever model_features changes: a bundle trained on another schema must refuse to load.
+MODEL_FEATURE_SCHEMA = "monodock.model_features/1"
+
+# Which markers each model sees. Near the charger the side markers leave the view, so besides the papers'
+# three-marker model there is one per subset, trained on the same rows with the other markers masked.
+MARKER_SETS: dict[str, tuple[str, ...]] = {
+    "m1m2m3": ("left", "center", "right"),
+    "m1m2": ("left", "center"),
+    "m2m3": ("center", "right"),
+    "m2": ("center",),
+}
+DEFAULT_MARKER_SETS: tuple[str, ...] = ("m1m2m3", "m2")
+
+_PER_MARKER = ("u", "v", "top", "bottom", "left", "right", "inv_size", "log_lr", "log_tb")
+
+
+def model_feature_names(set_name: str) -> tuple[str, ...]:
+    """The model input columns of a marker set, in order."""
+    roles = _roles(set_name)
+    names = [f"m{ROLE_NUMBER[r]}_{f}" for r in roles for f in _PER_MARKER]
+    for r in roles:
+        if r != "center":
+            m = f"m{ROLE_NUMBER[r]}"
+            names += [f"{m}_du", f"{m}_dv", f"{m}_inv_sep"]
+    if "left" in roles and "right" in roles:
+        names += ["log_sep_ratio", "log_size_ratio"]
+    return tuple(names)
+
+
+def _roles(set_name: str) -> tuple[str, ...]:
+    if set_name not in MARKER_SETS:
+        raise ValueError(f"unknown marker set '{set_name}' (one of {', '.join(MARKER_SETS)})")
+    return MARKER_SETS[set_name]
+
+
+def _column(name: str) -> int:
+    return FEATURE_NAMES.index(name)
+
+
+def _normalised_marker(raw: NDArray[np.float64], role: str, camera: CameraModel) -> dict[str, NDArray[np.float64]]:
+    """Per-row geometry of one marker in normalised image coordinates (NaN where the marker was not seen)."""
+    m = f"m{ROLE_NUMBER[role]}"
+    cols = [_column(f"{m}_{c}_{a}") for c in CORNER_NAMES for a in ("u", "v")]
+    px = raw[:, cols].reshape(-1, 4, 2)
+    n = np.full_like(px, np.nan)
+    ok = np.all(np.isfinite(px), axis=(1, 2))
+    if ok.any():
+        n[ok] = camera.normalize(px[ok].reshape(-1, 2)).reshape(-1, 4, 2)
+    side = {
+        "top": np.linalg.norm(n[:, 0] - n[:, 1], axis=1),
+        "bottom": np.linalg.norm(n[:, 2] - n[:, 3], axis=1),
+        "left": np.linalg.norm(n[:, 3] - n[:, 0], axis=1),
+        "right": np.linalg.norm(n[:, 1] - n[:, 2], axis=1),
+    }
+    centre = np.array([_centre(q) if np.all(np.isfinite(q)) else np.full(2, np.nan) for q in n]).reshape(-1, 2)
+    size = (side["top"] + side["bottom"] + side["left"] + side["right"]) / 4.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return {
+            "u": centre[:, 0],
+            "v": centre[:, 1],
+            **side,
+            "inv_size": 1.0 / size,
+            "log_lr": np.log(side["left"] / side["right"]),
+            "log_tb": np.log(side["top"] / side["bottom"]),
+        }
+
+
+def model_features(raw: NDArray[np.float64], camera: CameraModel, set_name: str) -> NDArray[np.float64]:
+    """The model inputs of a marker set for rows of raw features, shape (n, len(model_feature_names(set_name))).
+
+    Args:
+        raw: raw features in the order of FEATURE_NAMES, shape (n, len(FEATURE_NAMES)) or (len(FEATURE_NAMES),).
+        camera: the calibration the corners were measured with; the inputs are undistorted and normalised
+            (x/z, y/z), so a model does not depend on the pixel grid.
+        set_name: one of MARKER_SETS.
+
+    Rows where a marker of the set was not seen come out NaN; the caller drops or refuses them.
+    """
+    roles = _roles(set_name)
+    rows = np.atleast_2d(np.asarray(raw, dtype=np.float64))
+    geo = {r: _normalised_marker(rows, r, camera) for r in roles}
+    cols = [geo[r][f] for r in roles for f in _PER_MARKER]
+    c = geo["center"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sep: dict[str, NDArray[np.float64]] = {}
+        for r in roles:
+            if r != "center":
+                du, dv = geo[r]["u"] - c["u"], geo[r]["v"] - c["v"]
+                sep[r] = np.hypot(du, dv)
+                cols += [du, dv, 1.0 / sep[r]]
+        if "left" in roles and "right" in roles:
+            cols += [np.log(sep["left"] / sep["right"]), np.log(geo["left"]["inv_size"] / geo["right"]["inv_size"])]
+    return np.stack(cols, axis=1)
+
+
+def choose_marker_set(seen: tuple[str, ...] | set[str], available: tuple[str, ...]) -> str | None:
+    """The most informative available marker set whose markers were all seen (None without marker 2)."""
+    ok = [s for s in available if set(MARKER_SETS[s]) <= set(seen)]
+    return max(ok, key=lambda s: len(MARKER_SETS[s]), default=None)

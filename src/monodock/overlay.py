@@ -18,7 +18,7 @@ from monodock.robot import RobotConfig
 __all__ = ["draw_overlay"]
 
 _GREEN, _RED, _BLUE = (60, 200, 60), (40, 40, 230), (230, 120, 30)
-_YELLOW, _WHITE = (0, 220, 240), (255, 255, 255)
+_YELLOW, _WHITE, _MAGENTA = (0, 220, 240), (255, 255, 255), (220, 40, 220)
 
 
 def _pt(p: NDArray[np.float64], scale: float) -> tuple[int, int]:
@@ -35,9 +35,13 @@ def draw_overlay(
     estimate: PoseEstimate | None = None,
     truth_corners: Mapping[str, NDArray[np.float64]] | None = None,
     scale: float | None = None,
+    lidar_px: NDArray[np.float64] | None = None,
+    lidar_selected: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.uint8]:
     """A BGR picture: detected corners (green, corner 0 filled), marker ids, true corners (red crosses),
     and the dock axes of the estimate (x red into the charger, y green left, z blue up), about 1280 px wide.
+    ``lidar_px`` adds the LiDAR points projected into the image (the papers' Fig. 8c): blue, and magenta for
+    those ``lidar_selected`` (across marker 2, the label's points).
     """
     if scale is None:  # about 1280 px wide: small cameras scaled up to see sub-pixel corners, large ones kept
         scale = max(1.0, min(2.0, 1280.0 / image.shape[1]))
@@ -50,6 +54,12 @@ def draw_overlay(
         x, y = (obs.corners.min(axis=0) * scale).astype(int)
         label = f"m{layout.marker(role).number} id {obs.marker_id}"
         cv2.putText(out, label, (x, max(12, y - 6)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, _YELLOW, 1, cv2.LINE_AA)
+    if lidar_px is not None:
+        chosen = lidar_selected if lidar_selected is not None else np.zeros(len(lidar_px), bool)
+        h, w = image.shape[:2]
+        for p, sel in zip(lidar_px, chosen, strict=True):
+            if np.all(np.isfinite(p)) and -0.5 <= p[0] < w - 0.5 and -0.5 <= p[1] < h - 0.5:
+                cv2.circle(out, _pt(p, scale), (3 if sel else 2) * 16, _MAGENTA if sel else _BLUE, -1, cv2.LINE_AA, 4)
     if truth_corners:
         for c in truth_corners.values():
             for p in c:

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from monodock.metrics import BandRow, band_table, markdown_table
 
-__all__ = ["PAPER_FIGURES", "error_plot", "method_tables", "write_html_report"]
+__all__ = ["PAPER_FIGURES", "HtmlReport", "error_plot", "method_tables", "write_html_report"]
 
 # The Sensors 2025 paper's headline numbers (mean errors against LiDAR labels, Tables 4-5).
 PAPER_FIGURES = {
@@ -137,3 +137,59 @@ arrows: the board estimate's dock axes (x red into the charger, y green left, z 
     (out / "report.md").write_text(f"# {title}\n\n{md}\n", encoding="utf-8")
     summary = {"settings": settings, "rows": [asdict(r) for r in rows], "paper": PAPER_FIGURES}
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str), encoding="utf-8")
+
+
+_STYLE = """body{font-family:sans-serif;max-width:1150px;margin:2em auto;line-height:1.4}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
+td:first-child,th:first-child{text-align:left}tr.all{font-weight:bold;background:#eef}
+td{white-space:nowrap}table.settings td{text-align:left;white-space:normal}
+figure{display:inline-block;margin:0.5em}figcaption{font-size:90%;color:#444}"""
+
+
+class HtmlReport:
+    """A report built section by section, written as report.html, report.md and summary.json."""
+
+    def __init__(self, title: str) -> None:
+        self.title = title
+        self._html: list[str] = []
+        self._md: list[str] = [f"# {title}\n"]
+
+    def heading(self, text: str, level: int = 2) -> None:
+        self._html.append(f"<h{level}>{html.escape(text)}</h{level}>")
+        self._md.append(f"{'#' * level} {text}\n")
+
+    def paragraph(self, text: str) -> None:
+        self._html.append(f"<p>{html.escape(text)}</p>")
+        self._md.append(text + "\n")
+
+    def settings(self, values: dict[str, object]) -> None:
+        rows = "".join(
+            f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in values.items()
+        )
+        self._html.append(f'<table class="settings">{rows}</table>')
+        self._md.append("".join(f"- {k}: {v}\n" for k, v in values.items()))
+
+    def table(self, markdown: str) -> None:
+        self._html.append(_table_html(markdown))
+        self._md.append(markdown.strip() + "\n")
+
+    def image(self, file: str, caption: str = "", width: int = 1050) -> None:
+        cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
+        self._html.append(f'<figure><img src="{html.escape(file)}" width="{width}">{cap}</figure>')
+        self._md.append(f"![{caption}]({file})\n")
+
+    def bullets(self, items: Sequence[str]) -> None:
+        self._html.append("<ul>" + "".join(f"<li>{html.escape(i)}</li>" for i in items) + "</ul>")
+        self._md.append("".join(f"- {i}\n" for i in items))
+
+    def write(self, out: Path, summary: dict[str, object]) -> None:
+        """Write the three files into ``out`` (images are file names relative to it)."""
+        page = (
+            f'<!doctype html>\n<html><head><meta charset="utf-8"><title>{html.escape(self.title)}</title>'
+            f"<style>{_STYLE}</style></head><body>\n<h1>{html.escape(self.title)}</h1>\n"
+            + "\n".join(self._html)
+            + "\n</body></html>\n"
+        )
+        (out / "report.html").write_text(page, encoding="utf-8")
+        (out / "report.md").write_text("\n".join(self._md), encoding="utf-8")
+        (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str), encoding="utf-8")
