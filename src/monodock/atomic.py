@@ -58,6 +58,10 @@ def atomic_directory(path: str | os.PathLike[str], *, force: bool = False) -> It
     p = check_writable(path, force=force)
     p.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", dir=p.parent))
+    # mkdtemp makes the folder private (0700); the result should get the permissions of any new folder.
+    umask = os.umask(0)
+    os.umask(umask)
+    tmp.chmod(0o777 & ~umask)
     try:
         yield tmp
     except BaseException:

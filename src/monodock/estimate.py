@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,7 +65,7 @@ class Estimator:
         methods: Sequence[str] = ("board",),
         *,
         refinement: str = "subpix",
-        extra: dict[str, Callable[[Detection], PoseEstimate]] | None = None,
+        extra: Mapping[str, Callable[[Detection], PoseEstimate]] | None = None,
     ) -> None:
         self.extra = dict(extra or {})
         available = {**METHODS, **self.extra}

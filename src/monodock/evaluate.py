@@ -460,9 +460,9 @@ def evaluate_report(
     if extra_sections is not None:
         extra_sections(report)
     reasons: dict[str, dict[str, int]] = {}
-    for name, r in results.items():
+    for name, result in results.items():
         counts: dict[str, int] = {}
-        for reason in r.reasons:
+        for reason in result.reasons:
             if reason:
                 counts[reason.split(" (")[0]] = counts.get(reason.split(" (")[0], 0) + 1
         reasons[name] = counts

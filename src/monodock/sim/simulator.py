@@ -138,15 +138,21 @@ class Simulator:
         )
         return float(np.mean(seen & inside))
 
-    def sample_pose(self, dist: PoseDistribution | None = None, max_tries: int = 10_000) -> DockPose:
-        """A DockPose from the distribution whose required markers are all in view."""
+    def sample_pose(
+        self, dist: PoseDistribution | None = None, max_tries: int = 10_000, rng: np.random.Generator | None = None
+    ) -> DockPose:
+        """A DockPose from the distribution whose required markers are all in view.
+
+        ``rng`` (default: the simulator's own) is the generator to draw from.
+        """
         d = dist or PoseDistribution()
+        g = rng or self.rng
         for _ in range(max_tries):
-            depth = self.rng.uniform(*d.depth)
+            depth = g.uniform(*d.depth)
             pose = DockPose(
                 depth + self.robot.camera_mount.x,
-                float(self.rng.uniform(*d.lateral)),
-                math.radians(float(self.rng.uniform(*d.yaw_deg))),
+                float(g.uniform(*d.lateral)),
+                math.radians(float(g.uniform(*d.yaw_deg))),
             )
             corners = self.true_corners(pose)
             if all(self.in_view(corners[r], d.margin_px) for r in d.require_in_view):

@@ -1,0 +1,438 @@
+"""Conversions between monodock's values and ROS messages (rosbags message objects, ROS 1 and ROS 2).
+
+Messages read from a bag are the dataclasses of rosbags' typestore; their fields follow the bag's own
+message definitions, so ROS 1 spellings (``K``, ``D``, ``secs``) and ROS 2 ones (``k``, ``d``, ``sec``) are
+both accepted here. Writing uses the ROS 2 Humble types.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys.store import Typestore
+
+from monodock import transforms
+from monodock.camera import CameraModel
+from monodock.errors import ConfigError
+from monodock.pose import DockPose
+from monodock.robot import RobotConfig
+from monodock.scan import LaserScan
+
+__all__ = [
+    "CAMERA_INFO",
+    "COMPRESSED_IMAGE",
+    "IMAGE",
+    "IMAGE_ENCODINGS",
+    "IMAGE_TYPES",
+    "LASER_SCAN",
+    "POSE_STAMPED",
+    "TF_MESSAGE",
+    "DecodeError",
+    "camera_from_msg",
+    "camera_info_msg",
+    "decode_image",
+    "encode_image",
+    "header_stamp",
+    "humble_typestore",
+    "matrix_from_quaternion",
+    "normalize_msgtype",
+    "pose_from_msg",
+    "pose_msg",
+    "quaternion_from_matrix",
+    "raw_header_stamp",
+    "scan_from_msg",
+    "scan_msg",
+    "stamp_seconds",
+    "tf_static_msg",
+    "transform_of",
+]
+
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+IMAGE_TYPES = (IMAGE, COMPRESSED_IMAGE)
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+LASER_SCAN = "sensor_msgs/msg/LaserScan"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+
+# What write_recording can put in a bag: raw sensor_msgs/Image, or image_transport's compressed formats.
+IMAGE_ENCODINGS = ("mono8", "bgr8", "png", "jpeg")
+
+_HUMBLE: Typestore | None = None
+
+
+def humble_typestore() -> Typestore:
+    """The ROS 2 Humble typestore (built once)."""
+    global _HUMBLE  # noqa: PLW0603 - building the typestore takes a while; one per process is enough
+    if _HUMBLE is None:
+        _HUMBLE = get_typestore(Stores.ROS2_HUMBLE)
+    return _HUMBLE
+
+
+class DecodeError(ValueError):
+    """A message that cannot be turned into the value asked for; the text says why."""
+
+
+def normalize_msgtype(name: str) -> str:
+    """ROS 2 spelling of a message type name: ``sensor_msgs/Image`` -> ``sensor_msgs/msg/Image``."""
+    parts = [p for p in name.split("/") if p]
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return "/".join(parts)
+
+
+# --- time -----------------------------------------------------------------------------------------
+
+
+def stamp_seconds(stamp: Any) -> float:
+    """Seconds of a builtin_interfaces/Time (``sec``/``nanosec``, or ROS 1 ``secs``/``nsecs``)."""
+    sec = getattr(stamp, "sec", None)
+    if sec is None:
+        sec = stamp.secs
+    nsec = getattr(stamp, "nanosec", None)
+    if nsec is None:
+        nsec = stamp.nsecs
+    return float(sec) + float(nsec) * 1e-9
+
+
+def header_stamp(msg: Any) -> float:
+    """Seconds of a message's ``header.stamp``."""
+    return stamp_seconds(msg.header.stamp)
+
+
+def _split_stamp(stamp: float) -> tuple[int, int]:
+    ns = round(stamp * 1e9)
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+def _header(ts: Typestore, stamp: float, frame_id: str) -> Any:
+    sec, nsec = _split_stamp(stamp)
+    Time = ts.types["builtin_interfaces/msg/Time"]
+    return ts.types["std_msgs/msg/Header"](stamp=Time(sec=sec, nanosec=nsec), frame_id=frame_id)
+
+
+def raw_header_stamp(raw: bytes | memoryview, *, ros1: bool) -> float | None:
+    """The header stamp of a serialised message that starts with a std_msgs/Header, without decoding it all.
+
+    ROS 2 CDR: 4 bytes of encapsulation, then int32 sec, uint32 nanosec. ROS 1: uint32 seq, then uint32
+    secs, uint32 nsecs, little endian. None when the message is too short to hold a header.
+    """
+    if len(raw) < 12:
+        return None
+    if ros1:
+        sec, nsec = struct.unpack_from("<II", raw, 4)
+    else:
+        order = "<" if raw[1] & 1 else ">"
+        sec, nsec = struct.unpack_from(f"{order}iI", raw, 4)
+    return float(sec) + float(nsec) * 1e-9
+
+
+# --- geometry -------------------------------------------------------------------------------------
+
+
+def quaternion_from_matrix(R: ArrayLike) -> tuple[float, float, float, float]:
+    """Unit quaternion (x, y, z, w), w >= 0, of a rotation matrix, shape (3, 3)."""
+    m = np.asarray(R, dtype=np.float64)
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    # Shepperd's method: divide by the largest of the four candidates, for accuracy near 180 degrees.
+    if trace > max(m[0, 0], m[1, 1], m[2, 2]):
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4.0
+    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = s / 4.0, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s
+    elif m[1, 1] >= m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = (m[0, 1] + m[1, 0]) / s, s / 4.0, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4.0, (m[1, 0] - m[0, 1]) / s
+    v = np.array(q, dtype=np.float64)
+    v /= np.linalg.norm(v)
+    if v[3] < 0:
+        v = -v
+    return float(v[0]), float(v[1]), float(v[2]), float(v[3])
+
+
+def matrix_from_quaternion(x: float, y: float, z: float, w: float) -> NDArray[np.float64]:
+    """Rotation matrix, shape (3, 3), of a quaternion (normalised first); DecodeError if it is zero."""
+    n = math.sqrt(x * x + y * y + z * z + w * w)
+    if not (math.isfinite(n) and n > 1e-9):
+        raise DecodeError(f"quaternion ({x}, {y}, {z}, {w}) is not a rotation")
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ],
+        dtype=np.float64,
+    )
+
+
+def transform_of(msg: Any) -> NDArray[np.float64]:
+    """parent_T_child, 4x4, of a geometry_msgs/TransformStamped."""
+    t, q = msg.transform.translation, msg.transform.rotation
+    return transforms.transform(matrix_from_quaternion(q.x, q.y, q.z, q.w), (t.x, t.y, t.z))
+
+
+def _transform_stamped(ts: Typestore, parent: str, child: str, T: NDArray[np.float64], stamp: float) -> Any:
+    qx, qy, qz, qw = quaternion_from_matrix(T[:3, :3])
+    Vector3 = ts.types["geometry_msgs/msg/Vector3"]
+    Quaternion = ts.types["geometry_msgs/msg/Quaternion"]
+    return ts.types["geometry_msgs/msg/TransformStamped"](
+        header=_header(ts, stamp, parent),
+        child_frame_id=child,
+        transform=ts.types["geometry_msgs/msg/Transform"](
+            translation=Vector3(x=float(T[0, 3]), y=float(T[1, 3]), z=float(T[2, 3])),
+            rotation=Quaternion(x=qx, y=qy, z=qz, w=qw),
+        ),
+    )
+
+
+def tf_static_msg(
+    robot: RobotConfig,
+    stamp: float,
+    *,
+    base_frame: str = "base_link",
+    camera_frame: str = "camera_optical_frame",
+    laser_frame: str = "laser",
+) -> Any:
+    """tf2_msgs/TFMessage of the sensor mounts: base -> camera optical frame (optical rotation included), laser."""
+    ts = humble_typestore()
+    return ts.types[TF_MESSAGE](
+        transforms=[
+            _transform_stamped(ts, base_frame, camera_frame, robot.base_T_optical(), stamp),
+            _transform_stamped(ts, base_frame, laser_frame, robot.base_T_laser(), stamp),
+        ]
+    )
+
+
+def pose_msg(pose: DockPose, stamp: float, frame_id: str = "base_link") -> Any:
+    """geometry_msgs/PoseStamped of a DockPose: the dock frame in base_link, yaw about z."""
+    ts = humble_typestore()
+    half = 0.5 * pose.yaw
+    return ts.types[POSE_STAMPED](
+        header=_header(ts, stamp, frame_id),
+        pose=ts.types["geometry_msgs/msg/Pose"](
+            position=ts.types["geometry_msgs/msg/Point"](x=float(pose.x), y=float(pose.y), z=0.0),
+            orientation=ts.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
+        ),
+    )
+
+
+def pose_from_msg(msg: Any) -> DockPose:
+    """DockPose of a geometry_msgs/PoseStamped (the floor-plane part of the pose)."""
+    p, q = msg.pose.position, msg.pose.orientation
+    R = matrix_from_quaternion(q.x, q.y, q.z, q.w)
+    return DockPose.from_matrix(transforms.transform(R, (p.x, p.y, p.z)))
+
+
+# --- camera ---------------------------------------------------------------------------------------
+
+
+def camera_info_msg(camera: CameraModel, stamp: float, frame_id: str) -> Any:
+    """sensor_msgs/CameraInfo of a camera model (R identity, P = [K | 0], no binning, full ROI)."""
+    ts = humble_typestore()
+    P = np.zeros((3, 4))
+    P[:, :3] = camera.matrix
+    return ts.types[CAMERA_INFO](
+        header=_header(ts, stamp, frame_id),
+        height=camera.height,
+        width=camera.width,
+        distortion_model=camera.distortion_model,
+        d=np.array(camera.D, dtype=np.float64),
+        k=np.array(camera.K, dtype=np.float64),
+        r=np.eye(3).ravel(),
+        p=P.ravel(),
+        binning_x=0,
+        binning_y=0,
+        roi=ts.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+    )
+
+
+def _field(msg: Any, *names: str) -> Any:
+    for name in names:
+        if hasattr(msg, name):
+            return getattr(msg, name)
+    raise DecodeError(f"message has no field {names[0]}")
+
+
+def camera_from_msg(msg: Any, name: str = "camera") -> CameraModel | None:
+    """CameraModel of a sensor_msgs/CameraInfo (ROS 1 K/D or ROS 2 k/d); None when K is all zero (uncalibrated).
+
+    Raises:
+        DecodeError: the message holds a calibration that is not valid; the text says why.
+    """
+    K = [float(v) for v in np.asarray(_field(msg, "k", "K"), dtype=np.float64).ravel()]
+    D = [float(v) for v in np.asarray(_field(msg, "d", "D"), dtype=np.float64).ravel()]
+    if not any(K):
+        return None
+    model = str(msg.distortion_model) or "plumb_bob"
+    if not D:  # simulated cameras often publish an empty D for "no distortion"
+        D = [0.0] * (8 if model == "rational_polynomial" else 5)
+    data = {"width": int(msg.width), "height": int(msg.height), "camera_name": name}
+    data |= {"distortion_model": model, "k": K, "d": D}
+    try:
+        return CameraModel.from_ros_dict(data, "camera_info")
+    except ConfigError as exc:
+        raise DecodeError(str(exc)) from None
+
+
+# --- images ---------------------------------------------------------------------------------------
+
+# Raw encodings (sensor_msgs/image_encodings.hpp) -> (channels, bytes per channel, conversion to mono/BGR).
+_RAW: dict[str, tuple[int, int, int | None]] = {
+    "mono8": (1, 1, None),
+    "8UC1": (1, 1, None),
+    "bgr8": (3, 1, None),
+    "8UC3": (3, 1, None),
+    "rgb8": (3, 1, cv2.COLOR_RGB2BGR),
+    "bgra8": (4, 1, cv2.COLOR_BGRA2BGR),
+    "8UC4": (4, 1, cv2.COLOR_BGRA2BGR),
+    "rgba8": (4, 1, cv2.COLOR_RGBA2BGR),
+    "mono16": (1, 2, None),
+    "16UC1": (1, 2, None),
+}
+
+
+def _to_uint8(image: NDArray[Any]) -> NDArray[np.uint8]:
+    """8-bit mono or BGR of what cv2.imdecode returns (16-bit scaled as cv_bridge does: 1/256)."""
+    img = np.asarray(image)
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise DecodeError(f"compressed image has pixel type {img.dtype}, expected 8 or 16 bit")
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    elif img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    return np.ascontiguousarray(img, dtype=np.uint8)
+
+
+def decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
+    """Pixels (uint8, mono (H, W) or BGR (H, W, 3)) of a sensor_msgs/Image or CompressedImage.
+
+    Raw images may have padded rows (``step`` > width x channels x bytes); mono16 is scaled to 8 bits.
+
+    Raises:
+        DecodeError: unknown encoding, too little data, or a compressed image that does not decode.
+    """
+    data = np.frombuffer(np.asarray(msg.data, dtype=np.uint8), dtype=np.uint8)
+    if msgtype == COMPRESSED_IMAGE:
+        if data.size == 0:
+            raise DecodeError("compressed image is empty")
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise DecodeError(f"compressed image (format '{msg.format}') does not decode")
+        return _to_uint8(img)
+    encoding = str(msg.encoding)
+    spec = _RAW.get(encoding)
+    if spec is None:
+        known = ", ".join(k for k in _RAW if not k[0].isdigit())
+        raise DecodeError(f"image encoding '{encoding}' is not supported ({known})")
+    channels, depth, conversion = spec
+    width, height, step = int(msg.width), int(msg.height), int(msg.step)
+    if width <= 0 or height <= 0:
+        raise DecodeError(f"image size {width}x{height} is empty")
+    row = width * channels * depth
+    if step < row:
+        raise DecodeError(f"image step {step} is less than width x bytes per pixel = {row}")
+    if data.size < step * (height - 1) + row:
+        raise DecodeError(f"image has {data.size} bytes of data, expected step x height = {step * height}")
+    rows = np.lib.stride_tricks.as_strided(data, shape=(height, row), strides=(step, 1))
+    if depth == 2:
+        dtype = np.dtype(">u2" if msg.is_bigendian else "<u2")
+        wide = np.ascontiguousarray(rows).view(dtype).reshape(height, width)
+        return np.ascontiguousarray((wide >> 8).astype(np.uint8))
+    img = np.ascontiguousarray(rows).reshape((height, width) if channels == 1 else (height, width, channels))
+    if conversion is not None:
+        img = cv2.cvtColor(img, conversion)
+    return np.asarray(img, dtype=np.uint8)
+
+
+def _format(encoding: str, image: NDArray[np.uint8]) -> str:
+    """image_transport's CompressedImage format string: "<encoding>; <codec> compressed <target>"."""
+    source = "mono8" if image.ndim == 2 else "bgr8"
+    return f"{source}; {encoding} compressed {source}"
+
+
+def encode_image(image: NDArray[np.uint8], encoding: str, stamp: float, frame_id: str) -> tuple[str, Any]:
+    """(message type, message) of a mono8 or BGR image as sensor_msgs/Image or CompressedImage.
+
+    ``encoding``: "mono8" or "bgr8" (raw Image; mono is expanded to BGR for bgr8), "png" or "jpeg" (CompressedImage
+    of the image as it is, like image_transport's compressed publisher).
+    """
+    ts = humble_typestore()
+    header = _header(ts, stamp, frame_id)
+    if encoding in ("png", "jpeg"):
+        ext = ".png" if encoding == "png" else ".jpg"
+        ok, buf = cv2.imencode(ext, image)
+        if not ok:
+            raise DecodeError(f"cannot encode image as {encoding}")
+        msg = ts.types[COMPRESSED_IMAGE](
+            header=header, format=_format(encoding, image), data=np.asarray(buf, dtype=np.uint8).ravel()
+        )
+        return COMPRESSED_IMAGE, msg
+    if encoding == "mono8":
+        img = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        channels = 1
+    elif encoding == "bgr8":
+        img = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        channels = 3
+    else:
+        raise DecodeError(f"image encoding '{encoding}' is not one of {', '.join(IMAGE_ENCODINGS)}")
+    img = np.ascontiguousarray(img, dtype=np.uint8)
+    height, width = img.shape[:2]
+    msg = ts.types[IMAGE](
+        header=header,
+        height=height,
+        width=width,
+        encoding=encoding,
+        is_bigendian=0,
+        step=width * channels,
+        data=img.reshape(-1),
+    )
+    return IMAGE, msg
+
+
+# --- LiDAR ----------------------------------------------------------------------------------------
+
+
+def scan_msg(scan: LaserScan) -> Any:
+    """sensor_msgs/LaserScan of a scan; NaN and +-inf ranges kept as they are (REP 117)."""
+    ts = humble_typestore()
+    return ts.types[LASER_SCAN](
+        header=_header(ts, scan.stamp, scan.frame_id),
+        angle_min=float(scan.angle_min),
+        angle_max=float(scan.angle_max),
+        angle_increment=float(scan.angle_increment),
+        time_increment=float(scan.time_increment),
+        scan_time=float(scan.scan_time),
+        range_min=float(scan.range_min),
+        range_max=float(scan.range_max),
+        ranges=np.asarray(scan.ranges, dtype=np.float32),
+        intensities=np.zeros(0, dtype=np.float32),
+    )
+
+
+def scan_from_msg(msg: Any) -> LaserScan:
+    """LaserScan of a sensor_msgs/LaserScan (header stamp; NaN and +-inf kept)."""
+    return LaserScan(
+        stamp=header_stamp(msg),
+        frame_id=str(msg.header.frame_id),
+        angle_min=float(msg.angle_min),
+        angle_max=float(msg.angle_max),
+        angle_increment=float(msg.angle_increment),
+        time_increment=float(msg.time_increment),
+        scan_time=float(msg.scan_time),
+        range_min=float(msg.range_min),
+        range_max=float(msg.range_max),
+        ranges=np.array(msg.ranges, dtype=np.float32),
+    )
