@@ -156,6 +156,7 @@ def model_feature_names(set_name: str) -> tuple[str, ...]:
     """The model input columns of a marker set, in order."""
     roles = _roles(set_name)
     names = [f"m{ROLE_NUMBER[r]}_{f}" for r in roles for f in _PER_MARKER]
+    names += [f"m2_shape_{c}_{a}" for c in CORNER_NAMES for a in ("x", "y")]
     for r in roles:
         if r != "center":
             m = f"m{ROLE_NUMBER[r]}"
@@ -193,7 +194,10 @@ def _normalised_marker(raw: NDArray[np.float64], role: str, camera: CameraModel)
     centre = np.array([_centre(q) if np.all(np.isfinite(q)) else np.full(2, np.nan) for q in n]).reshape(-1, 2)
     size = (side["top"] + side["bottom"] + side["left"] + side["right"]) / 4.0
     with np.errstate(divide="ignore", invalid="ignore"):
+        # The quadrilateral's shape independent of its size and place: what perspective does to a square.
+        shape = ((n - centre[:, None, :]) / size[:, None, None]).reshape(-1, 8)
         return {
+            "shape": shape,
             "u": centre[:, 0],
             "v": centre[:, 1],
             **side,
@@ -219,6 +223,8 @@ def model_features(raw: NDArray[np.float64], camera: CameraModel, set_name: str)
     geo = {r: _normalised_marker(rows, r, camera) for r in roles}
     cols = [geo[r][f] for r in roles for f in _PER_MARKER]
     c = geo["center"]
+    # Marker 2's full shape: with marker 2 alone, the yaw is in the perspective of one square.
+    cols += list(c["shape"].T)
     with np.errstate(divide="ignore", invalid="ignore"):
         sep: dict[str, NDArray[np.float64]] = {}
         for r in roles:
