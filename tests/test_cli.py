@@ -294,10 +294,15 @@ def test_output_where_a_file_cannot_go(sim_folder: Path, tmp_path: Path, capsys:
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["demo", "--frames", "0"], "--frames"),
+        (["demo", "--train-stops", "0"], "--train-stops"),
         (["simulate", "--out", "x", "--preview", "-1"], "--preview"),
         (["simulate", "--out", "x", "--supersample", "0"], "--supersample"),
         (["simulate", "--out", "x", "--depth", "2", "1"], "--depth"),
+        (["train", "x", "--out", "x", "--trials", "0"], "--trials"),
+        (["simulate", "--out", "x", "--format", "rosbag2", "--density", "1,2,x"], "--density"),
+        (["simulate", "--out", "x", "--format", "rosbag2", "--density", "steep"], "density"),
+        (["simulate", "--out", "x", "--format", "rosbag2", "--camera-rate", "0"], "camera_rate"),
+        (["label", "x", "--layout", "x", "--out", "x", "--tolerance", "-1"], "tolerance"),
     ],
 )
 def test_bad_numbers(args: list[str], needle: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

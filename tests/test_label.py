@@ -166,3 +166,20 @@ def test_scan_in_base_applies_the_laser_mount() -> None:
     robot = RobotConfig(laser_mount=Mount(0.2, 0.1, 0.15, 0.0, 0.0, math.pi / 2))
     scan = LaserScan(0.0, "laser", 0.0, 0.0, 1.0, 0.0, 0.1, 0.1, 10.0, np.array([2.0], dtype=np.float32))
     np.testing.assert_allclose(scan_in_base(scan, robot), [[0.2, 2.1, 0.15]], atol=1e-12)
+
+
+def test_points_far_outside_the_field_are_not_projected_into_the_image() -> None:
+    """65 deg off-axis the default lens polynomial folds back into the picture; such points must not land on
+    a pixel (they put stray LiDAR points on overlays and hidden markers "in view")."""
+    camera = CameraModel.default()
+    far = np.array([[math.tan(math.radians(65.0)), 0.0, 1.0]])
+    u, v = camera.project(far)[0]
+    assert 0 <= u < camera.width
+    assert 0 <= v < camera.height
+    assert not camera.in_view_field(far)[0]
+    robot = RobotConfig(camera_mount=Mount(0.0, 0.0, 0.0))
+    base = far @ robot.base_T_optical()[:3, :3].T
+    assert np.isnan(project_to_image(base, camera, robot)).all()
+    # Every pixel corner's own ray is in the field.
+    rays = camera.vertex_rays().reshape(-1, 2)
+    assert camera.in_view_field(np.c_[rays, np.ones(len(rays))], margin=0.0).all()

@@ -132,6 +132,20 @@ class CameraModel:
         out = cv2.undistortPoints(px, self.matrix, self.dist, criteria=_UNDISTORT_CRITERIA)
         return np.asarray(out, dtype=np.float64).reshape(-1, 2)
 
+    def in_view_field(self, points_optical: ArrayLike, margin: float = 0.05) -> NDArray[np.bool_]:
+        """Which points (N, 3) are in front of the camera and inside the field the lens maps onto the image.
+
+        A polynomial lens model folds directions far outside the field of view back into the picture (barrel
+        distortion turns over past the image's corners), so ``project`` alone can put a point that the camera
+        cannot see on a pixel. ``margin`` widens the field by that fraction of its extent.
+        """
+        p = np.asarray(points_optical, dtype=np.float64).reshape(-1, 3)
+        lo, hi = _field_bounds(self)
+        pad = (hi - lo) * margin
+        with np.errstate(divide="ignore", invalid="ignore"):
+            n = p[:, :2] / p[:, 2:3]
+        return np.asarray((p[:, 2] > 1e-9) & np.all((n >= lo - pad) & (n <= hi + pad), axis=1))
+
     def vertex_rays(self) -> NDArray[np.float64]:
         """Normalised coordinates of every pixel corner, shape (height+1, width+1, 2); cached per camera."""
         return _vertex_rays(self)
@@ -207,6 +221,14 @@ class CameraModel:
         ):
             return _load_opencv_storage(p)
         return cls.from_ros_dict(load_yaml(p, "camera"), str(p))
+
+
+@functools.lru_cache(maxsize=8)
+def _field_bounds(camera: CameraModel) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The box in normalised coordinates that the image's border pixels see (through the lens)."""
+    border = camera.vertex_rays()
+    edge = np.concatenate([border[0], border[-1], border[:, 0], border[:, -1]])
+    return edge.min(axis=0), edge.max(axis=0)
 
 
 @functools.lru_cache(maxsize=8)

@@ -355,7 +355,7 @@ def _label(args: argparse.Namespace, layout: DockLayout, camera: CameraModel | N
     print(
         f"{run.images} images: {run.paired} paired with a scan within {args.tolerance * 1000:.0f} ms, "
         f"{run.unpaired} unpaired, {run.unreadable} unreadable, {run.no_marker2} without marker 2; "
-        f"{run.labelled} labelled" + (f" ({reasons} not)" if reasons else "")
+        f"{run.labelled} labelled" + (f"; not labelled: {reasons}" if reasons else "")
     )
     return ds
 
@@ -365,6 +365,8 @@ def _cmd_label(args: argparse.Namespace) -> int:
     from monodock.dataset import label_error_table, label_errors, write_dataset
     from monodock.layout import DockLayout
 
+    if not (args.tolerance > 0 and math.isfinite(args.tolerance)):
+        raise MonodockError(f"--tolerance must be a positive number of seconds, got {args.tolerance}")
     layout = DockLayout.load(args.layout)
     check_writable(args.out, force=args.force)
     ds = _label(args, layout, None)

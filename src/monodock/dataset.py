@@ -177,8 +177,8 @@ class LabelRun:
 
 
 def _reason_kind(reason: str) -> str:
-    """A reason without its numbers, so that counts group ("2 LiDAR points …" and "1 LiDAR points …")."""
-    return " ".join("N" if w.isdigit() else w for w in reason.split())
+    """A reason without its particulars in brackets, so that counts group."""
+    return reason.split(" (", maxsplit=1)[0]
 
 
 def label_frames(

@@ -29,7 +29,6 @@ from monodock.features import detection_from_features
 from monodock.layout import DockLayout
 from monodock.metrics import BandRow, band_table, markdown_table
 from monodock.pnp import PoseEstimate, estimate_board, estimate_single_marker
-from monodock.pose import wrap_angle
 from monodock.report import HtmlReport
 from monodock.robot import RobotConfig
 
@@ -118,10 +117,16 @@ def reference_poses(dataset: Dataset) -> dict[str, NDArray[np.float64]]:
     return out
 
 
+def _wrap(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Angles wrapped into [-pi, pi); NaN stays NaN."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(np.remainder(a + np.pi, 2 * np.pi) - np.pi, dtype=np.float64)
+
+
 def errors(reference: NDArray[np.float64], poses: NDArray[np.float64]) -> NDArray[np.float64]:
     """Signed errors (estimate - reference) per row; NaN where either is missing."""
     e = poses - reference
-    e[:, 2] = np.vectorize(wrap_angle, otypes=[float])(e[:, 2]) if len(e) else e[:, 2]
+    e[:, 2] = _wrap(e[:, 2])
     return e
 
 
@@ -144,7 +149,7 @@ class MiscalibrationRow:
     factor: float
     method: str
     depth_mae_cm: float
-    depth_bias_pct: float
+    depth_bias_pct: float  # mean signed error over the depth from the camera, percent
     yaw_mae_deg: float
 
 
@@ -193,7 +198,8 @@ def miscalibration_study(
             for name, r in results.items():
                 e = errors(reference, r.poses)[ok]
                 good = np.isfinite(e[:, 0])
-                rel = e[good, 0] / reference[ok][good, 0]
+                # Relative to the depth from the camera: what a wrong scale multiplies.
+                rel = e[good, 0] / (reference[ok][good, 0] - robot.camera_mount.x)
                 rows.append(
                     MiscalibrationRow(
                         quantity,
@@ -317,7 +323,7 @@ def figure_errors(
         for m, r in results.items():
             e = np.abs(r.poses[:, col] - reference[:, col])
             if col == 2:
-                e = np.abs(np.vectorize(wrap_angle, otypes=[float])(r.poses[:, col] - reference[:, col]))
+                e = np.abs(_wrap(r.poses[:, col] - reference[:, col]))
             e = e[ok_ref & np.isfinite(e)] * scale
             names.append(_LABELS.get(m, m))
             means.append(float(e.mean()) if e.size else math.nan)

@@ -162,10 +162,10 @@ def points_across_marker(
 
 
 def project_to_image(points: NDArray[np.float64], camera: CameraModel, robot: RobotConfig) -> NDArray[np.float64]:
-    """Pixels (N, 2) of base_link points through the lens (papers Eq. 1, Fig. 8c); NaN behind the camera."""
+    """Pixels (N, 2) of base_link points through the lens (papers Eq. 1, Fig. 8c); NaN outside the camera's field."""
     p = transforms.apply(transforms.invert(robot.base_T_optical()), points)
     px = camera.project(p) if len(p) else np.zeros((0, 2))
-    px[p[:, 2] <= 1e-6] = np.nan
+    px[~camera.in_view_field(p)] = np.nan
     return px
 
 
@@ -193,7 +193,7 @@ def label_frame(
         return LidarLabel(reason="scan has no valid returns")
     p = pts[planes.across(pts)]
     if len(p) < MIN_POINTS:
-        return LidarLabel(points=len(p), reason=f"{len(p)} LiDAR points across marker 2 (need {MIN_POINTS})")
+        return LidarLabel(points=len(p), reason=f"too few LiDAR points across marker 2 ({len(p)}, need {MIN_POINTS})")
 
     offset = (p - centre) @ n_mid
     nearest = int(np.argmin(np.abs(offset)))

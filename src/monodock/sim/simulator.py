@@ -30,7 +30,7 @@ class FrameTruth:
     Attributes:
         pose: the DockPose (dock in base_link).
         corners: each marker's true corners in pixels through the lens, ArUco order, shape (4, 2);
-            NaN where a corner is behind the camera.
+            NaN where a corner is behind the camera or far outside its field of view.
         in_view: whether all four corners of the marker fall inside the image.
         visible_fraction: share of the marker's face that the camera actually sees (in view, not occluded).
     """
@@ -92,13 +92,14 @@ class Simulator:
         return transforms.invert(pose.matrix()) @ self.robot.base_T_optical()
 
     def true_corners(self, pose: DockPose) -> dict[str, NDArray[np.float64]]:
-        """Each marker's exact corner pixels (through the lens); NaN for corners behind the camera."""
+        """Each marker's exact corner pixels (through the lens); NaN for corners the camera cannot see: behind
+        it, or so far outside its field that the lens polynomial would fold them back into the image."""
         optical_T_world = transforms.invert(self.world_T_optical(pose))
         out = {}
         for role in ROLES:
             p = transforms.apply(optical_T_world, self.layout.corners_in_dock(role))
             px = self.camera.project(p)
-            px[p[:, 2] <= 1e-6] = np.nan
+            px[~self.camera.in_view_field(p)] = np.nan
             out[role] = px
         return out
 
