@@ -435,3 +435,21 @@ def test_camera_four_coefficient_plumb_bob(tmp_path: Path) -> None:
         encoding="utf-8",
     )
     np.testing.assert_array_equal(CameraModel.load(path).dist, [-0.2, 0.05, 0.001, 0.002, 0.0])
+
+
+def test_atomic_outputs_get_the_permissions_of_any_new_file(tmp_path: Path) -> None:
+    """Temp files and folders are private; what they become must not be (a robot's other users read them)."""
+    import os
+    import stat
+
+    from monodock.atomic import atomic_directory, write_text_atomic
+
+    old = os.umask(0o022)
+    try:
+        write_text_atomic(tmp_path / "f.yaml", "a: 1\n")
+        with atomic_directory(tmp_path / "d") as d:
+            (d / "x").write_text("x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "f.yaml").stat().st_mode) == 0o644
+    assert stat.S_IMODE((tmp_path / "d").stat().st_mode) == 0o755

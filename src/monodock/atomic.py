@@ -17,6 +17,13 @@ from monodock.errors import InputError
 __all__ = ["atomic_directory", "check_writable", "write_bytes_atomic", "write_text_atomic"]
 
 
+def _umask() -> int:
+    """The process's file-creation mask (reading it means setting it; it is put straight back)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def check_writable(path: str | os.PathLike[str], *, force: bool) -> Path:
     """The path, checked before any work is done: InputError when it exists and ``force`` is not given,
     or when its folder cannot be made (a file stands where a folder should be)."""
@@ -39,6 +46,8 @@ def write_bytes_atomic(path: str | os.PathLike[str], data: bytes, *, force: bool
     p.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", dir=p.parent)
     try:
+        # mkstemp makes the file private (0600); the result should get the permissions of any new file.
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
         os.replace(tmp, p)
@@ -59,9 +68,7 @@ def atomic_directory(path: str | os.PathLike[str], *, force: bool = False) -> It
     p.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{p.name}.", dir=p.parent))
     # mkdtemp makes the folder private (0700); the result should get the permissions of any new folder.
-    umask = os.umask(0)
-    os.umask(umask)
-    tmp.chmod(0o777 & ~umask)
+    tmp.chmod(0o777 & ~_umask())
     try:
         yield tmp
     except BaseException:
