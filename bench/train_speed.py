@@ -19,6 +19,7 @@ the depth. Then:
 Run from the repo root:
 
     python bench/train_speed.py [--rows 20000] [--jobs 2] [--seed 0] [--out FILE.md]
+    python bench/train_speed.py --dataset DATASET.parquet [--set m1m2m3]   # the real features of a labelled drive
 """
 
 from __future__ import annotations
@@ -133,9 +134,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--calls", type=_positive, default=2000, help="one-row calls to time per model (default 2000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the data and the training (default 0)")
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
+    p.add_argument("--dataset", help="time on this labelled dataset (monodock label) instead of synthetic rows")
+    p.add_argument("--set", default="m1m2m3", help="with --dataset: the marker set to train (default m1m2m3)")
     args = p.parse_args(argv)
 
-    ts = synthetic_set(args.rows, args.seed)
+    if args.dataset:
+        from monodock.dataset import read_dataset
+        from monodock.regression import training_sets
+
+        ts = training_sets(read_dataset(args.dataset), (args.set,))[0]
+    else:
+        ts = synthetic_set(args.rows, args.seed)
     config = TrainConfig(trials=args.trials, seed=args.seed, jobs=args.jobs)
     t0 = time.perf_counter()
     result = train([ts], config)
@@ -182,10 +191,16 @@ def main(argv: list[str] | None = None) -> int:
     mb = size / 1e6
     env = environment()
     n_models = sum(c is not None for c in chosen)
+    data = (
+        f"{len(ts.depth)} rows of {args.dataset}, marker set {ts.name}, {len(ts.feature_names)} features"
+        if args.dataset
+        else f"synthetic {len(ts.feature_names)}-feature set, the paper's depth histogram"
+    )
+    command = f"--dataset {args.dataset} --set {args.set}" if args.dataset else f"--rows {args.rows}"
     lines = [
-        "### Training and one-row prediction cost (synthetic 20-feature set, the paper's depth histogram)",
+        f"### Training and one-row prediction cost ({data})",
         "",
-        f"`python bench/train_speed.py --rows {args.rows} --jobs {args.jobs} --trials {args.trials} "
+        f"`python bench/train_speed.py {command} --jobs {args.jobs} --trials {args.trials} "
         f"--seed {args.seed}` — {env['date_utc']} UTC, {env['machine']}, numpy {env['numpy']}. "
         f"{result.n_fits} fits over {1 + len(sr.angle)} tasks; {n_models} models chosen "
         f"({sum(c is None for c in chosen)} segments without a model).",
