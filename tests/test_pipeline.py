@@ -240,3 +240,32 @@ def test_any_layout_camera_and_mounts(tmp_path: Path) -> None:
     dy = [abs(float(r["y_m"]) - truth[f"{float(r['stamp']):.6f}"].y) for r in rows]
     assert np.mean(dx) < 0.05
     assert np.mean(dy) < 0.03
+
+
+def test_frames_the_regression_must_not_guess(work: Path, tmp_path: Path) -> None:
+    """Marker 2 hidden, or the dock farther than anything trained on: no estimate and a reason, never a guess;
+    the frames around them are still estimated."""
+    import cv2
+
+    from monodock.pose import DockPose
+
+    sim = Simulator(seed=9)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    good = sim.frame(DockPose(1.2, 0.05, 0.1), 0.0, np.random.default_rng(0))
+    hidden = good.image.copy()
+    c = good.truth.corners["center"]
+    lo, hi = np.floor(c.min(axis=0)).astype(int) - 3, np.ceil(c.max(axis=0)).astype(int) + 3
+    hidden[lo[1] : hi[1], lo[0] : hi[0]] = 200  # a sticker over marker 2
+    far = sim.frame(DockPose(3.3, 0.0, 0.0), 0.0, np.random.default_rng(1)).image
+    for name, image in (("a_good.png", good.image), ("b_hidden.png", hidden), ("c_far.png", far)):
+        cv2.imwrite(str(folder / name), image)
+    est = tmp_path / "e.csv"
+    assert main(["estimate", "--model", str(work / "bundle"), str(folder), "--out", str(est)]) == 0
+    rows = {r["frame"]: r for r in csv.DictReader(est.open())}
+    assert rows["a_good.png"]["valid"] == "true"
+    assert abs(float(rows["a_good.png"]["x_m"]) - 1.2) < 0.05
+    assert rows["b_hidden.png"]["valid"] == "false"
+    assert "marker 2" in rows["b_hidden.png"]["reason"]
+    assert rows["c_far.png"]["valid"] == "false"
+    assert "outside the trained range" in rows["c_far.png"]["reason"]
