@@ -40,6 +40,7 @@ __all__ = [
     "TrainingSet",
     "describe_search_space",
     "make_estimator",
+    "segment_quota",
     "train",
 ]
 
@@ -158,6 +159,8 @@ class TrainConfig:
         test_size: Fraction of each task's rows held out for scoring (the papers' 80/20 split).
         seed: Seed of every random choice (splits, draws, tree seeds, SVR subsample).
         min_segment_samples: A segment with fewer rows borrows its neighbours' rows until it has this many.
+        min_rows_per_feature: ... or until it has this many rows per input feature, if that is more: a
+            linear model of 40 inputs fitted on 50 noisy labels learns their noise.
         max_borrow: Borrow from at most this many segments on either side.
         min_rows: Below this many rows after borrowing, a segment gets no angle model.
         svr_max_rows: SVR (O(n²) to fit) is fit on a seeded subsample of at most this many training rows.
@@ -170,6 +173,7 @@ class TrainConfig:
     test_size: float = 0.2
     seed: int = 0
     min_segment_samples: int = 40
+    min_rows_per_feature: float = 3.0
     max_borrow: int = 4
     min_rows: int = 10
     svr_max_rows: int = 4000
@@ -193,6 +197,8 @@ class TrainConfig:
             raise ConfigError(
                 f"need 5 <= min_rows <= min_segment_samples, got {self.min_rows} and {self.min_segment_samples}"
             )
+        if not self.min_rows_per_feature >= 0:
+            raise ConfigError(f"min_rows_per_feature must be >= 0, got {self.min_rows_per_feature}")
         if self.max_borrow < 0 or self.jobs < 0 or self.svr_max_rows < 10:
             raise ConfigError("max_borrow and jobs must be >= 0 and svr_max_rows >= 10")
 
@@ -501,17 +507,20 @@ class _Task:
         return f"{self.set_name}/{self.target}/{'all' if self.segment is None else self.segment}"
 
 
+def segment_quota(config: TrainConfig, n_features: int) -> int:
+    """Rows an angle segment should have before it stops borrowing from its neighbours."""
+    return max(config.min_segment_samples, math.ceil(config.min_rows_per_feature * n_features))
+
+
 def _segment_rows(
-    seg_of_row: NDArray[np.int64], k: int, config: TrainConfig
+    seg_of_row: NDArray[np.int64], k: int, config: TrainConfig, n_features: int
 ) -> tuple[NDArray[np.int64], int, tuple[int, int] | None]:
-    """Rows for segment ``k``: its own, plus neighbours k±1, k±2, ... while fewer than min_segment_samples."""
+    """Rows for segment ``k``: its own, plus neighbours k±1, k±2, ... while fewer than the segment quota."""
     own = np.flatnonzero(seg_of_row == k)
+    quota = segment_quota(config, n_features)
     lo = hi = k
     d = 0
-    while (
-        int(np.count_nonzero((seg_of_row >= lo) & (seg_of_row <= hi))) < config.min_segment_samples
-        and d < config.max_borrow
-    ):
+    while int(np.count_nonzero((seg_of_row >= lo) & (seg_of_row <= hi))) < quota and d < config.max_borrow:
         d += 1
         lo, hi = max(0, k - d), min(config.segments.count - 1, k + d)
     rows = np.flatnonzero((seg_of_row >= lo) & (seg_of_row <= hi))
@@ -577,7 +586,7 @@ def _tasks(sets: Sequence[TrainingSet], config: TrainConfig) -> list[_Task]:
         seg_of_row = config.segments.indices(s.segment_depth)
         tasks.append(_make_task(s, i, None, all_rows, seg_of_row, None, config))
         for k in range(config.segments.count):
-            rows, _, borrowed = _segment_rows(seg_of_row, k, config)
+            rows, _, borrowed = _segment_rows(seg_of_row, k, config, len(s.feature_names))
             tasks.append(_make_task(s, i, k, rows, seg_of_row, borrowed, config))
     return tasks
 

@@ -24,7 +24,15 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from monodock.atomic import check_writable, write_bytes_atomic, write_text_atomic
-from monodock.train import MODEL_NAMES, SegmentTable, SetResult, TaskResult, TrainingResult, describe_search_space
+from monodock.train import (
+    MODEL_NAMES,
+    SegmentTable,
+    SetResult,
+    TaskResult,
+    TrainingResult,
+    describe_search_space,
+    segment_quota,
+)
 
 __all__ = [
     "MODEL_LABELS",
@@ -324,7 +332,9 @@ def _notes(result: TrainingResult) -> list[str]:
         f"{cfg.seed}; up to {cfg.trials} random hyperparameter draws per model type and task; the model type with "
         "the lowest test MSE is chosen (the paper's rule). MSE and R² are on the test split.",
         f"- Depth: one global model per marker set on all rows. Angle: one model per {seg.width_m * 100:g} cm segment "
-        f"over {seg.start_m * 100:g}–{seg.end_m * 100:g} cm. A segment with fewer than {cfg.min_segment_samples} rows "
+        f"over {seg.start_m * 100:g}–{seg.end_m * 100:g} cm. A segment with fewer than "
+        + ", ".join(f"{segment_quota(cfg, len(s.feature_names))} ({s.name})" for s in result.sets)
+        + f" rows (at least {cfg.min_segment_samples}, and {cfg.min_rows_per_feature:g} per input feature) "
         f"borrows the rows of its neighbours (±1, ±2, … up to ±{cfg.max_borrow} segments); one still under "
         f"{cfg.min_rows} rows gets no model.",
         f"- Training: {result.n_fits} fits in {result.seconds:.1f} s on {result.jobs} worker "
