@@ -10,6 +10,8 @@ coordinates, with the inverse sizes, side ratios and centre separations that mak
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,7 +68,7 @@ def marker_features(corners: NDArray[np.float64]) -> MarkerFeatures:
     c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
 
     def side(i: int, j: int) -> float:
-        return float(np.linalg.norm(c[i] - c[j]))
+        return math.hypot(float(c[i, 0] - c[j, 0]), float(c[i, 1] - c[j, 1]))
 
     return MarkerFeatures(side(0, 1), side(2, 3), side(3, 0), side(1, 2), c, _centre(c))
 
@@ -172,38 +174,50 @@ def _roles(set_name: str) -> tuple[str, ...]:
     return MARKER_SETS[set_name]
 
 
-def _column(name: str) -> int:
-    return FEATURE_NAMES.index(name)
+@functools.lru_cache(maxsize=8)
+def _corner_columns(roles: tuple[str, ...]) -> NDArray[np.int64]:
+    """Column indices of the roles' corners (tl, tr, br, bl; u, v) in FEATURE_NAMES."""
+    names = [f"m{ROLE_NUMBER[r]}_{c}_{a}" for r in roles for c in CORNER_NAMES for a in ("u", "v")]
+    return np.array([FEATURE_NAMES.index(n) for n in names], dtype=np.int64)
 
 
-def _normalised_marker(raw: NDArray[np.float64], role: str, camera: CameraModel) -> dict[str, NDArray[np.float64]]:
-    """Per-row geometry of one marker in normalised image coordinates (NaN where the marker was not seen)."""
-    m = f"m{ROLE_NUMBER[role]}"
-    cols = [_column(f"{m}_{c}_{a}") for c in CORNER_NAMES for a in ("u", "v")]
-    px = raw[:, cols].reshape(-1, 4, 2)
+def _normalised_markers(
+    rows: NDArray[np.float64], roles: tuple[str, ...], camera: CameraModel
+) -> dict[str, NDArray[np.float64]]:
+    """Per row and marker, the geometry in normalised image coordinates, arrays of shape (n, markers[, ...]).
+
+    One undistortion call for every corner of every row: this runs on each frame at run time.
+    """
+    px = rows[:, _corner_columns(roles)].reshape(len(rows), len(roles), 4, 2)
     n = np.full_like(px, np.nan)
-    ok = np.all(np.isfinite(px), axis=(1, 2))
+    ok = np.all(np.isfinite(px), axis=(2, 3))
     if ok.any():
         n[ok] = camera.normalize(px[ok].reshape(-1, 2)).reshape(-1, 4, 2)
-    side = {
-        "top": np.linalg.norm(n[:, 0] - n[:, 1], axis=1),
-        "bottom": np.linalg.norm(n[:, 2] - n[:, 3], axis=1),
-        "left": np.linalg.norm(n[:, 3] - n[:, 0], axis=1),
-        "right": np.linalg.norm(n[:, 1] - n[:, 2], axis=1),
-    }
-    centre = np.array([_centre(q) if np.all(np.isfinite(q)) else np.full(2, np.nan) for q in n]).reshape(-1, 2)
-    size = (side["top"] + side["bottom"] + side["left"] + side["right"]) / 4.0
+    c0, c1, c2, c3 = n[..., 0, :], n[..., 1, :], n[..., 2, :], n[..., 3, :]
+    top = np.linalg.norm(c0 - c1, axis=-1)
+    bottom = np.linalg.norm(c2 - c3, axis=-1)
+    left = np.linalg.norm(c3 - c0, axis=-1)
+    right = np.linalg.norm(c1 - c2, axis=-1)
+    # The centre is where the diagonals cross: the image of the marker's centre under perspective.
+    r, d = c2 - c0, c3 - c1
+    q = c1 - c0
     with np.errstate(divide="ignore", invalid="ignore"):
+        t = (q[..., 0] * d[..., 1] - q[..., 1] * d[..., 0]) / (r[..., 0] * d[..., 1] - r[..., 1] * d[..., 0])
+        centre = c0 + t[..., None] * r
+        size = (top + bottom + left + right) / 4.0
         # The quadrilateral's shape independent of its size and place: what perspective does to a square.
-        shape = ((n - centre[:, None, :]) / size[:, None, None]).reshape(-1, 8)
+        shape = (n - centre[..., None, :]) / size[..., None, None]
         return {
-            "shape": shape,
-            "u": centre[:, 0],
-            "v": centre[:, 1],
-            **side,
+            "shape": shape.reshape(len(rows), len(roles), 8),
+            "u": centre[..., 0],
+            "v": centre[..., 1],
+            "top": top,
+            "bottom": bottom,
+            "left": left,
+            "right": right,
             "inv_size": 1.0 / size,
-            "log_lr": np.log(side["left"] / side["right"]),
-            "log_tb": np.log(side["top"] / side["bottom"]),
+            "log_lr": np.log(left / right),
+            "log_tb": np.log(top / bottom),
         }
 
 
@@ -220,21 +234,26 @@ def model_features(raw: NDArray[np.float64], camera: CameraModel, set_name: str)
     """
     roles = _roles(set_name)
     rows = np.atleast_2d(np.asarray(raw, dtype=np.float64))
-    geo = {r: _normalised_marker(rows, r, camera) for r in roles}
-    cols = [geo[r][f] for r in roles for f in _PER_MARKER]
-    c = geo["center"]
+    n = len(rows)
+    geo = _normalised_markers(rows, roles, camera)
+    k = {r: i for i, r in enumerate(roles)}
+    # Per marker, in the order of _PER_MARKER: one (n, markers * 9) block.
+    blocks = [np.stack([geo[f] for f in _PER_MARKER], axis=-1).reshape(n, -1)]
     # Marker 2's full shape: with marker 2 alone, the yaw is in the perspective of one square.
-    cols += list(c["shape"].T)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sep: dict[str, NDArray[np.float64]] = {}
-        for r in roles:
-            if r != "center":
-                du, dv = geo[r]["u"] - c["u"], geo[r]["v"] - c["v"]
-                sep[r] = np.hypot(du, dv)
-                cols += [du, dv, 1.0 / sep[r]]
-        if "left" in roles and "right" in roles:
-            cols += [np.log(sep["left"] / sep["right"]), np.log(geo["left"]["inv_size"] / geo["right"]["inv_size"])]
-    return np.stack(cols, axis=1)
+    blocks.append(geo["shape"][:, k["center"]])
+    sides = [r for r in roles if r != "center"]
+    if sides:
+        idx = [k[r] for r in sides]
+        du = geo["u"][:, idx] - geo["u"][:, k["center"], None]
+        dv = geo["v"][:, idx] - geo["v"][:, k["center"], None]
+        sep = np.hypot(du, dv)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            blocks.append(np.stack([du, dv, 1.0 / sep], axis=-1).reshape(n, -1))
+            if len(sides) == 2:  # left and right: how the face turns shows in their asymmetry
+                inv = geo["inv_size"]
+                ratios = [np.log(sep[:, 0] / sep[:, 1]), np.log(inv[:, k["left"]] / inv[:, k["right"]])]
+                blocks.append(np.stack(ratios, axis=-1))
+    return np.concatenate(blocks, axis=1)
 
 
 def choose_marker_set(seen: tuple[str, ...] | set[str], available: tuple[str, ...]) -> str | None:

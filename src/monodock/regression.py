@@ -9,6 +9,7 @@ distortion it reduces to Z·P/f exactly.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import TYPE_CHECKING
 
@@ -23,7 +24,6 @@ from monodock.features import (
     MODEL_FEATURE_SCHEMA,
     choose_marker_set,
     feature_vector,
-    lens_centre,
     model_feature_names,
     model_features,
 )
@@ -43,6 +43,7 @@ __all__ = [
     "RegressionEstimator",
     "bundle_metadata",
     "lateral_by_back_projection",
+    "lateral_from_normalised",
     "training_sets",
 ]
 
@@ -66,8 +67,12 @@ def lateral_by_back_projection(
         camera: the intrinsics and distortion.
         robot: the camera mount.
     """
+    return lateral_from_normalised(camera.normalize(centre_px)[0], x, robot)
+
+
+def lateral_from_normalised(n: NDArray[np.float64], x: float, robot: RobotConfig) -> float:
+    """The same from marker 2's centre in undistorted normalised image coordinates (x/z, y/z)."""
     T = robot.base_T_optical()
-    n = camera.normalize(centre_px)[0]
     d = T[:3, :3] @ np.array([n[0], n[1], 1.0])
     c = T[:3, 3]
     if d[0] <= 1e-9:
@@ -139,16 +144,18 @@ class RegressionEstimator:
                 f"no angle model for the {lo_s * 100:.0f}-{hi_s * 100:.0f} cm segment",
                 roles_seen,
             )
-        centre = _m2_centre(raw, self.camera)
-        y = lateral_by_back_projection(centre, x, self.camera, self.robot)
+        # Marker 2's centre through the lens is among the model inputs already: (m2_u, m2_v), normalised.
+        iu = _m2_centre_columns(set_name)
+        y = lateral_from_normalised(X[0, iu], x, self.robot)
         if not math.isfinite(y):
             return PoseEstimate(self.method, None, "marker 2 is behind the camera's y-z plane", roles_seen)
         return PoseEstimate(self.method, DockPose(x, y, math.radians(yaw_deg)), "", MARKER_SETS[used])
 
 
-def _m2_centre(raw: NDArray[np.float64], camera: CameraModel) -> NDArray[np.float64]:
-    cols = [FEATURE_NAMES.index(f"m2_{c}_{a}") for c in ("tl", "tr", "br", "bl") for a in ("u", "v")]
-    return lens_centre(np.asarray(raw)[cols].reshape(4, 2), camera)
+@functools.lru_cache(maxsize=8)
+def _m2_centre_columns(set_name: str) -> list[int]:
+    names = model_feature_names(set_name)
+    return [names.index("m2_u"), names.index("m2_v")]
 
 
 def training_sets(

@@ -123,8 +123,12 @@ class SegmentTable:
 
     def index(self, depth_m: float) -> int | None:
         """The segment of a depth in metres; None outside [start, end]. The far edge belongs to the last segment."""
-        i = int(self.indices(np.array([depth_m], dtype=np.float64))[0])
-        return None if i < 0 else i
+        # Scalar twin of ``indices`` (it runs on every frame at run time); the same rounding and edges.
+        if not math.isfinite(depth_m):
+            return None
+        pos = round((depth_m - self.start_m) / self.width_m, 9)
+        k = self.count - 1 if pos == self.count else math.floor(pos)
+        return k if 0 <= k < self.count else None
 
     def indices(self, depth_m: NDArray[np.float64]) -> NDArray[np.int64]:
         """The segment of each depth in metres, -1 where it falls outside the table (NaN included)."""
