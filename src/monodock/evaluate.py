@@ -411,6 +411,7 @@ def evaluate_report(
     out: Path,
     *,
     title: str,
+    intro: Callable[[HtmlReport], None] | None = None,
     extra_sections: Callable[[HtmlReport], None] | None = None,
     miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None = None,
 ) -> dict[str, Any]:
@@ -429,6 +430,8 @@ def evaluate_report(
     depth = ref_depth - robot.camera_mount.x
     report = HtmlReport(title)
     summary: dict[str, Any] = {"rows": len(dataset), "has_truth": "truth" in refs}
+    if intro is not None:
+        intro(report)
 
     report.heading("Headline: mean absolute error over all depths")
     head = "| method | reference | valid | depth MAE cm | lateral MAE cm | angle MAE ° | depth p95 cm | angle p95 ° |\n"
