@@ -13,9 +13,13 @@ import multiprocessing.pool
 import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, TypeVar
 
-__all__ = ["SINGLE_THREAD_ENV", "worker_pool"]
+S = TypeVar("S")
+T = TypeVar("T")
+R = TypeVar("R")
+
+__all__ = ["SINGLE_THREAD_ENV", "map_with_state", "worker_pool"]
 
 # Read by OpenBLAS, OpenMP and MKL when the worker imports numpy: it must be set before that import.
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -49,3 +53,30 @@ def worker_pool(
                 os.environ[k] = v
     with pool:
         yield pool
+
+
+_STATE: Any = None
+
+
+def _set_state(state: Any) -> None:
+    global _STATE  # noqa: PLW0603 - one copy of the shared state per worker process, sent once
+    _STATE = state
+
+
+def _call_with_state(args: tuple[Callable[[Any, Any], Any], Any]) -> Any:
+    fn, task = args
+    return fn(_STATE, task)
+
+
+def map_with_state(fn: Callable[[S, T], R], state: S, tasks: list[T], *, jobs: int, chunksize: int = 2) -> Iterator[R]:
+    """``fn(state, task)`` for every task, in order, in ``jobs`` workers (inline when jobs <= 1).
+
+    ``state`` (e.g. a Simulator with its world) goes to each worker once, not with every task; ``fn`` must be
+    a module-level function so that it pickles. Results come back as they are ready and in order, so memory
+    stays flat however many tasks.
+    """
+    if jobs <= 1:
+        yield from (fn(state, t) for t in tasks)
+        return
+    with worker_pool(jobs, _set_state, (state,)) as pool:
+        yield from pool.imap(_call_with_state, [(fn, t) for t in tasks], chunksize=chunksize)

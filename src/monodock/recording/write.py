@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from monodock.atomic import atomic_directory, check_writable
 from monodock.errors import ConfigError
-from monodock.parallel import worker_pool
+from monodock.parallel import map_with_state
 from monodock.recording import messages as m
 from monodock.scan import LaserScan
 from monodock.sim.drive import Stop
@@ -95,21 +95,13 @@ class RecordingSummary:
 
 # --- rendering (in worker processes when jobs > 1) --------------------------------------------------
 
-_WORKER: Simulator | None = None
 
-
-def _init_worker(sim: Simulator) -> None:
-    global _WORKER  # noqa: PLW0603 - one simulator per worker process, built once
-    _WORKER = sim
-
-
-def _render_stop(args: tuple[Stop, int]) -> tuple[int, SimFrame, list[LaserScan]]:
+def _render_stop(sim: Simulator, task: tuple[Stop, int]) -> tuple[int, SimFrame, list[LaserScan]]:
     """The stop's camera frame (seed (seed, index), as export.render_frames) and its scans (seed (seed, index, k))."""
-    stop, seed = args
-    assert _WORKER is not None
-    frame = _WORKER.frame(stop.pose, stop.image_stamp, np.random.default_rng([seed, stop.index]))
+    stop, seed = task
+    frame = sim.frame(stop.pose, stop.image_stamp, np.random.default_rng([seed, stop.index]))
     scans = [
-        _WORKER.scan(stop.pose, stamp=t, rng=np.random.default_rng([seed, stop.index, k]))
+        sim.scan(stop.pose, stamp=t, rng=np.random.default_rng([seed, stop.index, k]))
         for k, t in enumerate(stop.scan_stamps)
     ]
     return stop.index, frame, scans
@@ -119,14 +111,7 @@ def _rendered(
     sim: Simulator, stops: Sequence[Stop], seed: int, jobs: int
 ) -> Iterator[tuple[int, SimFrame, list[LaserScan]]]:
     """Rendered stops in order; the same whatever ``jobs``, since every draw comes from the stop's own seeds."""
-    tasks = [(s, seed) for s in stops]
-    if jobs <= 1:
-        _init_worker(sim)
-        yield from map(_render_stop, tasks)
-        return
-    with worker_pool(jobs, _init_worker, (sim,)) as pool:
-        # imap keeps the order and hands results over as they come: memory stays flat however many stops.
-        yield from pool.imap(_render_stop, tasks, chunksize=2)
+    yield from map_with_state(_render_stop, sim, [(s, seed) for s in stops], jobs=jobs, chunksize=2)
 
 
 # --- writing ----------------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from tqdm import tqdm
 
 from monodock.atomic import atomic_directory
 from monodock.layout import ROLE_NUMBER, ROLES
-from monodock.parallel import worker_pool
+from monodock.parallel import map_with_state
 from monodock.pose import DockPose
 from monodock.scan import LaserScan
 from monodock.sim.simulator import FrameTruth, SimFrame, Simulator
@@ -77,18 +77,9 @@ class FrameRecord:
     frame: SimFrame
 
 
-_WORKER: Simulator | None = None
-
-
-def _init_worker(sim: Simulator) -> None:
-    global _WORKER  # noqa: PLW0603 - one simulator per worker process, built once
-    _WORKER = sim
-
-
-def _render_one(args: tuple[int, DockPose, float, int]) -> tuple[int, SimFrame]:
-    index, pose, stamp, seed = args
-    assert _WORKER is not None
-    return index, _WORKER.frame(pose, stamp, np.random.default_rng([seed, index]))
+def _render_one(sim: Simulator, task: tuple[int, DockPose, float, int]) -> tuple[int, SimFrame]:
+    index, pose, stamp, seed = task
+    return index, sim.frame(pose, stamp, np.random.default_rng([seed, index]))
 
 
 def render_frames(
@@ -104,17 +95,9 @@ def render_frames(
     tasks = [(i, p, i / rate_hz, seed) for i, p in enumerate(poses)]
     bar = tqdm(total=len(tasks), desc="simulate", unit="frame", disable=None if progress else True, leave=False)
     try:
-        if jobs <= 1:
-            _init_worker(sim)
-            results: Iterator[tuple[int, SimFrame]] = map(_render_one, tasks)
-            for index, frame in results:
-                bar.update()
-                yield FrameRecord(index, f"frame_{index:06d}.png", tasks[index][2], frame)
-            return
-        with worker_pool(jobs, _init_worker, (sim,)) as pool:
-            for index, frame in pool.imap(_render_one, tasks, chunksize=4):
-                bar.update()
-                yield FrameRecord(index, f"frame_{index:06d}.png", tasks[index][2], frame)
+        for index, frame in map_with_state(_render_one, sim, tasks, jobs=jobs, chunksize=4):
+            bar.update()
+            yield FrameRecord(index, f"frame_{index:06d}.png", tasks[index][2], frame)
     finally:
         bar.close()
 
