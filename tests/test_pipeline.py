@@ -269,3 +269,30 @@ def test_frames_the_regression_must_not_guess(work: Path, tmp_path: Path) -> Non
     assert "marker 2" in rows["b_hidden.png"]["reason"]
     assert rows["c_far.png"]["valid"] == "false"
     assert "outside the trained range" in rows["c_far.png"]["reason"]
+
+
+def test_a_segment_without_data_gives_no_angle_and_says_why(work: Path, tmp_path: Path) -> None:
+    """Trained only on the near half of the range, the bundle still measures depth far out, but has no angle
+    model there: the frame gets no estimate and the reason names the segment."""
+    import dataclasses
+
+    from monodock.bundle import Bundle, save_bundle
+    from monodock.detect import MarkerDetector
+    from monodock.pose import DockPose
+    from monodock.regression import RegressionEstimator, bundle_metadata, training_sets
+    from monodock.train import TrainConfig, train
+
+    ds = read_dataset(work / "train.parquet")
+    near = np.asarray(ds["label_x_m"] < 1.2) & np.asarray(ds["label_valid"])
+    ds = dataclasses.replace(ds, columns={k: v[near] for k, v in ds.columns.items()})
+    result = train(training_sets(ds, ("m2",)), TrainConfig(trials=1, models=("ridge",), jobs=1), progress=False)
+    meta = bundle_metadata(ds, depth_label="point", angle_label="line", source="near half")
+    bundle = Bundle.load(save_bundle(tmp_path / "near", result, metadata=meta))
+    far_segments = [k for k in range(45) if not bundle.has_angle_model("m2", k)]
+    assert far_segments
+    assert min(far_segments) * 0.05 + 0.25 < 2.0  # the far end of the table has no angle model
+    sim = Simulator(seed=12)
+    frame = sim.frame(DockPose(2.2, 0.0, 0.0), 0.0, np.random.default_rng(0))
+    est = RegressionEstimator(bundle, sim.camera, sim.robot).estimate(MarkerDetector(sim.layout).detect(frame.image))
+    assert est.pose is None
+    assert "no angle model for the" in est.reason
