@@ -278,6 +278,8 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         camera, layout, robot = _load_calibration(args)
         method = args.method or "board"
     check_writable(args.out, force=args.force)
+    if args.bag:
+        check_writable(args.bag, force=args.force)
     est = Estimator(camera, layout, robot, (method,), refinement=args.refinement, extra=extra)
     results = []
     for f in tqdm(
@@ -296,9 +298,18 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             if not args.skip_bad:
                 raise
             results.append(est.failed(f.name, f.stamp, str(exc)))
-    write_text_atomic(args.out, estimates_csv(results), force=args.force)
+    text = estimates_csv(results)
+    write_text_atomic(args.out, text, force=args.force)
     valid = sum(1 for r in results for e in r.estimates.values() if e.valid)
     print(f"{method}: {valid}/{len(results)} frames with an estimate -> {args.out}")
+    if args.bag:
+        import csv
+        import io
+
+        from monodock.nav2 import write_pose_bag
+
+        n = write_pose_bag(args.bag, csv.DictReader(io.StringIO(text)), force=args.force)
+        print(f"{n} PoseStamped on detected_dock_pose (base_link) -> {args.bag}")
     return 0
 
 
@@ -594,6 +605,7 @@ def _parser() -> argparse.ArgumentParser:
         "papers' baseline; board: all visible markers (default without --model)",
     )
     e.add_argument("--out", required=True, help="EST.csv to write")
+    e.add_argument("--bag", metavar="OUT_BAG", help="also write the valid poses as a Nav2 detected_dock_pose rosbag2")
     e.add_argument(
         "--refinement", choices=("none", "subpix", "contour"), default="subpix", help="ArUco corner refinement"
     )
@@ -645,6 +657,14 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--force", action="store_true", help="replace an existing report folder")
     _add_topics(ev)
     ev.set_defaults(func=_cmd_evaluate)
+
+    from monodock.calibrate.intrinsics import add_parser as add_intrinsics
+    from monodock.live import add_parser as add_run
+
+    cal = sub.add_parser("calibrate", help="camera intrinsics from a checkerboard; camera-LiDAR extrinsics")
+    cal_sub = cal.add_subparsers(dest="calibrate_command", required=True, metavar="WHAT")
+    add_intrinsics(cal_sub)
+    add_run(sub)
 
     d = sub.add_parser("demo", help="simulate, label, train, evaluate every method, and write the report")
     d.add_argument("--out", default="demo_report", help="report folder (default: demo_report)")
