@@ -17,13 +17,13 @@ from numpy.typing import NDArray
 
 from monodock.calibrate import (
     IntrinsicsResult,
-    add_parser,
     calibrate_intrinsics,
     coverage_png,
     find_board,
     parse_board,
     select_frames,
 )
+from monodock.calibrate.intrinsics import add_parser
 from monodock.camera import CameraModel
 from monodock.errors import InputError
 from monodock.sim.checkerboard import BoardView, board_points, render_board_views

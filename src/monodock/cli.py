@@ -658,12 +658,14 @@ def _parser() -> argparse.ArgumentParser:
     _add_topics(ev)
     ev.set_defaults(func=_cmd_evaluate)
 
+    from monodock.calibrate.extrinsics import add_parser as add_extrinsics
     from monodock.calibrate.intrinsics import add_parser as add_intrinsics
     from monodock.live import add_parser as add_run
 
     cal = sub.add_parser("calibrate", help="camera intrinsics from a checkerboard; camera-LiDAR extrinsics")
     cal_sub = cal.add_subparsers(dest="calibrate_command", required=True, metavar="WHAT")
     add_intrinsics(cal_sub)
+    add_extrinsics(cal_sub)
     add_run(sub)
 
     d = sub.add_parser("demo", help="simulate, label, train, evaluate every method, and write the report")

@@ -1,11 +1,10 @@
-"""Camera calibration: intrinsics from checkerboard views (``monodock calibrate intrinsics``)."""
+"""Calibration: camera intrinsics from checkerboard views (``intrinsics``) and the LiDAR mount (``extrinsics``)."""
 
 from __future__ import annotations
 
 from monodock.calibrate.intrinsics import (
     IntrinsicsResult,
     ViewResult,
-    add_parser,
     calibrate_intrinsics,
     coverage_png,
     find_board,
@@ -16,7 +15,6 @@ from monodock.calibrate.intrinsics import (
 __all__ = [
     "IntrinsicsResult",
     "ViewResult",
-    "add_parser",
     "calibrate_intrinsics",
     "coverage_png",
     "find_board",
