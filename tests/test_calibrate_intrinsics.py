@@ -224,3 +224,25 @@ def test_cli_writes_camera_info_and_coverage(
 def test_parse_board() -> None:
     assert parse_board("8x6") == (8, 6)
     assert parse_board("9X7") == (9, 7)
+
+
+def test_cli_picks_views_from_a_video(
+    tmp_path: pytest.TempPathFactory, views: list[BoardView], truth: CameraModel, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A video where each view is held for a few frames (as a person moving a board): the command picks well
+    spread views itself and calibrates within 0.5 % despite MJPG compression."""
+    video = tmp_path / "board.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, truth.size)
+    assert writer.isOpened()
+    for v in views[:N_TRAIN]:
+        for _ in range(3):
+            writer.write(cv2.cvtColor(v.image, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    out = tmp_path / "camera.yaml"
+    argv = ["intrinsics", str(video), "--board", "8x6", "--square", "0.025", "--out", str(out), "--max-views", "15"]
+    args = _harness().parse_args(argv)
+    assert args.func(args) == 0
+    cam = CameraModel.load(out)
+    for got, want in ((cam.fx, truth.fx), (cam.fy, truth.fy), (cam.cx, truth.cx), (cam.cy, truth.cy)):
+        assert abs(got / want - 1) < 0.005
+    assert "15/15 views used" in capsys.readouterr().out
