@@ -251,13 +251,13 @@ def _summary(result: FrameEstimates, method: str = "board") -> str:
 # --- estimate / show ----------------------------------------------------------------------------
 
 
-def _cmd_estimate(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
+def build_estimator(args: argparse.Namespace) -> tuple[Estimator, str]:
+    """The Estimator and method of the ``--model`` / ``--method`` / ``--camera --layout --robot`` options.
 
-    from monodock.atomic import check_writable, write_text_atomic
-    from monodock.errors import InputError
-    from monodock.estimate import Estimator, estimates_csv
-    from monodock.inputs import iter_frames
+    With a bundle: its camera, layout and mounts (``--camera``, ``--robot`` override; ``--layout`` must match)
+    and the regression by default. Without one: a PnP method (board by default) on the three calibration files.
+    """
+    from monodock.estimate import Estimator
 
     extra = {}
     if args.model:
@@ -266,21 +266,32 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         bundle = _load_bundle(args.model)
         camera, layout, robot = _bundle_calibration(args, bundle)
         method = args.method or "regression"
-        extra["regression"] = RegressionEstimator(bundle, camera, robot).estimate
+        if method == "regression":
+            extra["regression"] = RegressionEstimator(bundle, camera, robot).estimate
     else:
+        if args.method == "regression":
+            raise MonodockError("the regression needs --model BUNDLE")
         missing = [f"--{k}" for k in ("camera", "layout", "robot") if not getattr(args, k)]
-        if args.method == "regression" or missing:
-            raise MonodockError(
-                "the regression needs --model BUNDLE"
-                if args.method == "regression"
-                else f"without --model, give {' '.join(missing)} (the PnP methods need the calibration)"
-            )
+        if missing:
+            raise MonodockError(f"without --model, give {' '.join(missing)} (the PnP methods need the calibration)")
         camera, layout, robot = _load_calibration(args)
         method = args.method or "board"
+    refinement = getattr(args, "refinement", "subpix")
+    return Estimator(camera, layout, robot, (method,), refinement=refinement, extra=extra), method
+
+
+def _cmd_estimate(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from monodock.atomic import check_writable, write_text_atomic
+    from monodock.errors import InputError
+    from monodock.estimate import estimates_csv
+    from monodock.inputs import iter_frames
+
+    est, method = build_estimator(args)
     check_writable(args.out, force=args.force)
     if args.bag:
         check_writable(args.bag, force=args.force)
-    est = Estimator(camera, layout, robot, (method,), refinement=args.refinement, extra=extra)
     results = []
     for f in tqdm(
         iter_frames(args.inputs, skip_bad=args.skip_bad),

@@ -41,7 +41,6 @@ __all__ = [
     "LiveFrame",
     "LiveStats",
     "add_parser",
-    "build_estimator",
     "open_source",
     "run_live",
 ]
@@ -510,35 +509,6 @@ def _close_windows() -> None:
 # --- command line --------------------------------------------------------------------------------
 
 
-def build_estimator(args: argparse.Namespace) -> tuple[Estimator, str]:
-    """The Estimator and method of ``--model`` / ``--method`` / ``--camera --layout --robot`` options.
-
-    With a bundle, its camera, layout and mounts (``--camera``, ``--robot`` override) and the regression by
-    default; without one, a PnP method (board by default) on the three calibration files.
-    """
-    from monodock.cli import _bundle_calibration, _load_bundle, _load_calibration
-
-    extra = {}
-    if args.model:
-        from monodock.regression import RegressionEstimator
-
-        bundle = _load_bundle(args.model)
-        camera, layout, robot = _bundle_calibration(args, bundle)
-        method = args.method or "regression"
-        if method == "regression":
-            extra["regression"] = RegressionEstimator(bundle, camera, robot).estimate
-    else:
-        if args.method == "regression":
-            raise InputError("the regression needs --model BUNDLE")
-        missing = [f"--{k}" for k in ("camera", "layout", "robot") if not getattr(args, k)]
-        if missing:
-            raise InputError(f"without --model, give {' '.join(missing)} (the PnP methods need the calibration)")
-        camera, layout, robot = _load_calibration(args)
-        method = args.method or "board"
-    refinement = getattr(args, "refinement", "subpix")
-    return Estimator(camera, layout, robot, (method,), refinement=refinement, extra=extra), method
-
-
 def _output_format(args: argparse.Namespace) -> str:
     if args.format:
         return str(args.format)
@@ -555,6 +525,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         check_writable(args.bag, force=args.force)
     if args.overlay_video:
         check_writable(args.overlay_video, force=args.force)
+    from monodock.cli import build_estimator
+
     estimator, method = build_estimator(args)
     output_format = _output_format(args)
     with contextlib.ExitStack() as stack:

@@ -100,7 +100,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
 def _estimator(args: argparse.Namespace, camera: Any = None) -> tuple[Estimator, str]:
     """The Estimator of the options (as ``monodock run``), or of camera_info's camera with the layout and robot."""
     if camera is None:
-        from monodock.live import build_estimator
+        from monodock.cli import build_estimator
 
         return build_estimator(args)
     from monodock.layout import DockLayout
