@@ -47,3 +47,30 @@ def test_views_without_the_target_give_one_line_error() -> None:
     with pytest.raises(InputError, match="board not found") as exc:
         extrinsics_from_target_views(blank, sim.camera, sim.robot.base_T_optical(), PRIOR_LASER)
     assert "\n" not in str(exc.value)
+
+
+def test_cli_target_views_writes_the_mount(tmp_path: pytest.TempPathFactory) -> None:
+    """``monodock calibrate extrinsics --target-views``: the views as a folder, the mount written as YAML."""
+    import yaml
+
+    from monodock.cli import main
+    from monodock.sim.target import write_target_views
+
+    sim = _sim()
+    write_target_views(tmp_path / "views", render_target_views(sim, DiamondTarget(), 24, seed=9))
+    sim.camera.save(tmp_path / "camera.yaml")
+    dataclasses.replace(sim.robot, laser_mount=PRIOR_LASER).save(tmp_path / "prior.yaml")
+    out = tmp_path / "laser.yaml"
+    argv = [
+        "calibrate",
+        "extrinsics",
+        "--target-views",
+        str(tmp_path / "views"),
+        "--camera",
+        str(tmp_path / "camera.yaml"),
+    ]
+    assert main([*argv, "--robot", str(tmp_path / "prior.yaml"), "--out", str(out)]) == 0
+    got = yaml.safe_load(out.read_text())["laser_mount"]
+    assert abs(got["x"] - TRUE_LASER.x) < 0.01
+    assert abs(got["z"] - TRUE_LASER.z) < 0.01
+    assert abs(math.degrees(got["pitch"] - TRUE_LASER.pitch)) < 0.5

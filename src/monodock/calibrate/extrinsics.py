@@ -839,7 +839,9 @@ def add_parser(calibrate_subparsers: Any) -> None:
         "--target-views",
         help="folder of diamond-target views: NNNN.png images and scans.npz (solves all six mount fields)",
     )
-    p.add_argument("--target", help="with --target-views: the diamond target YAML (default: 0.5 m, ids 20-23)")
+    p.add_argument(
+        "--target", help="with --target-views: the diamond target YAML (default: 0.5 m side, 16 cm markers, ids 20-23)"
+    )
     p.add_argument("--robot", required=True, help="robot YAML: the camera mount, and the LiDAR mount as the prior")
     p.add_argument("--camera", help="camera file (needed with --pairs; default with --recording: its CameraInfo)")
     p.add_argument("--layout", help="dock layout YAML (needed with --recording)")
