@@ -74,3 +74,40 @@ def test_cli_target_views_writes_the_mount(tmp_path: pytest.TempPathFactory) -> 
     assert abs(got["x"] - TRUE_LASER.x) < 0.01
     assert abs(got["z"] - TRUE_LASER.z) < 0.01
     assert abs(math.degrees(got["pitch"] - TRUE_LASER.pitch)) < 0.5
+
+
+def test_cli_target_recording(tmp_path: pytest.TempPathFactory) -> None:
+    """The target seen edge-on in a rosbag2 recording (images, CameraInfo and scans on their own stamps): the
+    command pairs them by stamp, takes the camera from CameraInfo, and writes the six-field mount."""
+    import yaml
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    from monodock.cli import main
+    from monodock.recording import CAMERA_INFO_TOPIC, IMAGE_TOPIC, SCAN_TOPIC
+    from monodock.recording.messages import camera_info_msg, encode_image, humble_typestore, scan_msg
+
+    sim = _sim()
+    views = render_target_views(sim, DiamondTarget(), 24, seed=9)
+    ts = humble_typestore()
+    bag = tmp_path / "target_bag"
+    with Writer(bag, version=8, storage_plugin=StoragePlugin.MCAP) as w:
+        img_c = w.add_connection(IMAGE_TOPIC, "sensor_msgs/msg/Image", typestore=ts)
+        info_c = w.add_connection(CAMERA_INFO_TOPIC, "sensor_msgs/msg/CameraInfo", typestore=ts)
+        scan_c = w.add_connection(SCAN_TOPIC, "sensor_msgs/msg/LaserScan", typestore=ts)
+        for k, v in enumerate(views):
+            t = 100.0 + 2.0 * k
+            msgtype, img = encode_image(v.image, "mono8", t, "camera_optical_frame")
+            w.write(img_c, int(t * 1e9), ts.serialize_cdr(img, msgtype))
+            info = camera_info_msg(sim.camera, t, "camera_optical_frame")
+            w.write(info_c, int(t * 1e9), ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo"))
+            ts_scan = t + 0.03  # the LiDAR's own clock
+            scan = scan_msg(dataclasses.replace(v.scan, stamp=ts_scan))
+            w.write(scan_c, int(ts_scan * 1e9), ts.serialize_cdr(scan, "sensor_msgs/msg/LaserScan"))
+    dataclasses.replace(sim.robot, laser_mount=PRIOR_LASER).save(tmp_path / "prior.yaml")
+    out = tmp_path / "laser.yaml"
+    argv = ["calibrate", "extrinsics", "--target-views", str(bag), "--robot", str(tmp_path / "prior.yaml")]
+    assert main([*argv, "--out", str(out)]) == 0
+    got = yaml.safe_load(out.read_text())["laser_mount"]
+    assert abs(got["y"] - TRUE_LASER.y) < 0.01
+    assert abs(got["z"] - TRUE_LASER.z) < 0.01
+    assert abs(math.degrees(got["yaw"] - TRUE_LASER.yaw)) < 0.5

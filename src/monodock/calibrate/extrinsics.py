@@ -21,6 +21,7 @@ import csv
 import dataclasses
 import math
 import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -837,7 +838,8 @@ def add_parser(calibrate_subparsers: Any) -> None:
     src.add_argument("--recording", help="recording with camera images and LiDAR scans of the charger")
     src.add_argument(
         "--target-views",
-        help="folder of diamond-target views: NNNN.png images and scans.npz (solves all six mount fields)",
+        help="the diamond target seen edge-on: a recording (rosbag2 or ROS 1 bag; images paired with scans by "
+        "stamp) or a folder of NNNN.png images and scans.npz; solves all six mount fields",
     )
     p.add_argument(
         "--target", help="with --target-views: the diamond target YAML (default: 0.5 m side, 16 cm markers, ids 20-23)"
@@ -1224,25 +1226,61 @@ def extrinsics_from_target_views(
     )
 
 
+def target_views_from_recording(
+    path: str | os.PathLike[str], *, tolerance_s: float = 0.05
+) -> tuple[list[TargetView], CameraModel | None, list[str]]:
+    """Views of the diamond target from a recording: each image with the scan nearest in stamp (within
+    ``tolerance_s``), the recording's camera (CameraInfo) if it has one, and the reader's warnings."""
+    from monodock.recording import open_recording, pair_nearest
+    from monodock.sim.target import TargetView
+
+    with open_recording(path) as rec:
+        if rec.scan_topic is None:
+            raise InputError(f"{path}: no sensor_msgs/LaserScan topic; the target's ends come from the LiDAR")
+        scans = rec.scans()
+        frames = [f for f in rec.images() if f.image is not None]
+        camera = rec.camera()
+        warnings = list(rec.warnings)
+    pairing = pair_nearest([f.stamp for f in frames], [s.stamp for s in scans], tolerance_s)
+    views = [
+        TargetView(f.image, scans[int(j)])
+        for f, j in zip(frames, pairing, strict=True)
+        if j >= 0 and f.image is not None
+    ]
+    if not views:
+        raise InputError(f"{path}: no image has a scan within {tolerance_s * 1000:.0f} ms")
+    return views, camera, warnings
+
+
 def _cmd_extrinsics_or_target(args: argparse.Namespace) -> int:
     """``calibrate extrinsics``: the diamond-target form with --target-views, else the pairs or dock form."""
     if not getattr(args, "target_views", None):
         return _cmd_extrinsics(args)
     from monodock.atomic import check_writable, write_text_atomic
     from monodock.camera import CameraModel
+    from monodock.inputs import is_recording
     from monodock.sim.target import DiamondTarget, read_target_views
 
-    if not args.camera:
-        raise InputError("--target-views needs --camera (the intrinsics of the images)")
     outputs = [o for o in (args.out, args.tf, args.robot_out) if o]
     if len({os.path.abspath(o) for o in outputs}) < len(outputs):
         raise InputError("--out, --tf and --robot-out must be different files")
     for o in outputs:
         check_writable(o, force=args.force)
     robot = RobotConfig.load(args.robot)
-    camera = CameraModel.load(args.camera)
     target = DiamondTarget.load(args.target) if args.target else DiamondTarget()
-    views = read_target_views(args.target_views)
+    recorded_camera = None
+    if is_recording(args.target_views):
+        views, recorded_camera, warnings = target_views_from_recording(args.target_views, tolerance_s=args.tolerance)
+        for w in warnings:
+            print(f"warning: {w}", file=sys.stderr)
+    else:
+        views = read_target_views(args.target_views)
+    if args.camera:
+        camera = CameraModel.load(args.camera)
+    elif recorded_camera is not None:
+        camera = recorded_camera
+    else:
+        raise InputError("--target-views needs --camera (the intrinsics of the images) unless a recording has them")
     result = extrinsics_from_target_views(views, camera, robot.base_T_optical(), robot.laser_mount, target)
     print(result.summary())
     write_result_yaml(args.out, result, force=args.force)
