@@ -106,7 +106,8 @@ def test_cli_target_recording(tmp_path: pytest.TempPathFactory) -> None:
     dataclasses.replace(sim.robot, laser_mount=PRIOR_LASER).save(tmp_path / "prior.yaml")
     out = tmp_path / "laser.yaml"
     argv = ["calibrate", "extrinsics", "--target-views", str(bag), "--robot", str(tmp_path / "prior.yaml")]
-    assert main([*argv, "--out", str(out)]) == 0
+    assert main([*argv, "--out", str(out), "--overlay", str(tmp_path / "overlay.png")]) == 0
+    assert (tmp_path / "overlay.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     got = yaml.safe_load(out.read_text())["laser_mount"]
     assert abs(got["y"] - TRUE_LASER.y) < 0.01
     assert abs(got["z"] - TRUE_LASER.z) < 0.01

@@ -1256,14 +1256,14 @@ def _cmd_extrinsics_or_target(args: argparse.Namespace) -> int:
     """``calibrate extrinsics``: the diamond-target form with --target-views, else the pairs or dock form."""
     if not getattr(args, "target_views", None):
         return _cmd_extrinsics(args)
-    from monodock.atomic import check_writable, write_text_atomic
+    from monodock.atomic import check_writable, write_bytes_atomic, write_text_atomic
     from monodock.camera import CameraModel
     from monodock.inputs import is_recording
     from monodock.sim.target import DiamondTarget, read_target_views
 
-    outputs = [o for o in (args.out, args.tf, args.robot_out) if o]
+    outputs = [o for o in (args.out, args.tf, args.robot_out, args.overlay) if o]
     if len({os.path.abspath(o) for o in outputs}) < len(outputs):
-        raise InputError("--out, --tf and --robot-out must be different files")
+        raise InputError("--out, --tf, --robot-out and --overlay must be different files")
     for o in outputs:
         check_writable(o, force=args.force)
     robot = RobotConfig.load(args.robot)
@@ -1291,5 +1291,15 @@ def _cmd_extrinsics_or_target(args: argparse.Namespace) -> int:
     if args.robot_out:
         result.robot(robot).save(args.robot_out, force=args.force)
         written.append(args.robot_out)
+    if args.overlay:
+        # The papers' Fig. 8c on the first view: the scan through the calibrated mount must run across the target.
+        from monodock.label import project_to_image, scan_in_base
+
+        calibrated = result.robot(robot)
+        view = views[0]
+        pixels = project_to_image(scan_in_base(view.scan, calibrated), camera, calibrated)
+        none = np.zeros(len(pixels), dtype=bool)
+        write_bytes_atomic(args.overlay, overlay_png(view.image, pixels, none, camera, calibrated), force=args.force)
+        written.append(args.overlay)
     print("wrote " + ", ".join(written))
     return 0
