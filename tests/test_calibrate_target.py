@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from monodock.calibrate.extrinsics import extrinsics_from_target_views
+from monodock.calibrate.target import DiamondTarget, TargetView
 from monodock.errors import InputError
 from monodock.robot import Mount, RobotConfig
 from monodock.sim import Nuisances, Simulator
-from monodock.sim.target import DiamondTarget, TargetView, render_target_views
+from monodock.sim.target import render_target_views
 
 TRUE_LASER = Mount(0.12, -0.03, 0.19, 0.0, math.radians(1.0), math.radians(2.0))
 PRIOR_LASER = Mount(0.15, 0.0, 0.21, 0.0, 0.0, math.radians(-1.0))
@@ -53,8 +54,8 @@ def test_cli_target_views_writes_the_mount(tmp_path: pytest.TempPathFactory) -> 
     """``monodock calibrate extrinsics --target-views``: the views as a folder, the mount written as YAML."""
     import yaml
 
+    from monodock.calibrate.target import write_target_views
     from monodock.cli import main
-    from monodock.sim.target import write_target_views
 
     sim = _sim()
     write_target_views(tmp_path / "views", render_target_views(sim, DiamondTarget(), 24, seed=9))

@@ -35,12 +35,12 @@ from monodock.errors import InputError
 from monodock.robot import Mount, RobotConfig
 
 if TYPE_CHECKING:
+    from monodock.calibrate.target import DiamondTarget, TargetView
     from monodock.camera import CameraModel
     from monodock.layout import DockLayout
     from monodock.pose import DockPose
     from monodock.scan import LaserScan
     from monodock.sim.simulator import Simulator
-    from monodock.sim.target import DiamondTarget, TargetView
 
 __all__ = [
     "MIN_PAIRS",
@@ -1208,7 +1208,7 @@ def extrinsics_from_target_views(
     target: DiamondTarget | None = None,
 ) -> ExtrinsicsResult:
     """The full 6-DoF LiDAR mount from views of the diamond target: edge pairs, then SolvePnP on them."""
-    from monodock.sim.target import DiamondTarget
+    from monodock.calibrate.target import DiamondTarget
 
     tgt = target or DiamondTarget()
     points, pixels, facts = edge_pairs_from_views(views, camera, base_T_optical, tgt, prior_mount)
@@ -1231,8 +1231,8 @@ def target_views_from_recording(
 ) -> tuple[list[TargetView], CameraModel | None, list[str]]:
     """Views of the diamond target from a recording: each image with the scan nearest in stamp (within
     ``tolerance_s``), the recording's camera (CameraInfo) if it has one, and the reader's warnings."""
+    from monodock.calibrate.target import TargetView
     from monodock.recording import open_recording, pair_nearest
-    from monodock.sim.target import TargetView
 
     with open_recording(path) as rec:
         if rec.scan_topic is None:
@@ -1257,9 +1257,9 @@ def _cmd_extrinsics_or_target(args: argparse.Namespace) -> int:
     if not getattr(args, "target_views", None):
         return _cmd_extrinsics(args)
     from monodock.atomic import check_writable, write_bytes_atomic, write_text_atomic
+    from monodock.calibrate.target import DiamondTarget, read_target_views
     from monodock.camera import CameraModel
     from monodock.inputs import is_recording
-    from monodock.sim.target import DiamondTarget, read_target_views
 
     outputs = [o for o in (args.out, args.tf, args.robot_out, args.overlay) if o]
     if len({os.path.abspath(o) for o in outputs}) < len(outputs):

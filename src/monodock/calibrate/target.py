@@ -1,0 +1,183 @@
+"""The diamond calibration target: a square board turned 45 degrees, with ArUco markers, seen edge-on by the LiDAR.
+
+A board with vertical edges cannot tell the laser's height: the scan's end points slide along the edges. A diamond's
+edges are slanted, so where the laser plane crosses them depends on that height, and all six fields of the LiDAR
+mount become observable (``calibrate.extrinsics.extrinsics_from_target_views``). Views are an image and a scan each,
+from a recording or from a folder of ``NNNN.png`` images and one ``scans.npz``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monodock.errors import InputError
+from monodock.scan import LaserScan
+
+__all__ = ["S_AXIS", "T_AXIS", "DiamondTarget", "TargetView", "read_target_views", "write_target_views"]
+
+S_AXIS = np.array([1.0, 1.0, 0.0]) / math.sqrt(2.0)  # board's s axis in the target frame: right and up
+T_AXIS = np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)  # board's t axis: right and down
+
+
+@dataclass(frozen=True)
+class DiamondTarget:
+    """The diamond board: its side, its markers (ids, size, centres in board (s, t) coordinates) and dictionary.
+
+    Attributes:
+        side: the square's side, metres.
+        marker_size: each marker's side, metres (black border included).
+        marker_ids: the ArUco ids (must not be ids of the dock layout).
+        marker_centres: each marker's centre in the board's (s, t) coordinates, metres: s from the left vertex
+            towards the top vertex, t from the left vertex towards the bottom vertex.
+        dictionary: the OpenCV predefined dictionary name.
+    """
+
+    side: float = 0.5
+    # Big markers: the board's pose from the camera is what locates the edges, and 10 cm markers left the
+    # laser's z and pitch 3-4 cm / 2-3 deg off; 16 cm ones (views within 1.3 m) bring them under 0.5 cm / 0.4 deg.
+    marker_size: float = 0.16
+    marker_ids: tuple[int, ...] = (20, 21, 22, 23)
+    marker_centres: tuple[tuple[float, float], ...] = ((0.13, 0.13), (0.37, 0.13), (0.37, 0.37), (0.13, 0.37))
+    dictionary: str = "DICT_4X4_50"
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.side) and self.side > 0):
+            raise InputError(f"target side must be a positive number of metres, got {self.side}")
+        if len(self.marker_ids) != len(self.marker_centres) or not self.marker_ids:
+            raise InputError("the target needs one centre per marker id, and at least one marker")
+
+    @property
+    def half_diagonal(self) -> float:
+        """Distance from the centre to each vertex, metres."""
+        return self.side / math.sqrt(2.0)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "target") -> DiamondTarget:
+        """Build from ``{side, marker_size, dictionary, markers: [{id, s, t}, ...]}`` (all optional)."""
+        if not isinstance(data, dict):
+            raise InputError(f"{source}: expected a mapping")
+        d = cls()
+        try:
+            markers = data.get("markers")
+            ids = tuple(int(m["id"]) for m in markers) if markers else d.marker_ids
+            centres = tuple((float(m["s"]), float(m["t"])) for m in markers) if markers else d.marker_centres
+            return cls(
+                side=float(data.get("side", d.side)),
+                marker_size=float(data.get("marker_size", d.marker_size)),
+                marker_ids=ids,
+                marker_centres=centres,
+                dictionary=str(data.get("dictionary", d.dictionary)),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{source}: bad target field ({exc})") from None
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> DiamondTarget:
+        """Read a target YAML (see from_dict)."""
+        import yaml
+
+        p = Path(path)
+        if not p.is_file():
+            raise InputError(f"target file not found: {p}")
+        return cls.from_dict(yaml.safe_load(p.read_text(encoding="utf-8")) or {}, str(p))
+
+    def aruco_dictionary(self) -> Any:
+        """The OpenCV dictionary object."""
+        import cv2
+
+        name = self.dictionary
+        if not hasattr(cv2.aruco, name):
+            raise InputError(f"unknown ArUco dictionary {name}")
+        return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+
+    def board_point(self, s: NDArray[np.float64], t: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Target-frame points (N, 3) of board coordinates (s, t), metres from the left vertex."""
+        origin = np.array([-self.half_diagonal, 0.0, 0.0])
+        return origin + s[:, None] * S_AXIS + t[:, None] * T_AXIS
+
+    def marker_corners_in_target(self, marker_id: int) -> NDArray[np.float64]:
+        """A marker's corners in the target frame, ArUco order (TL, TR, BR, BL as printed), shape (4, 3)."""
+        if marker_id not in self.marker_ids:
+            raise KeyError(marker_id)
+        cs, ct = self.marker_centres[self.marker_ids.index(marker_id)]
+        h = self.marker_size / 2.0
+        s = np.array([cs - h, cs + h, cs + h, cs - h])
+        t = np.array([ct - h, ct - h, ct + h, ct + h])
+        return self.board_point(s, t)
+
+    def vertices_in_target(self) -> NDArray[np.float64]:
+        """The four vertices (top, right, bottom, left) in the target frame, shape (4, 3)."""
+        a = self.half_diagonal
+        return np.array([[0.0, a, 0.0], [a, 0.0, 0.0], [0.0, -a, 0.0], [-a, 0.0, 0.0]])
+
+    def edges_in_target(self) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        """The four edges as (start vertex, end vertex) in the target frame: top-right, bottom-right, ..."""
+        v = self.vertices_in_target()
+        return [(v[k], v[(k + 1) % 4]) for k in range(4)]
+
+
+@dataclass(frozen=True)
+class TargetView:
+    """One view of the target: the camera image (mono8), the LiDAR scan, and the true target pose if simulated."""
+
+    image: NDArray[np.uint8]
+    scan: LaserScan
+    base_T_target: NDArray[np.float64] | None = None
+
+
+def write_target_views(folder: str | os.PathLike[str], views: Sequence[TargetView]) -> None:
+    """Write views as ``NNNN.png`` images and one ``scans.npz`` (ranges row per view, and the beam geometry)."""
+    import cv2
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    for k, v in enumerate(views):
+        cv2.imwrite(str(out / f"{k:04d}.png"), v.image)
+    s0 = views[0].scan
+    np.savez(
+        out / "scans.npz",
+        ranges=np.stack([v.scan.ranges for v in views]),
+        stamps=np.array([v.scan.stamp for v in views]),
+        angle_min=s0.angle_min,
+        angle_increment=s0.angle_increment,
+        range_min=s0.range_min,
+        range_max=s0.range_max,
+    )
+
+
+def read_target_views(folder: str | os.PathLike[str]) -> list[TargetView]:
+    """Read views written by write_target_views: image ``k`` (sorted PNGs) pairs with scan row ``k``."""
+    from monodock.inputs import read_image
+
+    p = Path(folder)
+    if not p.is_dir():
+        raise InputError(f"target views folder not found: {p}")
+    images = sorted(p.glob("*.png"))
+    if not (p / "scans.npz").is_file():
+        raise InputError(f"{p}: no scans.npz (the LiDAR scans, one row of ranges per image)")
+    try:
+        data = np.load(p / "scans.npz")
+        ranges = np.asarray(data["ranges"], dtype=np.float32)
+        stamps = (
+            np.asarray(data["stamps"], dtype=np.float64) if "stamps" in data else np.arange(len(ranges), dtype=float)
+        )
+        a0, da = float(data["angle_min"]), float(data["angle_increment"])
+        rmin, rmax = float(data["range_min"]), float(data["range_max"])
+    except (KeyError, ValueError, OSError) as exc:
+        raise InputError(f"{p / 'scans.npz'}: unreadable ({exc})") from None
+    if ranges.ndim != 2 or len(ranges) != len(images):
+        raise InputError(f"{p}: {len(images)} images but {len(ranges)} scans; they must pair one to one")
+    n = ranges.shape[1]
+    views = []
+    for k, img in enumerate(images):
+        scan = LaserScan(float(stamps[k]), "laser", a0, a0 + da * (n - 1), da, 0.0, 0.0, rmin, rmax, ranges[k])
+        views.append(TargetView(read_image(img), scan))
+    return views
