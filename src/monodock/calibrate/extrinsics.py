@@ -858,7 +858,7 @@ def add_parser(calibrate_subparsers: Any) -> None:
         "--tolerance", type=float, default=PAIRING_TOLERANCE_S, help="image/scan pairing tolerance, s (default 0.05)"
     )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.set_defaults(func=_cmd_extrinsics_or_target)
+    p.set_defaults(func=_cmd_extrinsics)
 
 
 def _cmd_extrinsics(args: argparse.Namespace) -> int:
@@ -871,9 +871,13 @@ def _cmd_extrinsics(args: argparse.Namespace) -> int:
         raise InputError("--out, --tf, --robot-out and --overlay must be different files")
     for o in outputs:
         check_writable(o, force=args.force)
+    if not (args.tolerance > 0 and math.isfinite(args.tolerance)):
+        raise InputError(f"--tolerance must be a positive number of seconds, got {args.tolerance}")
     robot = RobotConfig.load(args.robot)
     png: bytes | None = None
-    if args.pairs:
+    if args.target_views:
+        result, png = _target_form(args, robot)
+    elif args.pairs:
         if not args.camera:
             raise InputError("--pairs needs --camera (the intrinsics the pixels were clicked in)")
         if args.overlay and not args.image:
@@ -899,8 +903,6 @@ def _cmd_extrinsics(args: argparse.Namespace) -> int:
     else:
         if not args.layout:
             raise InputError("--recording needs --layout (the charger's markers)")
-        if not (args.tolerance > 0 and math.isfinite(args.tolerance)):
-            raise InputError(f"--tolerance must be a positive number of seconds, got {args.tolerance}")
         layout = DockLayout.load(args.layout)
         camera_arg = CameraModel.load(args.camera) if args.camera else None
         result, rv = extrinsics_from_recording(
@@ -1252,21 +1254,12 @@ def target_views_from_recording(
     return views, camera, warnings
 
 
-def _cmd_extrinsics_or_target(args: argparse.Namespace) -> int:
-    """``calibrate extrinsics``: the diamond-target form with --target-views, else the pairs or dock form."""
-    if not getattr(args, "target_views", None):
-        return _cmd_extrinsics(args)
-    from monodock.atomic import check_writable, write_bytes_atomic, write_text_atomic
+def _target_form(args: argparse.Namespace, robot: RobotConfig) -> tuple[ExtrinsicsResult, bytes | None]:
+    """``--target-views``: the diamond target in a recording or a folder of views; the result and its overlay."""
     from monodock.calibrate.target import DiamondTarget, read_target_views
     from monodock.camera import CameraModel
     from monodock.inputs import is_recording
 
-    outputs = [o for o in (args.out, args.tf, args.robot_out, args.overlay) if o]
-    if len({os.path.abspath(o) for o in outputs}) < len(outputs):
-        raise InputError("--out, --tf, --robot-out and --overlay must be different files")
-    for o in outputs:
-        check_writable(o, force=args.force)
-    robot = RobotConfig.load(args.robot)
     target = DiamondTarget.load(args.target) if args.target else DiamondTarget()
     recorded_camera = None
     if is_recording(args.target_views):
@@ -1282,24 +1275,12 @@ def _cmd_extrinsics_or_target(args: argparse.Namespace) -> int:
     else:
         raise InputError("--target-views needs --camera (the intrinsics of the images) unless a recording has them")
     result = extrinsics_from_target_views(views, camera, robot.base_T_optical(), robot.laser_mount, target)
-    print(result.summary())
-    write_result_yaml(args.out, result, force=args.force)
-    written = [args.out]
-    if args.tf:
-        write_text_atomic(args.tf, tf_line(result) + "\n", force=args.force)
-        written.append(args.tf)
-    if args.robot_out:
-        result.robot(robot).save(args.robot_out, force=args.force)
-        written.append(args.robot_out)
+    png = None
     if args.overlay:
         # The papers' Fig. 8c on the first view: the scan through the calibrated mount must run across the target.
         from monodock.label import project_to_image, scan_in_base
 
         calibrated = result.robot(robot)
-        view = views[0]
-        pixels = project_to_image(scan_in_base(view.scan, calibrated), camera, calibrated)
-        none = np.zeros(len(pixels), dtype=bool)
-        write_bytes_atomic(args.overlay, overlay_png(view.image, pixels, none, camera, calibrated), force=args.force)
-        written.append(args.overlay)
-    print("wrote " + ", ".join(written))
-    return 0
+        pixels = project_to_image(scan_in_base(views[0].scan, calibrated), camera, calibrated)
+        png = overlay_png(views[0].image, pixels, np.zeros(len(pixels), dtype=bool), camera, calibrated)
+    return result, png
