@@ -522,6 +522,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         ("--train-stops", args.train_stops),
         ("--test-stops", args.test_stops),
         ("--trials", args.trials),
+        ("--dock-trials", args.dock_trials),
     ):
         if value < 1:
             raise MonodockError(f"{flag} must be at least 1")
@@ -532,12 +533,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         trials=args.trials,
         seed=args.seed,
         jobs=_jobs(args.jobs),
+        dock_trials=args.dock_trials,
     )
     summary = run_demo(args.out, config, force=args.force)
     for method, r in summary.get("against_truth", summary.get("against_lidar", {})).items():
         print(
             f"{method:10s} valid {r['valid']}/{r['frames']}  depth MAE {r['depth_mae_cm']:.2f} cm  lateral MAE "
             f"{r['lateral_mae_cm']:.2f} cm  yaw MAE {r['yaw_mae_deg']:.2f} deg  (against the simulator's truth)"
+        )
+    for method, g in summary.get("docking", {}).items():
+        print(
+            f"docking {method:10s} {g['successes']}/{g['runs']} docked; median final lateral "
+            f"{g['final_lateral_cm']['median']:.2f} cm, heading {g['final_heading_deg']['median']:.2f} deg"
         )
     print(f"report: {Path(args.out) / 'report.html'}  ({summary['seconds']:.0f} s)")
     return 0
@@ -671,6 +678,7 @@ def _parser() -> argparse.ArgumentParser:
 
     from monodock.calibrate.extrinsics import add_parser as add_extrinsics
     from monodock.calibrate.intrinsics import add_parser as add_intrinsics
+    from monodock.dock.command import add_parser as add_dock_sim
     from monodock.live import add_parser as add_run
 
     cal = sub.add_parser("calibrate", help="camera intrinsics from a checkerboard; camera-LiDAR extrinsics")
@@ -678,12 +686,14 @@ def _parser() -> argparse.ArgumentParser:
     add_intrinsics(cal_sub)
     add_extrinsics(cal_sub)
     add_run(sub)
+    add_dock_sim(sub)
 
     d = sub.add_parser("demo", help="simulate, label, train, evaluate every method, and write the report")
     d.add_argument("--out", default="demo_report", help="report folder (default: demo_report)")
     d.add_argument("--train-stops", type=int, default=3000, help="stops of the data-collection drive (3000)")
     d.add_argument("--test-stops", type=int, default=500, help="stops of the held-out drive (500)")
     d.add_argument("--trials", type=int, default=4, help="hyperparameter draws per model (4)")
+    d.add_argument("--dock-trials", type=int, default=1, help="closed-loop docking starts per case and method (1)")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--jobs", type=int)
     d.add_argument("--force", action="store_true", help="replace an existing report folder")

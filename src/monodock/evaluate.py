@@ -413,6 +413,7 @@ def evaluate_report(
     title: str,
     intro: Callable[[HtmlReport], None] | None = None,
     extra_sections: Callable[[HtmlReport], None] | None = None,
+    extra_summary: Mapping[str, Any] | None = None,
     miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None = None,
 ) -> dict[str, Any]:
     """Run regression, single-marker PnP and board PnP on a labelled dataset; write the report into ``out``.
@@ -499,6 +500,7 @@ def evaluate_report(
     summary["invalid_reasons"] = reasons
     report.heading("Why frames have no estimate")
     report.bullets([f"{m}: {c or 'none'}" for m, c in reasons.items()])
+    summary.update(extra_summary or {})
     report.write(out, summary)
     return summary
 

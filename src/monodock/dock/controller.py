@@ -1,0 +1,529 @@
+"""The docking mission: acquire → calculate → Moving₁ → Moving₂ → Moving₃ → docked, as a state machine.
+
+The papers' procedure (conference paper §IV, Sensors 2025 §4.9): Calculate depth, angle and K and set Point A;
+Moving₁ straight to Point A; Moving₂ rotate by the computed angle; Moving₃ straight to the dock, fine-tuned by
+P-control. Moving₁ and Moving₂ run on odometry towards targets fixed at Calculate (the markers may leave the
+view while the robot turns towards A). Moving₃ re-estimates from every frame: each frame refines the dock's
+pose in the odometry frame (``DockTrack``), and a P-controller steers the lateral and heading errors against it
+at the control rate, so frame latency and the camera's rate do not enter the loop. The last centimetres,
+where the camera is too close to see marker 2 whole, are driven on the track and odometry alone, at creep
+speed.
+
+Safety: accelerations and speeds are limited; the speed near the face is bounded by what can stop in the
+remaining distance; markers lost for longer than ``lost_timeout`` outside that blind zone stop the robot;
+the whole mission has a time limit. Every stop is a zero command, never a silent hang.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+
+from monodock import transforms
+from monodock.camera import CameraModel
+from monodock.dock.interface import Odometry, RobotInterface
+from monodock.dock.planner import Manoeuvre, PlannerConfig, plan, point_a
+from monodock.dock.pose2d import Pose2D
+from monodock.dock.track import DockTrack, MeasurementNoise, TrackNoise
+from monodock.errors import ConfigError
+from monodock.layout import DockLayout
+from monodock.pose import DockPose, wrap_angle
+from monodock.robot import RobotConfig
+
+__all__ = [
+    "DockingMission",
+    "MissionConfig",
+    "MissionResult",
+    "Observation",
+    "Perceive",
+    "State",
+    "blind_gap",
+    "run_mission",
+]
+
+
+class State(StrEnum):
+    ACQUIRE = "acquire"
+    CALCULATE = "calculate"
+    MOVING1_TURN = "moving1-turn"
+    MOVING1_DRIVE = "moving1-drive"
+    MOVING2 = "moving2"
+    MOVING3 = "moving3"
+    SETTLE = "settle"
+    BACK_OFF = "back-off"
+    DOCKED = "docked"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One frame's estimate: the DockPose (None when the estimator had nothing) and how many markers it used."""
+
+    stamp: float
+    pose: DockPose | None
+    markers: int = 0
+
+
+# What turns an image into an observation: the caller's estimator (regression, board PnP, ...).
+Perceive = Callable[[float, "np.ndarray"], Observation]
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    """Limits, gains, tolerances and time-outs of the docking mission (SI units, angles in degrees)."""
+
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    control_period: float = 0.02
+    # Speed and acceleration limits; the robot's own maxima cap these.
+    cruise_speed: float = 0.20
+    approach_speed: float = 0.12
+    turn_rate: float = 0.6
+    linear_accel: float = 0.4
+    angular_accel: float = 1.5
+    min_speed: float = 0.02  # below this a real base's wheels stall; a non-zero command is never smaller
+    min_turn_rate: float = 0.08
+    creep_distance: float = 0.03  # the last metres at min_speed
+    # Moving₃'s P-control: heading reference -atan(k_lateral * lateral error), turn rate k_heading * heading error.
+    k_lateral: float = 4.0
+    k_heading: float = 2.5
+    max_correction_deg: float = 20.0
+    heading_only_gap: float = 0.12  # closer than this the lateral term fades out: arrive square
+    # Turning and driving on odometry.
+    k_turn: float = 3.0
+    turn_tolerance_deg: float = 0.3
+    k_bearing: float = 2.0
+    arrive_tolerance: float = 0.005
+    # Acquire and calculate.
+    acquire: bool = True
+    acquire_turn_rate: float = 0.3
+    first_frame_wait: float = 0.5
+    acquire_max_turn_deg: float = 370.0
+    calculate_frames: int = 6
+    calculate_timeout: float = 3.0
+    settle_speed: float = 0.005
+    # Retry and tolerances.
+    checkpoint_gap: float = 0.25  # end of Moving₃'s early part: front edge this far from the face
+    retry_lateral: float = 0.015
+    retry_heading_deg: float = 3.0
+    max_retries: int = 2
+    tolerance_lateral: float = 0.02
+    tolerance_longitudinal: float = 0.02
+    tolerance_heading_deg: float = 3.0
+    # Safety.
+    lost_timeout: float = 1.0
+    mission_timeout: float = 120.0
+    blind_margin: float = 0.04
+    track: TrackNoise = field(default_factory=TrackNoise)
+    measurement: MeasurementNoise = field(default_factory=MeasurementNoise)
+
+    def __post_init__(self) -> None:
+        for name in ("control_period", "cruise_speed", "approach_speed", "turn_rate", "linear_accel", "angular_accel"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"mission: {name} must be positive, got {getattr(self, name)}")
+        if self.min_speed > self.approach_speed:
+            raise ConfigError("mission: min_speed must not exceed approach_speed")
+
+
+@dataclass
+class MissionResult:
+    """How a mission ended, as the robot itself sees it (the simulator's truth is not in here)."""
+
+    state: State
+    reason: str
+    case: int | None
+    retries: int
+    duration: float
+    estimated_final: Pose2D | None  # the robot's pose in the dock frame by its own estimate
+    impact_speed: float | None = None
+    log: list[tuple[float, str]] = field(default_factory=list)
+
+    @property
+    def docked(self) -> bool:
+        return self.state is State.DOCKED
+
+
+def blind_gap(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> float:
+    """The front edge's distance from the face below which marker 2 no longer fits in the image (robot square on)."""
+
+    def fits(gap: float) -> bool:
+        base_T_dock = DockPose(gap + robot.front_offset, 0.0, 0.0).matrix()
+        optical_T_dock = transforms.invert(robot.base_T_optical()) @ base_T_dock
+        p = transforms.apply(optical_T_dock, layout.corners_in_dock("center"))
+        if np.any(p[:, 2] <= 0) or not np.all(camera.in_view_field(p)):
+            return False
+        px = camera.project(p)
+        return bool(np.all((px >= 0) & (px <= np.array(camera.size) - 1)))
+
+    lo, hi = 0.0, 3.0
+    if fits(lo):
+        return 0.0
+    if not fits(hi):
+        raise ConfigError("marker 2 never fits in the image in front of the dock; check the camera and layout")
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+    return hi
+
+
+class _OdomHistory:
+    """Odometry poses of the last seconds, to place a frame by where the robot was at its exposure."""
+
+    def __init__(self, horizon: float = 3.0) -> None:
+        self.horizon = horizon
+        self.t: list[float] = []
+        self.poses: list[Pose2D] = []
+
+    def add(self, t: float, pose: Pose2D) -> None:
+        self.t.append(t)
+        self.poses.append(pose)
+        while self.t and self.t[0] < t - self.horizon:
+            self.t.pop(0)
+            self.poses.pop(0)
+
+    def at(self, t: float) -> Pose2D | None:
+        if not self.t or t < self.t[0]:
+            return None
+        i = bisect.bisect_right(self.t, t)
+        if i >= len(self.t):
+            return self.poses[-1]
+        t0, t1 = self.t[i - 1], self.t[i]
+        p0, p1 = self.poses[i - 1], self.poses[i]
+        w = 0.0 if t1 <= t0 else (t - t0) / (t1 - t0)
+        return Pose2D(
+            p0.x + w * (p1.x - p0.x),
+            p0.y + w * (p1.y - p0.y),
+            wrap_angle(p0.theta + w * wrap_angle(p1.theta - p0.theta)),
+        )
+
+
+@dataclass
+class _Targets:
+    """Moving₁ and Moving₂'s goals in the odometry frame, fixed at Calculate."""
+
+    a: Pose2D
+    drive_heading: float
+    final_heading: float
+    reverse: bool
+
+
+class DockingMission:
+    """The state machine; ``step`` turns odometry and the latest observation into a velocity command."""
+
+    def __init__(self, config: MissionConfig, robot: RobotConfig, blind: float) -> None:
+        self.config = config
+        self.robot = robot
+        self.blind = blind + config.blind_margin
+        self.max_speed = min(config.cruise_speed, robot.max_linear_speed)
+        self.max_turn = min(config.turn_rate, robot.max_angular_speed)
+        self.track = DockTrack(config.track)
+        self.history = _OdomHistory()
+        self.state = State.ACQUIRE
+        self.reason = ""
+        self.case: int | None = None
+        self.manoeuvre: Manoeuvre | None = None
+        self.retries = 0
+        self.log: list[tuple[float, str]] = []
+        self.command = (0.0, 0.0)
+        self.start_time: float | None = None
+        self.state_since = 0.0
+        self.last_seen = -math.inf
+        self.calculate_count = 0
+        self.turned = 0.0
+        self.checked = False
+        self.impact_speed: float | None = None
+        self._last_odom: Pose2D | None = None
+        self._targets = _Targets(Pose2D(0.0, 0.0, 0.0), 0.0, 0.0, False)
+
+    # --- bookkeeping ------------------------------------------------------------------------
+
+    @property
+    def finished(self) -> bool:
+        return self.state in (State.DOCKED, State.FAILED)
+
+    @property
+    def wants_frames(self) -> bool:
+        """Whether this state uses camera frames (the simulator renders only frames that are used)."""
+        return self.state in (State.ACQUIRE, State.CALCULATE, State.MOVING3, State.SETTLE)
+
+    def _enter(self, now: float, state: State, note: str = "") -> None:
+        self.state, self.state_since = state, now
+        self.log.append((now, state.value + (f": {note}" if note else "")))
+
+    def _fail(self, now: float, reason: str) -> tuple[float, float]:
+        self.reason = reason
+        self._enter(now, State.FAILED, reason)
+        self.command = (0.0, 0.0)
+        return self.command
+
+    # --- the loop ---------------------------------------------------------------------------
+
+    def step(
+        self, now: float, odom: Odometry, observation: Observation | None, contact: bool | None = None
+    ) -> tuple[float, float]:
+        """One control tick: the velocity command (m/s, rad/s) for the next period."""
+        if self.start_time is None:
+            self.start_time = now
+            self._enter(now, State.ACQUIRE)
+        pose = odom.pose
+        if self._last_odom is not None:
+            self.track.predict(self._last_odom.distance(pose), wrap_angle(pose.theta - self._last_odom.theta))
+        self._last_odom = pose
+        self.history.add(odom.stamp, pose)
+        if observation is not None and observation.pose is not None:
+            at = self.history.at(observation.stamp)
+            if at is not None:
+                sig = self.config.measurement.sigmas(observation.pose, observation.markers)
+                if self.track.update(at, observation.pose, sig):
+                    self.last_seen = observation.stamp
+        if self.finished:
+            return (0.0, 0.0)
+        if now - self.start_time > self.config.mission_timeout:
+            return self._fail(now, f"mission took longer than {self.config.mission_timeout:.0f} s")
+        v, w = self._desired(now, odom, contact)
+        if self.finished:
+            return (0.0, 0.0)
+        self.command = self._limit(v, w)
+        return self.command
+
+    def _limit(self, v: float, w: float) -> tuple[float, float]:
+        """Speed and acceleration limits, and the minimum speed a real base still moves at."""
+        c, dt = self.config, self.config.control_period
+        v = float(np.clip(v, -self.max_speed, self.max_speed))
+        w = float(np.clip(w, -self.max_turn, self.max_turn))
+        pv, pw = self.command
+        want_v, want_w = v, w
+        v = float(np.clip(v, pv - c.linear_accel * dt, pv + c.linear_accel * dt))
+        w = float(np.clip(w, pw - c.angular_accel * dt, pw + c.angular_accel * dt))
+        # Below the minimum a base does not move: round up when asked to move, down to zero when asked to stop.
+        if abs(v) < c.min_speed:
+            v = math.copysign(c.min_speed, want_v) if want_v != 0.0 else 0.0
+        if v == 0.0 and abs(w) < c.min_turn_rate:
+            w = math.copysign(c.min_turn_rate, want_w) if want_w != 0.0 else 0.0
+        return v, w
+
+    def _stopped(self, odom: Odometry) -> bool:
+        return abs(odom.linear) < self.config.settle_speed and abs(odom.angular) < 5 * self.config.settle_speed
+
+    def _gap(self, odom: Pose2D) -> float:
+        """The front edge's distance from the face by the robot's estimate."""
+        return -self.track.robot_in_dock(odom).x - self.robot.front_offset
+
+    # --- the states -------------------------------------------------------------------------
+
+    def _desired(self, now: float, odom: Odometry, contact: bool | None) -> tuple[float, float]:
+        c = self.config
+        assert self.start_time is not None
+        pose = odom.pose
+        if self.state is State.ACQUIRE:
+            if self.track.mean is not None:
+                self._enter(now, State.CALCULATE, "markers in view")
+                self.track.reset()
+                self.calculate_count = 0
+                return (0.0, 0.0)
+            if now - self.start_time < c.first_frame_wait:
+                return (0.0, 0.0)  # the first frames are still on their way
+            if not c.acquire:
+                return self._fail(now, "no markers in view (acquire is off)")
+            if self.turned >= math.radians(c.acquire_max_turn_deg):
+                return self._fail(now, "no markers in view after a full turn")
+            self.turned += abs(odom.angular) * c.control_period
+            return (0.0, c.acquire_turn_rate)
+
+        if self.state is State.CALCULATE:
+            # Stand still, then average a few frames: motion blur and latency stay out of the plan.
+            if not self._stopped(odom):
+                self.track.reset()
+                return (0.0, 0.0)
+            if self.track.updates >= c.calculate_frames or (
+                now - self.state_since > c.calculate_timeout and self.track.updates > 0
+            ):
+                return self._plan(now, pose)
+            if now - self.state_since > c.calculate_timeout:
+                self.turned = 0.0
+                self._enter(now, State.ACQUIRE, "markers lost while calculating")
+            return (0.0, 0.0)
+
+        if self.state is State.MOVING1_TURN:
+            done, w = self._turn_to(self._targets.drive_heading, pose, odom)
+            if done:
+                self._enter(now, State.MOVING1_DRIVE)
+            return (0.0, w)
+
+        if self.state in (State.MOVING1_DRIVE, State.BACK_OFF):
+            reverse = self._targets.reverse if self.state is State.MOVING1_DRIVE else True
+            v, w, arrived = self._drive_to(self._targets.a, pose, reverse)
+            if arrived:
+                if self.state is State.BACK_OFF:
+                    self._enter(now, State.CALCULATE, "back at Point A")
+                    self.track.reset()
+                else:
+                    self._enter(now, State.MOVING2)
+                return (0.0, 0.0)
+            return (v, w)
+
+        if self.state is State.MOVING2:
+            done, w = self._turn_to(self._targets.final_heading, pose, odom)
+            if done:
+                self.checked = False
+                self.last_seen = max(self.last_seen, now)  # the lost-markers clock starts when Moving₃ does
+                self._enter(now, State.MOVING3)
+            return (0.0, w)
+
+        if self.state is State.MOVING3:
+            return self._approach(now, odom, contact)
+
+        if self.state is State.SETTLE:
+            if not self._stopped(odom):
+                return (0.0, 0.0)
+            return self._judge(now, pose)
+        raise AssertionError(self.state)  # pragma: no cover
+
+    def _plan(self, now: float, pose: Pose2D) -> tuple[float, float]:
+        """Calculate: the robot's pose in the dock frame, its case, Point A and the targets in odometry."""
+        assert self.track.mean is not None
+        robot = self.track.robot_in_dock(pose)
+        m = plan(robot, self.config.planner, self.robot.front_offset)
+        dock = self.track.mean
+        self.manoeuvre = m
+        if self.case is None:
+            self.case = m.case
+        self._targets = _Targets(
+            a=dock.compose(m.point_a),
+            drive_heading=wrap_angle(dock.theta + m.drive_heading),
+            final_heading=wrap_angle(dock.theta + m.point_a.theta),
+            reverse=m.reverse,
+        )
+        note = (
+            f"case {m.case}; robot at ({robot.x:+.3f}, {robot.y:+.3f}) m, {math.degrees(robot.theta):+.1f} deg in the "
+            f"dock frame; turn {math.degrees(m.first_turn):+.1f} deg, {'reverse' if m.reverse else 'drive'} "
+            f"{m.drive_distance:.3f} m to A, turn {math.degrees(m.second_turn):+.1f} deg"
+        )
+        self._enter(now, State.MOVING1_TURN, note)
+        return (0.0, 0.0)
+
+    def _turn_to(self, heading: float, pose: Pose2D, odom: Odometry) -> tuple[bool, float]:
+        """Turn in place towards ``heading`` (odometry frame): (there and still, turn rate)."""
+        c = self.config
+        err = wrap_angle(heading - pose.theta)
+        if abs(err) < math.radians(c.turn_tolerance_deg):
+            return abs(odom.angular) < 0.05, 0.0
+        # Decelerate so as to stop on the target: w <= sqrt(2 a |err|).
+        w = min(c.k_turn * abs(err), math.sqrt(2 * c.angular_accel * abs(err)), self.max_turn)
+        return False, math.copysign(max(w, c.min_turn_rate), err)
+
+    def _drive_to(self, target: Pose2D, pose: Pose2D, reverse: bool) -> tuple[float, float, bool]:
+        """Drive straight at ``target`` (forwards or backwards), steering on the bearing; True on arrival."""
+        c = self.config
+        dx, dy = target.x - pose.x, target.y - pose.y
+        heading = pose.theta + (math.pi if reverse else 0.0)
+        along = dx * math.cos(heading) + dy * math.sin(heading)
+        if along <= c.arrive_tolerance:
+            return 0.0, 0.0, True
+        bearing = wrap_angle(math.atan2(dy, dx) - heading)
+        speed = min(self.max_speed, math.sqrt(2 * c.linear_accel * along), 2.0 * along + c.min_speed)
+        # Steer only while there is room; the last centimetres hold the heading.
+        w = c.k_bearing * bearing if along > 0.05 else 0.0
+        return (-speed if reverse else speed), w, False
+
+    def _approach(self, now: float, odom: Odometry, contact: bool | None) -> tuple[float, float]:
+        """Moving₃: straight at the face under P-control on the lateral and heading errors."""
+        c = self.config
+        robot = self.track.robot_in_dock(odom.pose)
+        gap = -robot.x - self.robot.front_offset
+        lateral, heading = robot.y, robot.theta
+        if gap > self.blind and now - self.last_seen > c.lost_timeout:
+            return self._fail(now, f"markers lost for {now - self.last_seen:.1f} s during the approach")
+        if contact or gap <= 0.0:
+            if self.impact_speed is None:
+                self.impact_speed = abs(odom.linear)
+            self._enter(now, State.SETTLE, "contact" if contact else "at the face by the estimate")
+            return (0.0, 0.0)
+        if not self.checked and gap <= c.checkpoint_gap:
+            self.checked = True
+            off = abs(lateral) > c.retry_lateral or abs(heading) > math.radians(c.retry_heading_deg)
+            if off and self.retries < c.max_retries:
+                return self._back_off(now, f"lateral {lateral * 100:+.1f} cm, heading {math.degrees(heading):+.1f} deg")
+        # Heading reference that closes the lateral error, faded out near the face so the robot arrives square.
+        fade = min(1.0, max(0.0, (gap - 0.5 * c.heading_only_gap) / (0.5 * c.heading_only_gap)))
+        ref = -math.atan(c.k_lateral * lateral) * fade
+        ref = float(np.clip(ref, -math.radians(c.max_correction_deg), math.radians(c.max_correction_deg)))
+        w = c.k_heading * wrap_angle(ref - heading)
+        v = min(c.approach_speed, math.sqrt(2 * c.linear_accel * 0.5 * max(gap - c.creep_distance, 0.0)) + c.min_speed)
+        if gap <= c.creep_distance:
+            v = c.min_speed
+        return v, w
+
+    def _back_off(self, now: float, why: str) -> tuple[float, float]:
+        assert self.track.mean is not None
+        self.retries += 1
+        self._targets.a = self.track.mean.compose(point_a(self.config.planner, self.robot.front_offset))
+        self._enter(now, State.BACK_OFF, f"retry {self.retries}: {why}")
+        return (0.0, 0.0)
+
+    def _judge(self, now: float, pose: Pose2D) -> tuple[float, float]:
+        """At the face: docked if the robot's own estimate of its pose is inside the tolerances."""
+        c = self.config
+        robot = self.track.robot_in_dock(pose)
+        gap = -robot.x - self.robot.front_offset
+        ok = (
+            abs(robot.y) <= c.tolerance_lateral
+            and abs(gap) <= c.tolerance_longitudinal
+            and abs(robot.theta) <= math.radians(c.tolerance_heading_deg)
+        )
+        summary = (
+            f"lateral {robot.y * 100:+.1f} cm, gap {gap * 100:+.1f} cm, heading {math.degrees(robot.theta):+.1f} deg"
+        )
+        if ok:
+            self._enter(now, State.DOCKED, summary)
+        elif self.retries < c.max_retries:
+            self._back_off(now, "final pose outside the tolerances: " + summary)
+        else:
+            self._fail(now, "final pose outside the tolerances: " + summary)
+        return (0.0, 0.0)
+
+    def estimated_final(self) -> Pose2D | None:
+        if self.track.mean is None or self._last_odom is None:
+            return None
+        return self.track.robot_in_dock(self._last_odom)
+
+
+def run_mission(
+    robot: RobotInterface,
+    perceive: Perceive,
+    mission: DockingMission,
+    *,
+    on_tick: Callable[[DockingMission, Odometry], None] | None = None,
+) -> MissionResult:
+    """Drive the mission to its end on ``robot``: read, decide, command, wait one control period."""
+    last_stamp = -math.inf
+    start = robot.now()
+    while not mission.finished:
+        odom = robot.odometry()
+        observation = None
+        if mission.wants_frames:
+            frame = robot.latest_frame()
+            if frame is not None and frame.stamp > last_stamp:
+                last_stamp = frame.stamp
+                observation = perceive(frame.stamp, frame.image)
+        v, w = mission.step(robot.now(), odom, observation, robot.contact())
+        robot.send_velocity(v, w)
+        if on_tick is not None:
+            on_tick(mission, odom)
+        if not mission.finished:
+            robot.sleep(mission.config.control_period)
+    robot.send_velocity(0.0, 0.0)
+    return MissionResult(
+        state=mission.state,
+        reason=mission.reason,
+        case=mission.case,
+        retries=mission.retries,
+        duration=robot.now() - start,
+        estimated_final=mission.estimated_final(),
+        impact_speed=mission.impact_speed,
+        log=list(mission.log),
+    )

@@ -1,0 +1,154 @@
+"""The papers' eight docking cases, Point A, and the manoeuvre each case calls for.
+
+Everything here lives in the ``dock`` frame (DESIGN.md): x normal to the charger face and pointing into it,
+y to the left, the face at x = 0. The robot approaches from x < 0 and is docked at (-front_offset, 0, 0).
+
+Point A is the base_link position on the approach axis (y = 0) that stands ``standoff`` metres of floor in
+front of the face, measured from the robot's front edge, facing the charger: from there the last part is a
+straight line. The papers choose one of eight cases from the angle, K and Point A (Sensors 2025, Fig. 15;
+conference paper, Fig. 13) without spelling them out; we define them by three questions:
+
+- side: is the robot left (y ≥ 0) or right (y < 0) of the approach axis, looking at the charger;
+- heading: does its heading point towards the axis (it would cross it driving forward) or along or away from it;
+- zone: is it before Point A (farther from the face) or already past it (closer than the stand-off).
+
+Before Point A the robot turns to face A, drives forward to it, and turns square to the face (the papers'
+Moving₁ and Moving₂). Past Point A there is no room to turn onto the axis and still approach straight, so it
+turns its back to A and reverses onto it; then it turns square. Heading decides which way and how far the first
+turn goes: towards the axis it is the shorter turn (and turns back, away from the axis, if the heading already
+crosses the axis before A); away from it, the longer turn through square-on.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from monodock.dock.pose2d import Pose2D
+from monodock.errors import ConfigError
+from monodock.pose import wrap_angle
+
+__all__ = ["CASES", "CaseSpec", "Manoeuvre", "PlannerConfig", "classify", "plan", "point_a"]
+
+
+@dataclass(frozen=True)
+class CaseSpec:
+    """One of the eight cases: where the robot is and what it does about it."""
+
+    number: int
+    side: str  # "left" or "right" of the approach axis, looking at the charger
+    heading: str  # "towards" or "away" (along or away from) the axis
+    zone: str  # "before" or "past" Point A
+    manoeuvre: str  # what the robot does, in words
+
+    @property
+    def title(self) -> str:
+        return f"Case {self.number}: {self.side} of the axis, heading {self.heading}, {self.zone} Point A"
+
+
+def _spec(number: int, side: str, heading: str, zone: str) -> CaseSpec:
+    other = "right" if side == "left" else "left"
+    if zone == "before":
+        first = (
+            f"a short turn {other} (or back {side} if the heading already crosses the axis before A) to face A"
+            if heading == "towards"
+            else f"a long turn {other}, through square-on, to face A"
+        )
+        words = f"{first}; drive forward to A; turn {side} square to the face; straight approach"
+    else:
+        first = (
+            f"a long turn {side}, through square-on, to put its back to A"
+            if heading == "towards"
+            else f"a short turn {side} (or {other} if already turned past it) to put its back to A"
+        )
+        words = f"{first}; reverse to A; turn {other} square to the face; straight approach"
+    return CaseSpec(number, side, heading, zone, words)
+
+
+CASES: dict[int, CaseSpec] = {
+    1: _spec(1, "left", "towards", "before"),
+    2: _spec(2, "right", "towards", "before"),
+    3: _spec(3, "left", "away", "before"),
+    4: _spec(4, "right", "away", "before"),
+    5: _spec(5, "left", "towards", "past"),
+    6: _spec(6, "right", "towards", "past"),
+    7: _spec(7, "left", "away", "past"),
+    8: _spec(8, "right", "away", "past"),
+}
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Where Point A is.
+
+    Attributes:
+        standoff: floor between the robot's front edge and the charger face at Point A, metres.
+        arrive_tolerance: a start closer than this to A skips the drive to A, metres.
+    """
+
+    standoff: float = 1.0
+    arrive_tolerance: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not self.standoff > 0:
+            raise ConfigError(f"the stand-off of Point A must be positive, got {self.standoff}")
+
+
+def point_a(config: PlannerConfig, front_offset: float) -> Pose2D:
+    """Point A: base_link on the approach axis, ``standoff`` of floor before the face, facing the charger."""
+    return Pose2D(-(config.standoff + front_offset), 0.0, 0.0)
+
+
+def classify(robot: Pose2D, a: Pose2D) -> int:
+    """The case number (1–8) of a robot pose in the dock frame, with Point A at ``a``."""
+    left = robot.y >= 0.0
+    side = 1.0 if left else -1.0
+    towards = math.sin(robot.theta) * side < 0.0
+    past = robot.x > a.x
+    for n, spec in CASES.items():
+        if (spec.side == "left") == left and (spec.heading == "towards") == towards and (spec.zone == "past") == past:
+            return n
+    raise AssertionError("the eight cases cover every pose")  # pragma: no cover
+
+
+@dataclass(frozen=True)
+class Manoeuvre:
+    """The planned Moving₁ and Moving₂ of one case, in the dock frame.
+
+    Attributes:
+        case: 1–8.
+        start: the robot's pose when it was planned.
+        point_a: Point A.
+        drive_heading: the heading held while driving to A (the robot faces A, or turns its back to it).
+        reverse: whether the drive to A is backwards.
+        first_turn: Moving₁'s turn before the drive, radians, counter-clockwise positive.
+        drive_distance: length of the drive to A, metres (0 when the start is already at A).
+        second_turn: Moving₂'s turn at A to square up with the face, radians.
+    """
+
+    case: int
+    start: Pose2D
+    point_a: Pose2D
+    drive_heading: float
+    reverse: bool
+    first_turn: float
+    drive_distance: float
+    second_turn: float
+
+
+def plan(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre:
+    """Classify the robot's pose (dock frame) and plan its turn, drive to Point A and turn square."""
+    a = point_a(config, front_offset)
+    case = classify(robot, a)
+    dx, dy = a.x - robot.x, a.y - robot.y
+    distance = math.hypot(dx, dy)
+    reverse = CASES[case].zone == "past"
+    if distance < config.arrive_tolerance:
+        heading, distance = robot.theta, 0.0
+    elif reverse:
+        heading = math.atan2(-dy, -dx)  # back towards A: the robot faces away from it
+    else:
+        heading = math.atan2(dy, dx)
+    first = wrap_angle(heading - robot.theta)
+    second = wrap_angle(a.theta - heading)
+    return Manoeuvre(case, robot, a, heading, reverse, first, distance, second)

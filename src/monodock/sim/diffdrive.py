@@ -1,0 +1,223 @@
+"""A simulated differential-drive robot at the charger, implementing the docking controller's robot interface.
+
+What a cheap base does that an ideal one does not, each from the seeded generator:
+- commands arrive after a latency and the motors follow them with a first-order lag;
+- each wheel's ground speed differs from what its encoder reports, by a fixed per-run factor (tyre wear,
+  slip, wheel-radius error) and per-step noise, so odometry drifts, in heading most of all;
+- the camera exposes at its own rate and phase, and a frame arrives a latency after its exposure;
+- the charger face is solid: the robot cannot drive through it, and its wheels slip when it pushes.
+
+The pose truth lives in the dock frame. The controller sees only odometry (the integral of the encoders,
+in a frame that starts at the robot's start pose) and camera images rendered from the true pose. Frames are
+rendered when the controller first asks for them, so states that do not look cost nothing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from monodock.dock.interface import CameraFrame, Odometry
+from monodock.dock.pose2d import Pose2D
+from monodock.errors import ConfigError
+from monodock.layout import ROLES
+from monodock.pose import DockPose, wrap_angle
+from monodock.sim.simulator import Simulator
+
+__all__ = ["DiffDriveConfig", "SimulatedRobot", "TruthSample"]
+
+
+@dataclass(frozen=True)
+class DiffDriveConfig:
+    """The base's physics and the nuisances of its wheels, camera and links (SI units).
+
+    Attributes:
+        track_width: distance between the wheels.
+        footprint_width: the robot's width, for contact and plots.
+        rear_offset: base_link to the robot's back edge.
+        command_latency: from ``send_velocity`` to the motor controller.
+        motor_time_constant: first-order lag of each wheel's speed.
+        wheel_scale_sd: per-run relative error of each wheel's ground speed against its encoder.
+        wheel_noise_sd: per-step relative noise on each wheel's ground speed.
+        camera_rate: frames per second; the phase of the first frame is random.
+        camera_latency: from exposure to the frame's arrival.
+        physics_dt: integration step.
+        contact_sensor: whether the charger contacts report touch (``contact()``); otherwise None and the
+            robot must stop on its own estimate.
+    """
+
+    track_width: float = 0.40
+    footprint_width: float = 0.40
+    rear_offset: float = 0.20
+    command_latency: float = 0.04
+    motor_time_constant: float = 0.05
+    wheel_scale_sd: float = 0.005
+    wheel_noise_sd: float = 0.05
+    camera_rate: float = 15.0
+    camera_latency: float = 0.05
+    physics_dt: float = 0.005
+    contact_sensor: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("track_width", "camera_rate", "physics_dt"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"diff drive: {name} must be positive, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True)
+class TruthSample:
+    """The simulator's record of one moment: true pose in the dock frame and the odometry the robot saw."""
+
+    t: float
+    pose: Pose2D
+    odom: Pose2D
+
+
+@dataclass
+class SimulatedRobot:
+    """The robot, its camera and the charger, stepping in simulated time.
+
+    Args:
+        sim: the simulator that renders the camera (layout, camera, mounts, nuisances).
+        start: the robot's true pose in the dock frame.
+        config: the base's physics.
+        rng: every random draw.
+        hide_markers: ``hide_markers(t, pose)`` True hides the dock's markers from the frame exposed at time
+            t with the robot at ``pose`` (someone standing in front of the charger).
+    """
+
+    sim: Simulator
+    start: Pose2D
+    config: DiffDriveConfig = field(default_factory=DiffDriveConfig)
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+    hide_markers: Callable[[float, Pose2D], bool] | None = None
+
+    def __post_init__(self) -> None:
+        c = self.config
+        self.t = 0.0
+        self.pose = self.start
+        self.odom = Pose2D(0.0, 0.0, 0.0)
+        self.wheel_scale = 1.0 + self.rng.normal(0.0, c.wheel_scale_sd, size=2)
+        self.wheel_speed = np.zeros(2)  # encoder speeds (left, right), m/s at the rim
+        self.odom_velocity = (0.0, 0.0)
+        self.commands: deque[tuple[float, float, float]] = deque()  # (time it takes effect, v, w)
+        self.target = (0.0, 0.0)
+        self.next_exposure = float(self.rng.uniform(0.0, 1.0 / c.camera_rate))
+        self.exposures: deque[tuple[float, Pose2D]] = deque(maxlen=64)
+        self._frame: CameraFrame | None = None
+        self.touching = False
+        self.impact_speed: float | None = None
+        self.pushed = 0.0  # how far the wheels drove on while the front edge pressed the face, metres
+        self.truth: list[TruthSample] = [TruthSample(0.0, self.pose, self.odom)]
+        self.frames_rendered = 0
+
+    # --- the robot interface ------------------------------------------------------------------
+
+    def now(self) -> float:
+        return self.t
+
+    def send_velocity(self, linear: float, angular: float) -> None:
+        if not (math.isfinite(linear) and math.isfinite(angular)):
+            raise ValueError(f"velocity command must be finite, got ({linear}, {angular})")
+        self.commands.append((self.t + self.config.command_latency, float(linear), float(angular)))
+
+    def odometry(self) -> Odometry:
+        return Odometry(self.t, self.odom, *self.odom_velocity)
+
+    def contact(self) -> bool | None:
+        return self.touching if self.config.contact_sensor else None
+
+    def latest_frame(self) -> CameraFrame | None:
+        """The newest frame whose exposure has arrived; rendered on first request."""
+        arrived = [e for e in self.exposures if e[0] + self.config.camera_latency <= self.t]
+        if not arrived:
+            return self._frame
+        stamp, pose = arrived[-1]
+        if self._frame is None or self._frame.stamp != stamp:
+            self._frame = CameraFrame(stamp, self.render(stamp, pose))
+        return self._frame
+
+    def sleep(self, seconds: float) -> None:
+        steps = max(1, round(seconds / self.config.physics_dt))
+        for _ in range(steps):
+            self._step(self.config.physics_dt)
+        self.truth.append(TruthSample(self.t, self.pose, self.odom))
+
+    # --- what the simulator knows ---------------------------------------------------------------
+
+    def dock_pose(self, pose: Pose2D | None = None) -> DockPose:
+        """The true DockPose (dock in base_link) of a robot pose in the dock frame."""
+        p = pose or self.pose
+        return DockPose.from_robot_in_dock(p.x, p.y, p.theta)
+
+    def render(self, stamp: float, pose: Pose2D) -> NDArray[np.uint8]:
+        """The camera image of a robot at ``pose`` (dock frame), exposed at ``stamp``."""
+        dock_pose = self.dock_pose(pose)
+        image = self.sim.render(dock_pose, rng=self.rng)
+        self.frames_rendered += 1
+        if self.hide_markers is not None and self.hide_markers(stamp, pose):
+            corners = self.sim.true_corners(dock_pose)
+            for role in ROLES:
+                quad = corners[role]
+                if np.all(np.isfinite(quad)):
+                    centre = quad.mean(axis=0)
+                    grown = centre + 1.3 * (quad - centre)  # cover the white margin too: nothing to detect
+                    cv2.fillConvexPoly(image, np.round(grown).astype(np.int32), 128)
+        return image
+
+    def longitudinal_error(self) -> float:
+        """Signed stopping error: the gap to the face when short of it, minus how far it drove on into it."""
+        return self.front_gap() - self.pushed
+
+    def front_gap(self, pose: Pose2D | None = None) -> float:
+        """Distance from the robot's front edge (its nearest front corner) to the face, metres."""
+        p = pose or self.pose
+        half = 0.5 * self.config.footprint_width
+        xs = [p.point(self.sim.robot.front_offset, s * half)[0] for s in (-1.0, 1.0)]
+        return -max(xs)
+
+    # --- physics ------------------------------------------------------------------------------
+
+    def _step(self, dt: float) -> None:
+        c = self.config
+        while self.commands and self.commands[0][0] <= self.t:
+            _, v, w = self.commands.popleft()
+            self.target = (v, w)
+        v, w = self.target
+        half = 0.5 * c.track_width
+        wanted = np.array([v - w * half, v + w * half])
+        self.wheel_speed += (wanted - self.wheel_speed) * (1.0 - math.exp(-dt / c.motor_time_constant))
+        ground = self.wheel_speed * self.wheel_scale * (1.0 + self.rng.normal(0.0, c.wheel_noise_sd, size=2))
+        self.odom = self._integrate(self.odom, self.wheel_speed, dt)
+        self.odom_velocity = (
+            float(self.wheel_speed.mean()),
+            float((self.wheel_speed[1] - self.wheel_speed[0]) / c.track_width),
+        )
+        before = self.pose
+        self.pose = self._integrate(self.pose, ground, dt)
+        # The face is solid: a robot that would pass it is pushed back out, its wheels slipping.
+        gap = self.front_gap()
+        charger_half = 0.5 * self.sim.charger.width + 0.5 * c.footprint_width
+        touching = gap <= 1e-4 and abs(self.pose.y) < charger_half
+        if touching and not self.touching and self.impact_speed is None:
+            self.impact_speed = before.distance(self.pose) / dt
+        if touching and gap < 0.0:
+            self.pose = Pose2D(self.pose.x + gap, self.pose.y, self.pose.theta)
+            self.pushed += -gap
+        self.touching = touching
+        self.t += dt
+        if self.t >= self.next_exposure:
+            self.exposures.append((self.next_exposure, self.pose))
+            self.next_exposure += 1.0 / c.camera_rate
+
+    def _integrate(self, pose: Pose2D, wheels: NDArray[np.float64], dt: float) -> Pose2D:
+        v = float(wheels.mean())
+        w = float((wheels[1] - wheels[0]) / self.config.track_width)
+        mid = pose.theta + 0.5 * w * dt
+        return Pose2D(pose.x + v * dt * math.cos(mid), pose.y + v * dt * math.sin(mid), wrap_angle(pose.theta + w * dt))
