@@ -6,11 +6,15 @@ belief about itself.
 
 from __future__ import annotations
 
+import csv
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from monodock.cli import main
 from monodock.dock import (
     CASES,
     DockingMission,
@@ -24,8 +28,7 @@ from monodock.dock import (
     point_a,
     run_mission,
 )
-from monodock.dock.closed_loop import make_perceive
-from monodock.dock.controller import blind_gap
+from monodock.dock.controller import blind_gap, make_perceive
 from monodock.dock.track import DockTrack, MeasurementNoise
 from monodock.estimate import Estimator
 from monodock.pose import DockPose, wrap_angle
@@ -287,3 +290,70 @@ def test_acquire_finds_a_dock_out_of_view_and_docks() -> None:
     assert result.state is State.DOCKED, result.log
     assert abs(robot.pose.y) < 0.01
     assert abs(math.degrees(robot.pose.theta)) < 1.5
+
+
+# --- the dock-sim command -----------------------------------------------------------------------------------
+
+ERROR_KEYS = {"mean", "median", "p95", "max"}
+CONTRACT_KEYS = {
+    "runs",
+    "successes",
+    "success_rate",
+    "final_lateral_cm",
+    "final_longitudinal_cm",
+    "final_heading_deg",
+    "time_s",
+}
+
+
+def test_dock_sim_writes_the_summary_contract(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "dock"
+    args = ["dock-sim", "--cases", "2,7", "--trials", "1", "--method", "board", "--out", str(out), "--jobs", "2"]
+    assert main(args) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["cases"]) == {"2", "7"}
+    for block in (summary["overall"], *summary["cases"].values()):
+        assert set(block) >= CONTRACT_KEYS
+        for key in ("final_lateral_cm", "final_longitudinal_cm", "final_heading_deg", "time_s"):
+            assert set(block[key]) == ERROR_KEYS
+    assert summary["overall"]["runs"] == 2
+    assert summary["overall"]["success_rate"] == summary["overall"]["successes"] / 2
+    assert summary["overall"]["successes"] == 2  # board PnP from two ordinary starts
+    # The numbers are the truth's: the CSV's per-run errors agree with the summary.
+    with (out / "runs.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    lateral = [abs(float(r["lateral_cm"])) for r in rows]
+    assert summary["overall"]["final_lateral_cm"]["max"] == pytest.approx(max(lateral), abs=1e-3)
+    assert max(lateral) < 1.0
+    for name in ("report.html", "final_errors.png", "trajectories_case_2.png", "case_7.png"):
+        assert (out / name).is_file(), name
+    assert "docked 2/2" in capsys.readouterr().out
+    # Nothing is replaced without --force.
+    before = (out / "summary.json").read_bytes()
+    assert main(args) == 2
+    assert (out / "summary.json").read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--cases", "9"], "eight cases"),
+        (["--method", "sonar"], "unknown method"),
+        (["--method", "regression", "--model", "/nonexistent/bundle"], "bundle"),
+        (["--distance", "2.0", "1.0"], "--distance"),
+        (["--standoff", "3.0"], "no starts"),
+    ],
+)
+def test_dock_sim_bad_options_are_one_line(
+    args: list[str], message: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setenv("MONODOCK_CACHE", str(tmp_path / "cache"))  # never train into the user's cache
+    try:
+        code = main(["dock-sim", "--trials", "1", "--jobs", "1", *args])
+    except SystemExit as exc:  # argparse's own errors
+        code = exc.code
+    assert code == 2
+    assert not (tmp_path / "cache").exists()  # refused before any training
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert message in err

@@ -195,25 +195,29 @@ def test_a_camera_that_stops_ends_the_run(drive: tuple[Simulator, list[DockPose]
 
 
 def test_no_monodock_module_needs_rclpy() -> None:
-    """Every module but monodock.ros_node imports with rclpy blocked; ros_node then names rclpy."""
+    """Every module but the two ROS 2 ones imports with rclpy blocked; those then name rclpy."""
     script = """
 import importlib, pkgutil, sys
 sys.modules["rclpy"] = None  # any import of rclpy now fails
 import monodock
-names = [m.name for m in pkgutil.walk_packages(monodock.__path__, "monodock.") if m.name != "monodock.ros_node"]
+ros = ("monodock.ros_node", "monodock.dock.ros2")
+names = [m.name for m in pkgutil.walk_packages(monodock.__path__, "monodock.") if m.name not in ros]
 for name in names:
     importlib.import_module(name)
-assert "monodock.live" in names and "monodock.nav2" in names
-try:
-    import monodock.ros_node
-except ImportError as exc:
-    print("ros_node:", exc)
-else:
-    raise SystemExit("monodock.ros_node imported without rclpy")
+assert "monodock.live" in names and "monodock.nav2" in names and "monodock.dock.controller" in names
+for name in ros:
+    try:
+        importlib.import_module(name)
+    except ImportError as exc:
+        print(name, exc)
+    else:
+        raise SystemExit(name + " imported without rclpy")
 """
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
-    assert "rclpy" in done.stdout.splitlines()[-1]
+    lines = done.stdout.splitlines()[-2:]
+    assert [line.split()[0] for line in lines] == ["monodock.ros_node", "monodock.dock.ros2"]
+    assert all("rclpy" in line for line in lines)
 
 
 def test_ros_node_without_rclpy_says_so() -> None:

@@ -116,21 +116,22 @@ def cached_bundle(sim: Simulator, config: SelfTrainConfig, *, jobs: int, cache: 
         "layout": sim.layout.to_dict(),
         "camera": sim.camera.to_ros_dict(),
         "robot": sim.robot.to_dict(),
-        "nuisances": repr(sim.nuisances),
+        "nuisances": repr(sim.nuisances.updated(supersample=config.supersample)),  # the drive's own sampling
         "train": repr(config),
         "version": __version__,
     }
     key = hashlib.sha256(json.dumps(key_data, sort_keys=True, default=str).encode()).hexdigest()[:16]
-    path = (cache or cache_root()) / f"bundle-{key}"
-    if path.is_dir():
+    entry = (cache or cache_root()) / f"bundle-{key}"
+    bundle = entry / "bundle"
+    if entry.is_dir():
         try:
-            load_bundle(path)
-            return path
-        except Exception as exc:
-            _log(f"cached bundle {path} is unusable ({exc}); training it again")
-            shutil.rmtree(path, ignore_errors=True)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _log(f"training the regression once for this simulator set-up; cached in {path}")
-    with tempfile.TemporaryDirectory(prefix="monodock-selftrain-") as work, atomic_directory(path) as tmp:
-        simulate_and_train(Path(work), tmp, sim, config, jobs=jobs)
-    return path
+            load_bundle(bundle)
+            return bundle
+        except Exception as exc:  # any defect of a cached file means: train again
+            _log(f"cached bundle {bundle} is unusable ({exc}); training it again")
+            shutil.rmtree(entry, ignore_errors=True)
+    entry.parent.mkdir(parents=True, exist_ok=True)
+    _log(f"training the regression once for this simulator set-up; cached in {entry}")
+    with tempfile.TemporaryDirectory(prefix="monodock-selftrain-") as work, atomic_directory(entry) as tmp:
+        simulate_and_train(Path(work), tmp / "bundle", sim, config, jobs=jobs)
+    return bundle

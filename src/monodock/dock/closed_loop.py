@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from monodock.camera import CameraModel
-from monodock.dock.controller import DockingMission, MissionConfig, Observation, Perceive, blind_gap, run_mission
+from monodock.dock.controller import DockingMission, MissionConfig, Perceive, blind_gap, make_perceive, run_mission
 from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose2d import Pose2D
 from monodock.dock.track import MeasurementNoise
@@ -102,22 +102,10 @@ class TrialResult:
     log: tuple[tuple[float, str], ...]
 
 
-def make_perceive(estimator: Estimator, method: str) -> Perceive:
-    """Turn the estimator's method into the controller's per-frame observation."""
-
-    def perceive(stamp: float, image: np.ndarray) -> Observation:
-        e = estimator.estimate("", stamp, image).estimates[method]
-        return Observation(stamp, e.pose, len(e.markers_seen))
-
-    return perceive
-
-
-def sample_start(
-    case: int, sim: Simulator, planner: PlannerConfig, rng: np.random.Generator, config: DockSimConfig
-) -> Pose2D:
-    """A random robot pose (dock frame) inside the case's region, with marker 2 in the camera's view."""
+def case_distances(case: int, config: DockSimConfig) -> tuple[float, float]:
+    """The range of base_link's distance from the face for the case's starts; InputError when it is empty."""
     spec = CASES[case]
-    d_a = -point_a(planner, sim.robot.front_offset).x
+    d_a = -point_a(config.mission.planner, config.robot.front_offset).x
     lo, hi = config.distance
     dlo, dhi = (max(lo, d_a), hi) if spec.zone == "before" else (lo, min(hi, d_a))
     if not dlo < dhi:
@@ -125,6 +113,15 @@ def sample_start(
             f"case {case} ({spec.zone} Point A, {d_a:.2f} m from the face) has no starts {lo:g}-{hi:g} m away: "
             "change --standoff or --distance"
         )
+    return dlo, dhi
+
+
+def sample_start(
+    case: int, sim: Simulator, planner: PlannerConfig, rng: np.random.Generator, config: DockSimConfig
+) -> Pose2D:
+    """A random robot pose (dock frame) inside the case's region, with marker 2 in the camera's view."""
+    spec = CASES[case]
+    dlo, dhi = case_distances(case, config)
     side = 1.0 if spec.side == "left" else -1.0
     turn = -side if spec.heading == "towards" else side
     a = point_a(planner, sim.robot.front_offset)

@@ -112,7 +112,7 @@ def add_parser(subparsers: Any) -> None:
 def _cmd_dock_sim(args: argparse.Namespace) -> int:
     from monodock.atomic import atomic_directory, check_writable
     from monodock.camera import CameraModel
-    from monodock.dock.closed_loop import DockSimConfig, run_dock_sim, summarize
+    from monodock.dock.closed_loop import DockSimConfig, case_distances, run_dock_sim, summarize
     from monodock.dock.controller import MissionConfig
     from monodock.dock.planner import PlannerConfig
     from monodock.dock.report import console_table, write_dock_report
@@ -146,6 +146,8 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         camera=CameraModel.load(args.camera) if args.camera else CameraModel.default(),
         robot=RobotConfig.load(args.robot) if args.robot else RobotConfig.default(),
     )
+    for case in config.cases:
+        case_distances(case, config)  # before any training: a start region may be empty
     if "regression" in config.methods:
         config = dataclasses.replace(config, bundle=_regression_bundle(args, config, jobs))
     t0 = time.perf_counter()

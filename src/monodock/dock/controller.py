@@ -31,6 +31,7 @@ from monodock.dock.planner import Manoeuvre, PlannerConfig, plan, point_a
 from monodock.dock.pose2d import Pose2D
 from monodock.dock.track import DockTrack, MeasurementNoise, TrackNoise
 from monodock.errors import ConfigError
+from monodock.estimate import Estimator
 from monodock.layout import DockLayout
 from monodock.pose import DockPose, wrap_angle
 from monodock.robot import RobotConfig
@@ -43,6 +44,7 @@ __all__ = [
     "Perceive",
     "State",
     "blind_gap",
+    "make_perceive",
     "run_mission",
 ]
 
@@ -71,6 +73,16 @@ class Observation:
 
 # What turns an image into an observation: the caller's estimator (regression, board PnP, ...).
 Perceive = Callable[[float, "np.ndarray"], Observation]
+
+
+def make_perceive(estimator: Estimator, method: str) -> Perceive:
+    """Turn the estimator's method into the controller's per-frame observation."""
+
+    def perceive(stamp: float, image: np.ndarray) -> Observation:
+        e = estimator.estimate("", stamp, image).estimates[method]
+        return Observation(stamp, e.pose, len(e.markers_seen))
+
+    return perceive
 
 
 @dataclass(frozen=True)
