@@ -67,6 +67,13 @@ def test_demo_writes_report_with_truthful_numbers(tmp_path: Path) -> None:
     assert regression["valid"] >= 36
     assert regression["depth_mae_cm"] < 4.0
     assert regression["yaw_mae_deg"] < 10.0
+    # The closed-loop docking section: one start per case, regression and board PnP, judged by the truth.
+    docking = json.loads((out / "summary.json").read_text())["docking"]
+    assert docking["board"]["runs"] == docking["regression"]["runs"] == 8
+    assert docking["board"]["successes"] >= 7
+    assert docking["board"]["final_lateral_cm"]["median"] < 1.0
+    for name in ("docking/runs.csv", "docking/trajectories_case_1.png", "docking/final_errors.png"):
+        assert (out / name).is_file(), name
     # A second run must not replace the report without --force.
     assert main(["demo", "--out", str(out), "--train-stops", "2"]) != 0
 

@@ -103,6 +103,18 @@ def _range_option(p: argparse.ArgumentParser, flag: str, default: tuple[float, f
     )
 
 
+def add_estimator_options(p: argparse.ArgumentParser, *, camera_help: str, robot_help: str) -> None:
+    """The options of build_estimator, for the commands and nodes that estimate outside this parser."""
+    p.add_argument("--model", help="model bundle (regression by default; carries camera, layout and mounts)")
+    p.add_argument("--method", choices=("regression", "pnp", "board"))
+    p.add_argument("--camera", help=camera_help)
+    p.add_argument("--layout", help="dock layout YAML")
+    p.add_argument("--robot", help=robot_help)
+    p.add_argument("--refinement", choices=("none", "subpix", "contour"), default="subpix")
+    p.add_argument("--image-topic", default="/camera/image_raw")
+    p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")
+
+
 def _jobs(value: int | None) -> int:
     return value if value and value > 0 else max(1, min(4, os.cpu_count() or 1))
 

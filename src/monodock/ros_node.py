@@ -26,6 +26,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from monodock.cli import add_estimator_options
 from monodock.errors import InputError, MonodockError
 from monodock.estimate import Estimator
 from monodock.recording import messages as m
@@ -124,14 +125,9 @@ def _check_options(args: argparse.Namespace) -> None:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="monodock-ros", description=__doc__.split("\n", 1)[0] if __doc__ else None)
-    p.add_argument("--model", help="model bundle (regression by default)")
-    p.add_argument("--method", choices=("regression", "pnp", "board"))
-    p.add_argument("--camera", help="camera file (default: from camera_info)")
-    p.add_argument("--layout", help="dock layout YAML")
-    p.add_argument("--robot", help="robot YAML (camera mount)")
-    p.add_argument("--refinement", choices=("none", "subpix", "contour"), default="subpix")
-    p.add_argument("--image-topic", default="/camera/image_raw")
-    p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")
+    add_estimator_options(
+        p, camera_help="camera file (default: from camera_info)", robot_help="robot YAML (camera mount)"
+    )
     p.add_argument("--camera-info-topic", default="/camera/camera_info")
     p.add_argument("--pose-topic", default="detected_dock_pose")
     p.add_argument("--frame-id", default="base_link")

@@ -21,7 +21,15 @@ from typing import Any
 import numpy as np
 
 from monodock.camera import CameraModel
-from monodock.dock.controller import DockingMission, MissionConfig, Perceive, blind_gap, make_perceive, run_mission
+from monodock.dock.controller import (
+    DockingMission,
+    MissionConfig,
+    Observation,
+    Perceive,
+    blind_gap,
+    make_perceive,
+    run_mission,
+)
 from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose2d import Pose2D
 from monodock.dock.track import MeasurementNoise
@@ -98,6 +106,8 @@ class TrialResult:
     impact_speed: float | None
     frames: int
     wall_s: float
+    render_s: float  # of wall_s: rendering the camera frames
+    perceive_s: float  # of wall_s: detection and the method's estimate
     path: tuple[tuple[float, float, float], ...]  # true (x, y, heading) in the dock frame, every 0.2 s
     log: tuple[tuple[float, str], ...]
 
@@ -187,7 +197,17 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     robot = SimulatedRobot(sim, task.start, config.drive, rng)
     mission_config = dataclasses.replace(config.mission, measurement=MeasurementNoise.for_method(task.method))
     mission = DockingMission(mission_config, sim.robot, env.blind)
-    result = run_mission(robot, env.perceive[task.method], mission)
+    perceive_s = 0.0
+    inner = env.perceive[task.method]
+
+    def perceive(stamp: float, image: np.ndarray) -> Observation:
+        nonlocal perceive_s
+        t = time.perf_counter()
+        observation = inner(stamp, image)
+        perceive_s += time.perf_counter() - t
+        return observation
+
+    result = run_mission(robot, perceive, mission)
     c = config.mission
     p = robot.pose
     lateral, gap, heading = p.y, robot.longitudinal_error(), p.theta
@@ -215,6 +235,8 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         impact_speed=robot.impact_speed,
         frames=robot.frames_rendered,
         wall_s=time.perf_counter() - t0,
+        render_s=robot.render_seconds,
+        perceive_s=perceive_s,
         path=(*path, (p.x, p.y, p.theta)),
         log=tuple(result.log),
     )
@@ -310,6 +332,13 @@ def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> dict[str
             "camera_rate_hz": config.drive.camera_rate,
             "supersample": config.supersample,
         },
+        "speed": {
+            "runs": len(results),
+            "wall_s_per_run": float(np.mean([r.wall_s for r in results])) if results else None,
+            "render_s_per_run": float(np.mean([r.render_s for r in results])) if results else None,
+            "perceive_s_per_run": float(np.mean([r.perceive_s for r in results])) if results else None,
+            "frames_per_run": float(np.mean([r.frames for r in results])) if results else None,
+        },
     }
 
 
@@ -336,6 +365,8 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
             "impact_speed_mps",
             "frames",
             "wall_s",
+            "render_s",
+            "perceive_s",
             "reason",
         ]
     )
@@ -359,6 +390,8 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
                 "" if r.impact_speed is None else f"{r.impact_speed:.4f}",
                 r.frames,
                 f"{r.wall_s:.2f}",
+                f"{r.render_s:.2f}",
+                f"{r.perceive_s:.2f}",
                 r.reason,
             ]
         )

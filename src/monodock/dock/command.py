@@ -159,8 +159,14 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
     else:
         summary = summarize(results, config)
     print(console_table(summary))
-    per_run = sum(r.wall_s for r in results) / max(1, len(results))
-    print(f"{len(results)} runs in {wall:.0f} s ({per_run:.1f} s of one core per run, rendering included)")
+    n = max(1, len(results))
+    per_run = sum(r.wall_s for r in results) / n
+    render = sum(r.render_s for r in results) / n
+    perceive = sum(r.perceive_s for r in results) / n
+    print(
+        f"{len(results)} runs in {wall:.0f} s: {per_run:.1f} s of one core per run, of which rendering {render:.1f} s "
+        f"and estimation {perceive:.1f} s"
+    )
     if args.out:
         print(f"report: {Path(args.out) / 'report.html'}")
     return 0

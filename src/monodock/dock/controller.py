@@ -100,6 +100,7 @@ class MissionConfig:
     min_speed: float = 0.02  # below this a real base's wheels stall; a non-zero command is never smaller
     min_turn_rate: float = 0.08
     creep_distance: float = 0.03  # the last metres at min_speed
+    stop_lead: float = 0.1  # seconds: stop this early for the command latency and the motors' lag
     # Moving₃'s P-control: heading reference -atan(k_lateral * lateral error), turn rate k_heading * heading error.
     k_lateral: float = 4.0
     k_heading: float = 2.5
@@ -450,7 +451,7 @@ class DockingMission:
         lateral, heading = robot.y, robot.theta
         if gap > self.blind and now - self.last_seen > c.lost_timeout:
             return self._fail(now, f"markers lost for {now - self.last_seen:.1f} s during the approach")
-        if contact or gap <= 0.0:
+        if contact or gap <= abs(odom.linear) * c.stop_lead:
             if self.impact_speed is None:
                 self.impact_speed = abs(odom.linear)
             self._enter(now, State.SETTLE, "contact" if contact else "at the face by the estimate")

@@ -29,6 +29,9 @@ from monodock.sim.world import ChargerGeometry
 __all__ = ["case_diagram", "draw_dock", "draw_robot", "example_start", "trajectory_plot"]
 
 
+_LABEL_BOX = {"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.85}
+
+
 def _uv(x: float, y: float) -> tuple[float, float]:
     return -y, x
 
@@ -133,6 +136,7 @@ def case_diagram(
         fontsize=9,
         ha="right" if side > 0 else "left",
         color="tab:purple",
+        bbox=_LABEL_BOX,
     )
     ax.annotate(
         f"Moving₂: turn {math.degrees(m.second_turn):+.0f}°",
@@ -142,6 +146,7 @@ def case_diagram(
         fontsize=9,
         ha="left" if side > 0 else "right",
         color="tab:orange",
+        bbox=_LABEL_BOX,
     )
     ax.annotate(
         "Moving₃: P-control",
@@ -150,6 +155,7 @@ def case_diagram(
         textcoords="offset points",
         fontsize=9,
         color="tab:green",
+        bbox=_LABEL_BOX,
     )
     ax.set_aspect("equal")
     ax.set_xlim(-1.3, 1.3)

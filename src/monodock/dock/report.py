@@ -19,25 +19,11 @@ def write_dock_files(out: Path, results: Sequence[TrialResult], config: DockSimC
     """runs.csv, one trajectory PNG per case, the case diagrams and the error scatter, into ``out``; the summary."""
     summary = summarize(results, config)
     (out / "runs.csv").write_text(runs_csv(results), encoding="utf-8")
+    scene = {"planner": config.mission.planner, "layout": config.layout, "robot": config.robot, "drive": config.drive}
     for case in config.cases:
         runs = {m: [(r.path, r.success) for r in results if r.case == case and r.method == m] for m in config.methods}
-        trajectory_plot(
-            case,
-            runs,
-            out / f"trajectories_case_{case}.png",
-            planner=config.mission.planner,
-            layout=config.layout,
-            robot=config.robot,
-            drive=config.drive,
-        )
-        case_diagram(
-            case,
-            out / f"case_{case}.png",
-            planner=config.mission.planner,
-            layout=config.layout,
-            robot=config.robot,
-            drive=config.drive,
-        )
+        trajectory_plot(case, runs, out / f"trajectories_case_{case}.png", **scene)  # type: ignore[arg-type]
+        case_diagram(case, out / f"case_{case}.png", **scene)  # type: ignore[arg-type]
     c = config.mission
     error_plot(
         [(r.method, r.lateral_cm, r.heading_deg, r.longitudinal_cm) for r in results],

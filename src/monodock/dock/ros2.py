@@ -26,6 +26,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from monodock.cli import add_estimator_options
 from monodock.dock.controller import DockingMission, MissionConfig, blind_gap, make_perceive, run_mission
 from monodock.dock.interface import CameraFrame, Odometry
 from monodock.dock.planner import PlannerConfig
@@ -104,14 +105,9 @@ class Ros2Robot:
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="monodock-dock-ros", description=__doc__.split("\n", 1)[0] if __doc__ else None)
-    p.add_argument("--model", help="model bundle (regression by default; carries camera, layout and mounts)")
-    p.add_argument("--method", choices=("regression", "pnp", "board"))
-    p.add_argument("--camera", help="camera file (needed without --model)")
-    p.add_argument("--layout", help="dock layout YAML")
-    p.add_argument("--robot", help="robot YAML (camera mount, front_offset, speed limits)")
-    p.add_argument("--refinement", choices=("none", "subpix", "contour"), default="subpix")
-    p.add_argument("--image-topic", default="/camera/image_raw")
-    p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")
+    add_estimator_options(
+        p, camera_help="camera file (needed without --model)", robot_help="robot YAML (mounts, front_offset, limits)"
+    )
     p.add_argument("--odom-topic", default="/odom")
     p.add_argument("--cmd-vel-topic", default="/cmd_vel")
     p.add_argument("--contact-topic", help="std_msgs/Bool that is true on contact with the charger (optional)")

@@ -15,6 +15,7 @@ rendered when the controller first asks for them, so states that do not look cos
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -116,6 +117,7 @@ class SimulatedRobot:
         self.pushed = 0.0  # how far the wheels drove on while the front edge pressed the face, metres
         self.truth: list[TruthSample] = [TruthSample(0.0, self.pose, self.odom)]
         self.frames_rendered = 0
+        self.render_seconds = 0.0  # wall time spent rendering, for the speed figures
 
     # --- the robot interface ------------------------------------------------------------------
 
@@ -159,7 +161,9 @@ class SimulatedRobot:
     def render(self, stamp: float, pose: Pose2D) -> NDArray[np.uint8]:
         """The camera image of a robot at ``pose`` (dock frame), exposed at ``stamp``."""
         dock_pose = self.dock_pose(pose)
+        t0 = time.perf_counter()
         image = self.sim.render(dock_pose, rng=self.rng)
+        self.render_seconds += time.perf_counter() - t0
         self.frames_rendered += 1
         if self.hide_markers is not None and self.hide_markers(stamp, pose):
             corners = self.sim.true_corners(dock_pose)
