@@ -119,10 +119,11 @@ class MissionConfig:
     calculate_frames: int = 6
     calculate_timeout: float = 3.0
     settle_speed: float = 0.005
+    settle_timeout: float = 1.5
     # Retry and tolerances.
     checkpoint_gap: float = 0.25  # end of Moving₃'s early part: front edge this far from the face
-    retry_lateral: float = 0.015
-    retry_heading_deg: float = 3.0
+    retry_lateral: float = 0.02
+    retry_heading_deg: float = 4.0  # off the P-controller's heading reference
     max_retries: int = 2
     tolerance_lateral: float = 0.02
     tolerance_longitudinal: float = 0.02
@@ -284,7 +285,8 @@ class DockingMission:
             self._enter(now, State.ACQUIRE)
         pose = odom.pose
         if self._last_odom is not None:
-            self.track.predict(self._last_odom.distance(pose), wrap_angle(pose.theta - self._last_odom.theta))
+            lever = pose.distance(self.track.mean) if self.track.mean is not None else 0.0
+            self.track.predict(self._last_odom.distance(pose), wrap_angle(pose.theta - self._last_odom.theta), lever)
         self._last_odom = pose
         self.history.add(odom.stamp, pose)
         if observation is not None and observation.pose is not None:
@@ -348,8 +350,9 @@ class DockingMission:
             return (0.0, c.acquire_turn_rate)
 
         if self.state is State.CALCULATE:
-            # Stand still, then average a few frames: motion blur and latency stay out of the plan.
-            if not self._stopped(odom):
+            # Stand still, then average a few frames: motion blur and latency stay out of the plan. (A base
+            # whose odometry never reads still is taken as still after settle_timeout.)
+            if not self._stopped(odom) and now - self.state_since < c.settle_timeout:
                 self.track.reset()
                 return (0.0, 0.0)
             if self.track.updates >= c.calculate_frames or (
@@ -391,7 +394,7 @@ class DockingMission:
             return self._approach(now, odom, contact)
 
         if self.state is State.SETTLE:
-            if not self._stopped(odom):
+            if not self._stopped(odom) and now - self.state_since < c.settle_timeout:
                 return (0.0, 0.0)
             return self._judge(now, pose)
         raise AssertionError(self.state)  # pragma: no cover
@@ -456,15 +459,16 @@ class DockingMission:
                 self.impact_speed = abs(odom.linear)
             self._enter(now, State.SETTLE, "contact" if contact else "at the face by the estimate")
             return (0.0, 0.0)
-        if not self.checked and gap <= c.checkpoint_gap:
-            self.checked = True
-            off = abs(lateral) > c.retry_lateral or abs(heading) > math.radians(c.retry_heading_deg)
-            if off and self.retries < c.max_retries:
-                return self._back_off(now, f"lateral {lateral * 100:+.1f} cm, heading {math.degrees(heading):+.1f} deg")
         # Heading reference that closes the lateral error, faded out near the face so the robot arrives square.
         fade = min(1.0, max(0.0, (gap - 0.5 * c.heading_only_gap) / (0.5 * c.heading_only_gap)))
         ref = -math.atan(c.k_lateral * lateral) * fade
         ref = float(np.clip(ref, -math.radians(c.max_correction_deg), math.radians(c.max_correction_deg)))
+        if not self.checked and gap <= c.checkpoint_gap:
+            # The end of the early part: too far off the axis, or not following the reference, to finish well.
+            self.checked = True
+            off = abs(lateral) > c.retry_lateral or abs(wrap_angle(heading - ref)) > math.radians(c.retry_heading_deg)
+            if off and self.retries < c.max_retries:
+                return self._back_off(now, f"lateral {lateral * 100:+.1f} cm, heading {math.degrees(heading):+.1f} deg")
         w = c.k_heading * wrap_angle(ref - heading)
         v = min(c.approach_speed, math.sqrt(2 * c.linear_accel * 0.5 * max(gap - c.creep_distance, 0.0)) + c.min_speed)
         if gap <= c.creep_distance:

@@ -83,11 +83,12 @@ class PlannerConfig:
 
     Attributes:
         standoff: floor between the robot's front edge and the charger face at Point A, metres.
-        arrive_tolerance: a start closer than this to A skips the drive to A, metres.
+        arrive_tolerance: a start closer than this to A skips the drive to A (Moving₃'s P-control takes the
+            rest), metres.
     """
 
     standoff: float = 1.0
-    arrive_tolerance: float = 0.01
+    arrive_tolerance: float = 0.10
 
     def __post_init__(self) -> None:
         if not self.standoff > 0:

@@ -38,7 +38,7 @@ class MeasurementNoise:
     lateral_base: float = 0.003
     lateral_per_metre: float = 0.003
     yaw_three_markers_deg: float = 2.5
-    yaw_one_marker_deg: float = 5.0
+    yaw_one_marker_deg: float = 8.0
 
     @classmethod
     def for_method(cls, method: str) -> MeasurementNoise:
@@ -65,7 +65,7 @@ class TrackNoise:
     """How fast odometry makes the track uncertain: random-walk drift after one metre driven or one radian turned."""
 
     position_per_metre: float = 0.01
-    heading_per_metre: float = math.radians(3.0)
+    heading_per_metre: float = math.radians(2.0)
     heading_per_radian: float = 0.03
     gate_chi2: float = 16.3  # 3 degrees of freedom, 99.9 %
     reset_after_rejections: int = 8
@@ -86,15 +86,20 @@ class DockTrack:
         self.updates = 0
         self.rejected_in_a_row = 0
 
-    def predict(self, distance: float, rotation: float) -> None:
-        """Grow the uncertainty for ``distance`` metres driven and ``rotation`` radians turned since the last call."""
+    def predict(self, distance: float, rotation: float, lever: float = 0.0) -> None:
+        """Grow the uncertainty for ``distance`` metres driven and ``rotation`` radians turned since the last call.
+
+        ``lever`` is the robot's distance to the dock: a heading error of the odometry swings the dock's
+        position in the odometry frame by that arm.
+        """
         if self.mean is None:
             return
         n = self.noise
         d, r = abs(distance), abs(rotation)
         # A random walk: the variance grows with the distance (not its square), whatever the tick rate.
-        self.cov_xy = self.cov_xy + np.eye(2) * n.position_per_metre**2 * d
-        self.var_yaw += n.heading_per_metre**2 * d + n.heading_per_radian**2 * r
+        var_heading = n.heading_per_metre**2 * d + n.heading_per_radian**2 * r
+        self.cov_xy = self.cov_xy + np.eye(2) * (n.position_per_metre**2 * d + lever**2 * var_heading)
+        self.var_yaw += var_heading
 
     def update(self, odom_at_frame: Pose2D, estimate: DockPose, sigmas: tuple[float, float, float]) -> bool:
         """Fold in one frame's estimate, taken with the robot at ``odom_at_frame``; False if gated out."""
