@@ -357,3 +357,100 @@ def test_dock_sim_bad_options_are_one_line(
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert message in err
+
+
+# --- the ROS 2 adapter, against stand-ins for rclpy and the message packages -------------------------------
+
+
+def test_ros2_adapter_maps_topics_to_the_interface(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Odometry's quaternion becomes the heading, images are decoded, cmd_vel carries the command.
+
+    ROS 2 is not installed here; these stand-ins have just the attributes the adapter touches.
+    """
+    import argparse
+    import array
+    import importlib
+    import sys
+    import types
+
+    class Msg(types.SimpleNamespace):
+        def __init__(self, **kw: object) -> None:
+            super().__init__(**kw)
+
+    class Twist:
+        def __init__(self) -> None:
+            self.linear, self.angular = Msg(x=0.0), Msg(z=0.0)
+
+    published: list[Twist] = []
+    callbacks: dict[str, object] = {}
+
+    class Node:
+        def create_publisher(self, _type: object, topic: str, _depth: int) -> object:
+            return Msg(publish=published.append, topic=topic)
+
+        def create_subscription(self, _type: object, topic: str, callback: object, _depth: int) -> None:
+            callbacks[topic] = callback
+
+        def get_clock(self) -> object:
+            return Msg(now=lambda: Msg(nanoseconds=12_500_000_000))
+
+        def get_logger(self) -> object:
+            return Msg(warning=lambda _text: None)
+
+    def module(name: str, **attrs: object) -> types.ModuleType:
+        mod = types.ModuleType(name)
+        mod.__dict__.update(attrs)
+        monkeypatch.setitem(sys.modules, name, mod)
+        return mod
+
+    module("rclpy", spin_once=lambda *_a, **_k: None)
+    module("rclpy.node", Node=Node)
+    module("geometry_msgs.msg", Twist=Twist)
+    module("nav_msgs.msg", Odometry=object)
+    module("sensor_msgs.msg", Image=object, CompressedImage=object)
+    module("std_msgs.msg", Bool=object)
+    # Imported afresh against the stand-ins, and forgotten afterwards.
+    monkeypatch.setitem(sys.modules, "monodock.dock.ros2", None)
+    monkeypatch.delitem(sys.modules, "monodock.dock.ros2")
+    ros2 = importlib.import_module("monodock.dock.ros2")
+    args = argparse.Namespace(
+        compressed=False, image_topic="/cam/image", odom_topic="/odom", cmd_vel_topic="/cmd_vel", contact_topic="/dock"
+    )
+    robot = ros2.Ros2Robot(Node(), args)
+    yaw = math.radians(30.0)
+    header = Msg(stamp=Msg(sec=12, nanosec=400_000_000))
+    odom = Msg(
+        header=header,
+        pose=Msg(
+            pose=Msg(
+                position=Msg(x=1.0, y=-0.5), orientation=Msg(x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
+            )
+        ),
+        twist=Msg(twist=Msg(linear=Msg(x=0.1), angular=Msg(z=-0.2))),
+    )
+    callbacks["/odom"](odom)  # type: ignore[operator]
+    o = robot.odometry()
+    assert (o.pose.x, o.pose.y) == (1.0, -0.5)
+    assert o.pose.theta == pytest.approx(yaw)
+    assert (o.stamp, o.linear, o.angular) == (pytest.approx(12.4), 0.1, -0.2)
+    pixels = np.arange(12, dtype=np.uint8).reshape(3, 4)
+    image = Msg(
+        header=header,
+        height=3,
+        width=4,
+        encoding="mono8",
+        is_bigendian=0,
+        step=4,
+        data=array.array("B", pixels.tobytes()),
+    )
+    callbacks["/cam/image"](image)  # type: ignore[operator]
+    frame = robot.latest_frame()
+    assert frame is not None
+    assert frame.stamp == pytest.approx(12.4)
+    np.testing.assert_array_equal(frame.image, pixels)
+    assert robot.contact() is None
+    callbacks["/dock"](Msg(data=True))  # type: ignore[operator]
+    assert robot.contact() is True
+    robot.send_velocity(0.05, -0.3)
+    assert (published[-1].linear.x, published[-1].angular.z) == (0.05, -0.3)
+    assert robot.now() == pytest.approx(12.5)

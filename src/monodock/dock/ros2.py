@@ -38,10 +38,6 @@ from monodock.recording import messages as m
 __all__ = ["Ros2Robot", "main"]
 
 
-def _stamp(msg: Any) -> float:
-    return float(msg.header.stamp.sec) + 1e-9 * float(msg.header.stamp.nanosec)
-
-
 class Ros2Robot:
     """The robot interface over ROS 2 topics; ``sleep`` spins the node so callbacks run while it waits."""
 
@@ -67,11 +63,11 @@ class Ros2Robot:
     def _on_odom(self, msg: Any) -> None:
         p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
         yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-        self._odom = Odometry(_stamp(msg), Pose2D(p.x, p.y, yaw), t.linear.x, t.angular.z)
+        self._odom = Odometry(m.header_stamp(msg), Pose2D(p.x, p.y, yaw), t.linear.x, t.angular.z)
 
     def _on_image(self, msg: Any) -> None:
         try:
-            self._frame = CameraFrame(_stamp(msg), m.decode_image(msg, self._msgtype))
+            self._frame = CameraFrame(m.header_stamp(msg), m.decode_image(msg, self._msgtype))
         except m.DecodeError as exc:
             self.node.get_logger().warning(f"image skipped: {exc}")
 
