@@ -51,6 +51,7 @@ __all__ = [
 
 class State(StrEnum):
     ACQUIRE = "acquire"
+    CENTER = "center"
     CALCULATE = "calculate"
     MOVING1_TURN = "moving1-turn"
     MOVING1_DRIVE = "moving1-drive"
@@ -116,7 +117,8 @@ class MissionConfig:
     acquire_turn_rate: float = 0.3
     first_frame_wait: float = 0.5
     acquire_max_turn_deg: float = 370.0
-    calculate_frames: int = 6
+    calculate_frames: int = 9
+    center_tolerance_deg: float = 5.0
     calculate_timeout: float = 3.0
     settle_speed: float = 0.005
     settle_timeout: float = 1.5
@@ -246,7 +248,10 @@ class DockingMission:
         self.start_time: float | None = None
         self.state_since = 0.0
         self.last_seen = -math.inf
-        self.calculate_count = 0
+        self.calc_samples: list[tuple[Pose2D, DockPose, tuple[float, float, float]]] = []
+        self.calc_markers: list[int] = []
+        self.centered = False
+        self.center_heading = 0.0
         self.turned = 0.0
         self.checked = False
         self.impact_speed: float | None = None
@@ -265,6 +270,9 @@ class DockingMission:
         return self.state in (State.ACQUIRE, State.CALCULATE, State.MOVING3, State.SETTLE)
 
     def _enter(self, now: float, state: State, note: str = "") -> None:
+        if state is State.CALCULATE:
+            self.calc_samples, self.calc_markers = [], []
+            self.centered = self.state is State.CENTER
         self.state, self.state_since = state, now
         self.log.append((now, state.value + (f": {note}" if note else "")))
 
@@ -293,7 +301,11 @@ class DockingMission:
             at = self.history.at(observation.stamp)
             if at is not None:
                 sig = self.config.measurement.sigmas(observation.pose, observation.markers)
-                if self.track.update(at, observation.pose, sig):
+                if self.state is State.CALCULATE:
+                    self.calc_samples.append((at, observation.pose, sig))  # the median comes at the plan
+                    self.calc_markers.append(observation.markers)
+                    self.last_seen = observation.stamp
+                elif self.track.update(at, observation.pose, sig):
                     self.last_seen = observation.stamp
         if self.finished:
             return (0.0, 0.0)
@@ -338,7 +350,6 @@ class DockingMission:
             if self.track.mean is not None:
                 self._enter(now, State.CALCULATE, "markers in view")
                 self.track.reset()
-                self.calculate_count = 0
                 return (0.0, 0.0)
             if now - self.start_time < c.first_frame_wait:
                 return (0.0, 0.0)  # the first frames are still on their way
@@ -350,19 +361,40 @@ class DockingMission:
             return (0.0, c.acquire_turn_rate)
 
         if self.state is State.CALCULATE:
-            # Stand still, then average a few frames: motion blur and latency stay out of the plan. (A base
-            # whose odometry never reads still is taken as still after settle_timeout.)
+            # Stand still, then take the median of a few frames: motion blur, latency and a wild frame stay
+            # out of the plan. (A base whose odometry never reads still is taken as still after settle_timeout.)
             if not self._stopped(odom) and now - self.state_since < c.settle_timeout:
-                self.track.reset()
+                self.calc_samples.clear()
                 return (0.0, 0.0)
-            if self.track.updates >= c.calculate_frames or (
-                now - self.state_since > c.calculate_timeout and self.track.updates > 0
-            ):
+            n = len(self.calc_samples)
+            if n >= c.calculate_frames or (now - self.state_since > c.calculate_timeout and n > 0):
+                x = float(np.median([e.x for _, e, _ in self.calc_samples]))
+                y = float(np.median([e.y for _, e, _ in self.calc_samples]))
+                bearing = math.atan2(y, x)
+                # Fewer than three markers: the heading of a lone, small marker can flip sign (the planar pose
+                # ambiguity); turn to face the dock so that all three are in view, then calculate again.
+                if (
+                    not self.centered
+                    and float(np.median(self.calc_markers)) < 3
+                    and abs(bearing) > math.radians(c.center_tolerance_deg)
+                ):
+                    self.center_heading = wrap_angle(pose.theta + bearing)
+                    self._enter(
+                        now, State.CENTER, f"fewer than three markers; turning {math.degrees(bearing):+.1f} deg"
+                    )
+                    return (0.0, 0.0)
+                self.track.seed(self.calc_samples)
                 return self._plan(now, pose)
             if now - self.state_since > c.calculate_timeout:
                 self.turned = 0.0
                 self._enter(now, State.ACQUIRE, "markers lost while calculating")
             return (0.0, 0.0)
+
+        if self.state is State.CENTER:
+            done, w = self._turn_to(self.center_heading, pose, odom)
+            if done:
+                self._enter(now, State.CALCULATE, "dock centred")
+            return (0.0, w)
 
         if self.state is State.MOVING1_TURN:
             done, w = self._turn_to(self._targets.drive_heading, pose, odom)

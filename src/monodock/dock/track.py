@@ -134,6 +134,27 @@ class DockTrack:
         self.updates += 1
         return True
 
+    def seed(self, samples: list[tuple[Pose2D, DockPose, tuple[float, float, float]]]) -> None:
+        """Start the track from several frames taken standing still: the median of each component.
+
+        ``samples`` are (odometry pose at the frame, the frame's DockPose, its sigmas). The median keeps one
+        wild frame (a marker seen small and alone can give a heading tens of degrees off) out of the plan.
+        """
+        measured = [odom.compose(Pose2D(e.x, e.y, e.yaw)) for odom, e, _ in samples]
+        ref = measured[0].theta
+        theta = wrap_angle(ref + float(np.median([wrap_angle(m.theta - ref) for m in measured])))
+        self.reset()
+        self.mean = Pose2D(float(np.median([m.x for m in measured])), float(np.median([m.y for m in measured])), theta)
+        # The median of n frames is about as good as the mean of 2n/pi of them.
+        shrink = math.sqrt(math.pi / (2 * len(samples)))
+        sig = np.median(np.array([s for _, _, s in samples]), axis=0) * shrink
+        odom = samples[0][0]
+        c, s = math.cos(odom.theta), math.sin(odom.theta)
+        rot = np.array([[c, -s], [s, c]])
+        self.cov_xy = rot @ np.diag([sig[0] ** 2, sig[1] ** 2]) @ rot.T
+        self.var_yaw = float(sig[2] ** 2)
+        self.updates = len(samples)
+
     def robot_in_dock(self, odom: Pose2D) -> Pose2D:
         """The robot's pose in the dock frame, from its odometry pose and the tracked dock."""
         assert self.mean is not None
