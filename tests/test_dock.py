@@ -342,6 +342,7 @@ def test_dock_sim_writes_the_summary_contract(tmp_path: Path, capsys: pytest.Cap
         (["--method", "regression", "--model", "/nonexistent/bundle"], "bundle"),
         (["--distance", "2.0", "1.0"], "--distance"),
         (["--standoff", "3.0"], "no starts"),
+        (["--max-heading", "-5"], "--max-heading"),
     ],
 )
 def test_dock_sim_bad_options_are_one_line(

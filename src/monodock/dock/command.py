@@ -128,6 +128,8 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         raise InputError(f"--distance needs 0 < MIN < MAX, got {args.distance[0]:g} {args.distance[1]:g}")
     if not 1 <= args.supersample <= 32:
         raise InputError(f"--supersample must be 1-32, got {args.supersample}")
+    if not 0 < args.max_heading <= 60:
+        raise InputError(f"--max-heading must be in (0, 60] degrees, got {args.max_heading:g}")
     if not args.camera_rate > 0:
         raise InputError(f"--camera-rate must be positive, got {args.camera_rate}")
     jobs = args.jobs if args.jobs and args.jobs > 0 else max(1, min(4, os.cpu_count() or 1))
