@@ -18,12 +18,15 @@ from monodock.layout import DockLayout
 from monodock.pnp import PoseEstimate, estimate_board, estimate_single_marker
 from monodock.robot import RobotConfig
 
-__all__ = ["CSV_COLUMNS", "METHODS", "Estimator", "FrameEstimates", "estimates_csv"]
+__all__ = ["COVARIANCE_COLUMNS", "CSV_COLUMNS", "METHODS", "Estimator", "FrameEstimates", "estimates_csv"]
 
 Method = Callable[[Detection, CameraModel, DockLayout, RobotConfig], PoseEstimate]
 
 # The geometric methods; the regression of the papers joins them with its model bundle.
 METHODS: dict[str, Method] = {"pnp": estimate_single_marker, "board": estimate_board}
+
+COVARIANCE_COLUMNS = ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw")
+_COVARIANCE_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
 
 CSV_COLUMNS = (
     "frame",
@@ -37,6 +40,8 @@ CSV_COLUMNS = (
     "reprojection_px",
     "tilt_deg",
     "reason",
+    # The pose covariance (SI units: m^2, m rad, rad^2) when the method gives one (fused), else empty.
+    *COVARIANCE_COLUMNS,
 )
 
 
@@ -126,6 +131,11 @@ def estimates_csv(results: Iterable[FrameEstimates]) -> str:
                     num(e.reprojection_px, ".4f"),
                     num(e.tilt_deg, ".3f"),
                     e.reason,
+                    *(
+                        [format(float(e.covariance[i, j]), ".6g") for i, j in _COVARIANCE_INDEX]
+                        if p is not None and e.covariance is not None
+                        else [""] * len(COVARIANCE_COLUMNS)
+                    ),
                 ]
             )
     return buf.getvalue()

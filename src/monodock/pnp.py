@@ -47,6 +47,7 @@ class PoseEstimate:
         tilt_deg: angle between the estimated dock's up axis and base_link's (0 for a perfect estimate on
             a level floor); large values flag a wrong solution.
         base_T_dock: the full 6-DoF estimate.
+        covariance: the pose's 3x3 covariance (x m, y m, yaw rad) when the method knows it, else None.
     """
 
     method: str
@@ -56,6 +57,7 @@ class PoseEstimate:
     reprojection_px: float = math.nan
     tilt_deg: float = math.nan
     base_T_dock: NDArray[np.float64] | None = field(default=None, repr=False)
+    covariance: NDArray[np.float64] | None = field(default=None, repr=False)
 
     @property
     def valid(self) -> bool:
