@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.atomic import atomic_directory
+from monodock.atomic import atomic_directory, write_text_atomic
 from monodock.errors import ConfigError, InputError
 from monodock.train import SegmentTable, TaskResult, TrainingResult
 
@@ -43,6 +43,7 @@ __all__ = [
     "onnx_model_bytes",
     "ort_session",
     "save_bundle",
+    "update_bundle_metadata",
 ]
 
 BUNDLE_SCHEMA_VERSION = 1
@@ -255,6 +256,17 @@ def save_bundle(
         }
         (tmp / BUNDLE_FILE).write_text(json.dumps(manifest, indent=1, allow_nan=False) + "\n", encoding="utf-8")
     return Path(out)
+
+
+def update_bundle_metadata(path: str | os.PathLike[str], key: str, value: Any) -> None:
+    """Add or replace one entry of a saved bundle's metadata; bundle.json is rewritten atomically.
+
+    For what is learned after the models exist (the fused method's tables come from the models' answers).
+    """
+    mf = Path(path) / BUNDLE_FILE
+    manifest = json.loads(mf.read_text(encoding="utf-8"))
+    manifest["metadata"][key] = json.loads(json.dumps(value, allow_nan=False))
+    write_text_atomic(mf, json.dumps(manifest, indent=1, allow_nan=False) + "\n", force=True)
 
 
 def bundle_size_bytes(path: str | os.PathLike[str]) -> int:

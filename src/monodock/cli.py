@@ -106,7 +106,7 @@ def _range_option(p: argparse.ArgumentParser, flag: str, default: tuple[float, f
 def add_estimator_options(p: argparse.ArgumentParser, *, camera_help: str, robot_help: str) -> None:
     """The options of build_estimator, for the commands and nodes that estimate outside this parser."""
     p.add_argument("--model", help="model bundle (regression by default; carries camera, layout and mounts)")
-    p.add_argument("--method", choices=("regression", "pnp", "board"))
+    p.add_argument("--method", choices=("regression", "pnp", "board", "fused"))
     p.add_argument("--camera", help=camera_help)
     p.add_argument("--layout", help="dock layout YAML")
     p.add_argument("--robot", help=robot_help)
@@ -272,6 +272,7 @@ def build_estimator(args: argparse.Namespace) -> tuple[Estimator, str]:
     from monodock.estimate import Estimator
 
     extra = {}
+    fused = None
     if args.model:
         from monodock.regression import RegressionEstimator
 
@@ -280,16 +281,21 @@ def build_estimator(args: argparse.Namespace) -> tuple[Estimator, str]:
         method = args.method or "regression"
         if method == "regression":
             extra["regression"] = RegressionEstimator(bundle, camera, robot).estimate
+        elif method == "fused":
+            from monodock.fused import FusedEstimator, fusion_tables_of
+
+            regression = RegressionEstimator(bundle, camera, robot)
+            fused = FusedEstimator(camera, layout, robot, fusion_tables_of(bundle), regression)
     else:
-        if args.method == "regression":
-            raise MonodockError("the regression needs --model BUNDLE")
+        if args.method in ("regression", "fused"):
+            raise MonodockError(f"the {args.method} method needs --model BUNDLE")
         missing = [f"--{k}" for k in ("camera", "layout", "robot") if not getattr(args, k)]
         if missing:
             raise MonodockError(f"without --model, give {' '.join(missing)} (the PnP methods need the calibration)")
         camera, layout, robot = _load_calibration(args)
         method = args.method or "board"
     refinement = getattr(args, "refinement", "subpix")
-    return Estimator(camera, layout, robot, (method,), refinement=refinement, extra=extra), method
+    return Estimator(camera, layout, robot, (method,), refinement=refinement, extra=extra, fused=fused), method
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
@@ -431,6 +437,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from monodock.atomic import check_writable
     from monodock.bundle import save_bundle
     from monodock.dataset import read_dataset
+    from monodock.fused import fusion_holdout, train_fusion
     from monodock.regression import bundle_metadata, training_sets
     from monodock.train import TrainConfig, train
     from monodock.train_report import write_training_report
@@ -439,7 +446,21 @@ def _cmd_train(args: argparse.Namespace) -> int:
         raise MonodockError("--trials must be at least 1")
     check_writable(args.out, force=args.force)
     ds = read_dataset(args.dataset)
-    sets = training_sets(ds, _sets(args.sets), depth_label=args.depth_label, angle_label=args.angle_label)
+    if not 0.0 <= args.fusion_holdout < 0.5:
+        raise MonodockError(f"--fusion-holdout must be in [0, 0.5), got {args.fusion_holdout}")
+    holdout = (
+        fusion_holdout(len(ds), args.fusion_holdout, args.seed)
+        if args.fusion_holdout > 0
+        else np.zeros(len(ds), dtype=bool)
+    )
+    if holdout.any() and not np.isfinite(ds.refined_corners()).any():
+        raise MonodockError(
+            f"{args.dataset} has no refined corners (labelled by an older monodock): label it again, "
+            "or train without the fused method's tables (--fusion-holdout 0)"
+        )
+    sets = training_sets(
+        ds.subset(~holdout), _sets(args.sets), depth_label=args.depth_label, angle_label=args.angle_label
+    )
     for s in sets:
         if len(s.depth) < 20:
             raise MonodockError(
@@ -450,7 +471,14 @@ def _cmd_train(args: argparse.Namespace) -> int:
     result = train(sets, config)
     dt = time.perf_counter() - t0
     meta = bundle_metadata(ds, depth_label=args.depth_label, angle_label=args.angle_label, source=str(args.dataset))
+    meta["fusion_holdout_rows"] = int(holdout.sum())
     path = save_bundle(args.out, result, metadata=meta, force=args.force)
+    if holdout.any():
+        tables = train_fusion(path, ds, holdout)
+        print(
+            f"fused method: tables learned on {int(holdout.sum())} held-out rows "
+            f"(corner noise {tables.corner_sigma / math.sqrt(50):.3f} px on a 50 px marker)"
+        )
     write_training_report(Path(path) / "report", result, title=f"monodock training report: {args.dataset}")
     size = sum(f.stat().st_size for f in Path(path).glob("*.onnx"))
     print(f"trained in {dt:.0f} s; bundle {size / 1e6:.1f} MB -> {path} (report: {Path(path) / 'report'})")
@@ -630,9 +658,10 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--model", help="model bundle (carries its camera, layout and mounts; --camera may override)")
     e.add_argument(
         "--method",
-        choices=("regression", "pnp", "board"),
+        choices=("regression", "pnp", "board", "fused"),
         help="regression: the papers' models (default with --model); pnp: marker 2 alone (IPPE_SQUARE), the "
-        "papers' baseline; board: all visible markers (default without --model)",
+        "papers' baseline; board: all visible markers (default without --model); fused: planar PnP on "
+        "bias-free corners combined with the regression, with a covariance (needs --model)",
     )
     e.add_argument("--out", required=True, help="EST.csv to write")
     e.add_argument("--bag", metavar="OUT_BAG", help="also write the valid poses as a Nav2 detected_dock_pose rosbag2")
@@ -672,6 +701,12 @@ def _parser() -> argparse.ArgumentParser:
     )
     tr.add_argument("--depth-label", choices=("point", "line"), default="point", help="point: the papers' (default)")
     tr.add_argument("--angle-label", choices=("line", "endpoints"), default="line", help="endpoints: the papers'")
+    tr.add_argument(
+        "--fusion-holdout",
+        type=float,
+        default=0.1,
+        help="share of rows kept out of the regression to learn the fused method's tables from (0.1; 0: none)",
+    )
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--jobs", type=int, help="worker processes (default: all cores)")
     tr.add_argument("--force", action="store_true", help="replace an existing bundle")

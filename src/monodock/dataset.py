@@ -5,6 +5,8 @@ A Parquet file (DESIGN.md "Dataset"). Columns, in order (``dataset_columns()``):
 - ``frame`` (int): the image's index in the recording; ``image_stamp`` (s); ``scan_stamp`` (s, NaN when no scan
   was within the pairing tolerance); ``paired`` (bool); ``markers_seen`` ("m1 m2 m3").
 - every raw feature of ``features.FEATURE_NAMES`` (pixels; NaN for a marker not seen).
+- the bias-free corners of ``monodock.refine`` (``features.REFINED_CORNER_NAMES``, pixels; NaN for a marker not
+  seen or not refined). Datasets of schema 1 have none; they read with these columns NaN.
 - the label columns of ``label.LABEL_COLUMNS`` (metres, degrees; ``label_valid`` false with ``label_reason``).
 - ``truth_x_m``, ``truth_y_m``, ``truth_yaw_deg``: the simulator's DockPose when the recording has it, else NaN.
 
@@ -34,7 +36,7 @@ from monodock import __version__
 from monodock.atomic import write_bytes_atomic
 from monodock.camera import CameraModel
 from monodock.errors import InputError
-from monodock.features import FEATURE_NAMES, feature_vector
+from monodock.features import FEATURE_NAMES, REFINED_CORNER_NAMES, feature_vector, refined_vector
 from monodock.label import LABEL_COLUMNS, LidarLabel, label_frame
 from monodock.layout import DockLayout
 from monodock.robot import RobotConfig
@@ -53,14 +55,16 @@ __all__ = [
     "write_dataset",
 ]
 
-DATASET_SCHEMA = "monodock.dataset/1"
+DATASET_SCHEMA = "monodock.dataset/2"
+# Schema 1 lacked the refined corners and is otherwise the same.
+_READABLE_SCHEMAS = ("monodock.dataset/1", DATASET_SCHEMA)
 TRUTH_COLUMNS = ("truth_x_m", "truth_y_m", "truth_yaw_deg")
 _FRAME_COLUMNS = ("frame", "image_stamp", "scan_stamp", "paired", "markers_seen")
 
 
 def dataset_columns() -> tuple[str, ...]:
     """Every column of a dataset file, in order."""
-    return _FRAME_COLUMNS + FEATURE_NAMES + LABEL_COLUMNS + TRUTH_COLUMNS
+    return _FRAME_COLUMNS + FEATURE_NAMES + REFINED_CORNER_NAMES + LABEL_COLUMNS + TRUTH_COLUMNS
 
 
 _BOOL = {"paired", "label_valid"}
@@ -94,6 +98,14 @@ class Dataset:
     def raw_features(self) -> NDArray[np.float64]:
         """The raw features of every row, shape (rows, len(FEATURE_NAMES))."""
         return np.column_stack([self.columns[n] for n in FEATURE_NAMES]).astype(np.float64)
+
+    def refined_corners(self) -> NDArray[np.float64]:
+        """The refined corners of every row, shape (rows, len(REFINED_CORNER_NAMES)); NaN where none."""
+        return np.column_stack([self.columns[n] for n in REFINED_CORNER_NAMES]).astype(np.float64)
+
+    def subset(self, rows: NDArray[Any]) -> Dataset:
+        """The dataset of some rows (a boolean mask or indices), with the same metadata."""
+        return Dataset({n: np.asarray(v)[rows] for n, v in self.columns.items()}, dict(self.metadata))
 
     def camera(self) -> CameraModel:
         return CameraModel.from_ros_dict(self.metadata["camera"], "dataset camera")
@@ -133,13 +145,17 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
     if raw_meta is None:
         raise InputError(f"{p}: not a monodock dataset (no 'monodock' metadata; write it with monodock label)")
     meta = json.loads(raw_meta)
-    if meta.get("schema") != DATASET_SCHEMA:
+    if meta.get("schema") not in _READABLE_SCHEMAS:
         raise InputError(f"{p}: dataset schema {meta.get('schema')!r}, this monodock reads {DATASET_SCHEMA!r}")
-    missing = [n for n in dataset_columns() if n not in table.column_names]
+    optional = REFINED_CORNER_NAMES if meta.get("schema") != DATASET_SCHEMA else ()
+    missing = [n for n in dataset_columns() if n not in table.column_names and n not in optional]
     if missing:
         raise InputError(f"{p}: dataset lacks columns {', '.join(missing[:5])}{' …' if len(missing) > 5 else ''}")
     cols: dict[str, NDArray[Any]] = {}
     for n in dataset_columns():
+        if n not in table.column_names:
+            cols[n] = np.full(table.num_rows, np.nan)
+            continue
         col = table.column(n)
         if n in _STR:
             cols[n] = np.array(col.to_pylist(), dtype=object)
@@ -190,6 +206,7 @@ def label_frames(
     robot: RobotConfig,
     run: LabelRun,
     *,
+    refined: list[NDArray[np.float64] | None] | None = None,
     on_row: Callable[[int], None] | None = None,
 ) -> dict[str, list[Any]]:
     """Dataset columns for detected frames.
@@ -201,6 +218,7 @@ def label_frames(
         truth: per image the true (x, y, yaw_deg), or None.
         camera, robot: the calibration the labels are made with.
         run: counts, updated in place.
+        refined: per image its refined corners (REFINED_CORNER_NAMES order), or None.
         on_row: called with each row's index (progress).
     """
     cols: dict[str, list[Any]] = {n: [] for n in dataset_columns()}
@@ -240,6 +258,10 @@ def label_frames(
         cols["markers_seen"].append(seen)
         for name, value in zip(FEATURE_NAMES, raw, strict=True):
             cols[name].append(float(value))
+        ref = refined[k] if refined is not None else None
+        ref = ref if ref is not None else np.full(len(REFINED_CORNER_NAMES), np.nan)
+        for name, value in zip(REFINED_CORNER_NAMES, ref, strict=True):
+            cols[name].append(float(value))
         for name, value in lab.row().items():
             cols[name].append(value)
         t = truth[k]
@@ -270,7 +292,11 @@ def label_recording(
     """
     from tqdm import tqdm
 
-    from monodock.detect import MarkerDetector
+    from monodock.detect import MarkerDetector, as_gray
+    try:  # TEMP until refine.py lands
+        from monodock.refine import refine_detection
+    except ImportError:
+        refine_detection = None  # type: ignore[assignment]
     from monodock.recording import open_recording, pair_nearest
 
     if not (tolerance_s > 0 and math.isfinite(tolerance_s)):
@@ -291,9 +317,12 @@ def label_recording(
         scans = rec.scans()
         truth_poses = rec.ground_truth()
         frames: list[tuple[int, float, NDArray[np.float64] | None, str]] = []
+        refined: list[NDArray[np.float64] | None] = []
         bar = tqdm(desc="detect", unit="frame", leave=False, disable=None if progress else True)
         for f in rec.images():
             bar.update()
+            if len(refined) < len(frames):
+                refined.append(None)  # the previous image was unreadable
             if f.image is None:
                 frames.append((int(f.name), f.stamp, None, f.error or "cannot decode"))
                 continue
@@ -308,8 +337,12 @@ def label_recording(
                     )
                 )
                 continue
-            frames.append((int(f.name), f.stamp, feature_vector(detector.detect(f.image), cam), ""))
+            gray = as_gray(f.image)
+            det = detector.detect(gray)
+            frames.append((int(f.name), f.stamp, feature_vector(det, cam), ""))
+            refined.append(refined_vector(refine_detection(gray, det, cam)) if refine_detection else None)  # TEMP
         bar.close()
+        refined += [None] * (len(frames) - len(refined))
         warnings = list(rec.warnings)
         source = {"path": str(path), "image_topic": rec.image_topic, "scan_topic": rec.scan_topic}
     stamps = np.array([f[1] for f in frames], dtype=np.float64)
@@ -323,7 +356,7 @@ def label_recording(
                 pose = truth_poses[int(j)][1]
                 truth[k] = (pose.x, pose.y, pose.yaw_deg)
     run = LabelRun()
-    cols = label_frames(frames, scans, pairing, truth, cam, robot, run)
+    cols = label_frames(frames, scans, pairing, truth, cam, robot, run, refined=refined)
     metadata = {
         "monodock_version": __version__,
         "camera": cam.to_ros_dict(),
@@ -358,12 +391,16 @@ def label_errors(dataset: Dataset) -> list[LabelError]:
     if not ok.any():
         return []
     out = []
+    # The face line is the default label; the lines over marker 2 alone are what it replaced.
     pairs = (
         ("depth, nearest point (papers)", "cm", "label_x_m", "truth_x_m", 100.0),
-        ("depth, line at marker 2's centre", "cm", "label_x_line_m", "truth_x_m", 100.0),
-        ("lateral, line at marker 2's centre", "cm", "label_y_m", "truth_y_m", 100.0),
-        ("angle, line fit", "deg", "label_yaw_deg", "truth_yaw_deg", 1.0),
+        ("depth, marker-2 line at marker 2's centre", "cm", "label_x_line_marker_m", "truth_x_m", 100.0),
+        ("depth, face line at marker 2's centre", "cm", "label_x_line_m", "truth_x_m", 100.0),
+        ("lateral, marker-2 line at marker 2's centre", "cm", "label_y_marker_m", "truth_y_m", 100.0),
+        ("lateral, face line at marker 2's centre", "cm", "label_y_m", "truth_y_m", 100.0),
         ("angle, endpoints (papers)", "deg", "label_yaw_endpoints_deg", "truth_yaw_deg", 1.0),
+        ("angle, marker-2 line", "deg", "label_yaw_marker_deg", "truth_yaw_deg", 1.0),
+        ("angle, face line", "deg", "label_yaw_deg", "truth_yaw_deg", 1.0),
     )
     for name, unit, col, ref, scale in pairs:
         e = (np.asarray(dataset[col], dtype=float) - np.asarray(dataset[ref], dtype=float))[ok] * scale

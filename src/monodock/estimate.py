@@ -12,8 +12,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.camera import CameraModel
-from monodock.detect import Detection, MarkerDetector
+from monodock.detect import Detection, MarkerDetector, as_gray
 from monodock.errors import InputError
+from monodock.fused import FusedEstimator
 from monodock.layout import DockLayout
 from monodock.pnp import PoseEstimate, estimate_board, estimate_single_marker
 from monodock.robot import RobotConfig
@@ -59,7 +60,8 @@ class Estimator:
     """Detector plus the calibration every method shares (camera, layout, mounts).
 
     ``extra`` adds methods that need more than the calibration, e.g.
-    ``{"regression": RegressionEstimator(...).estimate}``.
+    ``{"regression": RegressionEstimator(...).estimate}``; ``fused`` the fused method, which also needs the
+    image (for its refined corners) and reuses the regression's answer when both are asked for.
     """
 
     def __init__(
@@ -71,9 +73,13 @@ class Estimator:
         *,
         refinement: str = "subpix",
         extra: Mapping[str, Callable[[Detection], PoseEstimate]] | None = None,
+        fused: FusedEstimator | None = None,
     ) -> None:
         self.extra = dict(extra or {})
-        available = {**METHODS, **self.extra}
+        self.fused = fused
+        available: dict[str, object] = {**METHODS, **self.extra}
+        if fused is not None:
+            available["fused"] = fused
         unknown = [m for m in methods if m not in available]
         if unknown:
             raise InputError(f"unknown method '{unknown[0]}' (available: {', '.join(available)})")
@@ -92,11 +98,22 @@ class Estimator:
     def estimate(self, name: str, stamp: float, image: NDArray[np.generic]) -> FrameEstimates:
         """Detection and the estimates of every method for one image."""
         self.check_image(image, name)
-        det = self.detector.detect(image)
-        ests = {
-            m: self.extra[m](det) if m in self.extra else METHODS[m](det, self.camera, self.layout, self.robot)
-            for m in self.methods
-        }
+        gray = as_gray(image)
+        det = self.detector.detect(gray)
+        ests: dict[str, PoseEstimate] = {}
+        for m in self.methods:
+            if m == "fused" and self.fused is not None:
+                from monodock.refine import refine_detection
+
+                refined = refine_detection(gray, det, self.camera)
+                reg = ests.get("regression")
+                if reg is None and self.fused.regression is not None:
+                    reg = self.fused.regression.estimate(det)
+                ests[m] = self.fused.combine(det, refined, reg)
+            elif m in self.extra:
+                ests[m] = self.extra[m](det)
+            else:
+                ests[m] = METHODS[m](det, self.camera, self.layout, self.robot)
         return FrameEstimates(name, stamp, det, ests)
 
     def failed(self, name: str, stamp: float, reason: str) -> FrameEstimates:

@@ -26,6 +26,7 @@ __all__ = [
     "FEATURE_NAMES",
     "MARKER_SETS",
     "MODEL_FEATURE_SCHEMA",
+    "REFINED_CORNER_NAMES",
     "MarkerFeatures",
     "choose_marker_set",
     "detection_from_features",
@@ -34,6 +35,8 @@ __all__ = [
     "marker_features",
     "model_feature_names",
     "model_features",
+    "refined_detection_from_row",
+    "refined_vector",
 ]
 
 CORNER_NAMES = ("tl", "tr", "br", "bl")
@@ -134,6 +137,42 @@ def detection_from_features(raw: NDArray[np.float64], layout: DockLayout, image_
                 role, layout.marker(role).id, np.asarray(raw[cols], dtype=np.float64).reshape(4, 2)
             )
     return Detection(obs, (), image_size)
+
+
+# Corners from monodock.refine (bias-free edge fits), stored beside OpenCV's: NaN where the marker was not seen
+# or could not be refined. The regression keeps OpenCV's corners (it was trained on them, and learned their bias).
+REFINED_CORNER_NAMES = tuple(
+    f"m{ROLE_NUMBER[role]}_{c}_{a}_refined" for role in ROLES for c in CORNER_NAMES for a in ("u", "v")
+)
+
+
+def refined_vector(refined: Detection) -> NDArray[np.float64]:
+    """The refined corners of a detection in REFINED_CORNER_NAMES order (NaN: not seen or not refined)."""
+    out = np.full(len(REFINED_CORNER_NAMES), np.nan)
+    for k, role in enumerate(ROLES):
+        obs = refined.observations.get(role)
+        if obs is not None and role not in refined.unrefined:
+            out[8 * k : 8 * k + 8] = obs.corners.ravel()
+    return out
+
+
+def refined_detection_from_row(
+    raw: NDArray[np.float64], refined: NDArray[np.float64], layout: DockLayout, image_size: tuple[int, int]
+) -> Detection:
+    """The refined Detection of a dataset row: refined corners where there are some, OpenCV's (listed in
+    ``unrefined``) for a marker seen but not refined."""
+    base = detection_from_features(raw, layout, image_size)
+    obs = dict(base.observations)
+    unrefined = []
+    for k, role in enumerate(ROLES):
+        if role not in obs:
+            continue
+        c = np.asarray(refined[8 * k : 8 * k + 8], dtype=np.float64)
+        if np.all(np.isfinite(c)):
+            obs[role] = MarkerObservation(role, obs[role].marker_id, c.reshape(4, 2))
+        else:
+            unrefined.append(role)
+    return Detection(obs, (), image_size, tuple(unrefined))
 
 
 # --- model inputs ---------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ from monodock.bundle import Bundle, save_bundle
 from monodock.camera import CameraModel
 from monodock.dataset import Dataset, label_recording
 from monodock.features import DEFAULT_MARKER_SETS, MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
+from monodock.fused import FUSION_SCHEMA, fusion_holdout, train_fusion
 from monodock.recording import write_recording
 from monodock.regression import bundle_metadata, training_sets
 from monodock.sim import Simulator
@@ -64,13 +65,20 @@ def load_bundle(path: Path) -> Bundle:
 def train_bundle(
     ds: Dataset, out: Path, *, trials: int, seed: int, jobs: int, camera: CameraModel | None = None
 ) -> TrainingResult:
-    """Train the default marker sets on a labelled dataset and save the bundle to ``out``."""
-    sets = training_sets(ds, DEFAULT_MARKER_SETS, camera=camera)
+    """Train the default marker sets on a labelled dataset and save the bundle to ``out``.
+
+    A tenth of the rows is held out of the regression's training; the fused method's tables are learned on
+    them afterwards (``fused.train_fusion``).
+    """
+    holdout = fusion_holdout(len(ds), seed=seed)
+    sets = training_sets(ds.subset(~holdout), DEFAULT_MARKER_SETS, camera=camera)
     result = train(sets, TrainConfig(trials=trials, seed=seed, jobs=jobs), progress=True)
     meta = bundle_metadata(ds, depth_label="point", angle_label="line", source="simulated training drive")
+    meta["fusion_holdout_rows"] = int(holdout.sum())
     if camera is not None:
         meta["camera"] = camera.to_ros_dict()
     save_bundle(out, result, metadata=meta)
+    train_fusion(out, ds, holdout, camera=camera)
     return result
 
 
@@ -119,6 +127,7 @@ def cached_bundle(sim: Simulator, config: SelfTrainConfig, *, jobs: int, cache: 
         "nuisances": repr(sim.nuisances.updated(supersample=config.supersample)),  # the drive's own sampling
         "train": repr(config),
         "version": __version__,
+        "fusion": FUSION_SCHEMA,  # bundles from before the fused method lack its tables
     }
     key = hashlib.sha256(json.dumps(key_data, sort_keys=True, default=str).encode()).hexdigest()[:16]
     entry = (cache or cache_root()) / f"bundle-{key}"

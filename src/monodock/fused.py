@@ -1,0 +1,617 @@
+"""The fused estimator (``--method fused``): planar PnP on bias-free corners, combined with the regression.
+
+Two estimators with opposite weaknesses see the same frame:
+
+- **geometry**: the maximum-likelihood planar pose (x, y, yaw) of every visible marker's refined corners
+  (``refine.py``, ``planar.py``). It is as good as the pixels allow, but only as right as the calibration;
+  a lone small marker has two near-equal minima (the sign of yaw).
+- **regression** (the papers'): learned from LiDAR labels, so it carries no calibration error, but no better
+  than its labels, and blind outside its training range.
+
+Per frame, every local minimum of the geometry is scored by its reprojection error and by its distance from
+the regression (which settles a lone marker's yaw sign); the chosen one is corrected by the calibration
+residual learned from the LiDAR labels at training time, and the two are combined by inverse-variance
+(information) weighting. The variances come from training: the rows held out of the regression's training,
+per marker set and 25 cm depth band, as the error covariance of each method against the LiDAR labels with the
+labels' own noise removed (the three-cornered hat: with three independent instruments, the cross-covariance
+of two methods' residuals against the third is that third one's covariance). The geometry's per-frame
+covariance is its Jacobian covariance from the corner noise, scaled up where training found it optimistic.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monodock.camera import CameraModel
+from monodock.detect import Detection
+from monodock.errors import InputError
+from monodock.layout import ROLE_NUMBER, ROLES, DockLayout
+from monodock.pnp import PoseEstimate
+from monodock.pose import DockPose, wrap_angle
+from monodock.robot import RobotConfig
+
+__all__ = [
+    "BAND_EDGES_M",
+    "FUSION_SCHEMA",
+    "Correction",
+    "FusedEstimator",
+    "FusionTables",
+    "band_index",
+    "fuse_gaussians",
+    "marker_set_key",
+    "three_cornered_hat",
+]
+
+FUSION_SCHEMA = "monodock.fusion/1"
+# 25 cm bands of the papers' depth (from the camera) over 25-250 cm; depths outside use the end bands.
+BAND_EDGES_M = tuple(0.25 + 0.25 * k for k in range(10))
+# Chi-square, 3 dof, 99.9 %: beyond this the geometry and the regression disagree and are not averaged.
+DISAGREE_CHI2 = 16.27
+# Floors that keep a covariance invertible: 0.1 mm, 0.1 mm, 0.005 degrees (standard deviations).
+_FLOOR_SD = np.array([1e-4, 1e-4, math.radians(0.005)])
+
+
+def band_index(depth_from_camera: float) -> int:
+    """The 25 cm band of a depth measured from the camera (clamped to the first and last band)."""
+    k = int(math.floor((depth_from_camera - BAND_EDGES_M[0]) / 0.25))
+    return min(max(k, 0), len(BAND_EDGES_M) - 2)
+
+
+def marker_set_key(roles: Sequence[str]) -> str:
+    """ "m1m2m3", "m2", ... for the roles seen (the regression's marker-set names)."""
+    return "".join(f"m{ROLE_NUMBER[r]}" for r in ROLES if r in roles)
+
+
+def _as_vector(pose: DockPose) -> NDArray[np.float64]:
+    return np.array([pose.x, pose.y, pose.yaw])
+
+
+def _difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    d = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    d[..., 2] = (d[..., 2] + math.pi) % (2 * math.pi) - math.pi
+    return d
+
+
+def _psd_floor(cov: NDArray[np.float64], floor_sd: NDArray[np.float64] = _FLOOR_SD) -> NDArray[np.float64]:
+    """The nearest symmetric matrix whose eigenvalues are at least the floor (scaled per component)."""
+    s = floor_sd
+    c = 0.5 * (cov + cov.T) / np.outer(s, s)
+    w, v = np.linalg.eigh(c)
+    c = (v * np.maximum(w, 1.0)) @ v.T
+    return np.asarray(c * np.outer(s, s), dtype=np.float64)
+
+
+def fuse_gaussians(
+    means: Sequence[NDArray[np.float64]], covariances: Sequence[NDArray[np.float64]]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Inverse-variance (information-form) combination of independent Gaussian estimates of (x, y, yaw).
+
+    Yaws are combined as offsets from the first estimate, so that +179 and -179 degrees average to 180.
+    """
+    ref = means[0]
+    info = np.zeros((3, 3))
+    vec = np.zeros(3)
+    for m, c in zip(means, covariances, strict=True):
+        w = np.linalg.inv(c)
+        info += w
+        vec += w @ _difference(m, ref)
+    cov = np.linalg.inv(info)
+    mean = ref + cov @ vec
+    mean[2] = wrap_angle(float(mean[2]))
+    return mean, 0.5 * (cov + cov.T)
+
+
+def three_cornered_hat(
+    residual_a: NDArray[np.float64], residual_b: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The error covariances of two methods and of their common reference from residuals against it.
+
+    ``residual_a = a - ref`` and ``residual_b = b - ref`` (rows, 3). With independent errors,
+    Cov(r_a, r_b) = Cov(ref), so Cov(a) = Cov(r_a) - Cov(ref) and likewise for b. Rows far out (chi-square
+    3 dof beyond 99.9 % on a first pass) are left out, so a mislabelled row does not inflate every variance.
+    Returns (cov_a, cov_b, cov_ref), each projected onto a positive-definite matrix above a small floor.
+    """
+    joint = np.hstack([residual_a, residual_b])
+    keep = np.all(np.isfinite(joint), axis=1)
+    joint = joint[keep]
+    if len(joint) < 8:
+        raise ValueError(f"three-cornered hat needs at least 8 rows, got {len(joint)}")
+    for _ in range(2):
+        c = np.cov(joint, rowvar=False)
+        centred = joint - joint.mean(axis=0)
+        d2 = np.einsum("ij,jk,ik->i", centred, np.linalg.pinv(c), centred)
+        inliers = d2 <= 2 * DISAGREE_CHI2  # 6 dof
+        if inliers.sum() >= 8:
+            joint = joint[inliers]
+    c = np.cov(joint, rowvar=False)
+    cross = 0.5 * (c[:3, 3:] + c[3:, :3])
+    return _psd_floor(c[:3, :3] - cross), _psd_floor(c[3:, 3:] - cross), _psd_floor(cross)
+
+
+@dataclass(frozen=True)
+class Correction:
+    """The geometry's calibration residual, learned from the LiDAR labels (identity when calibrated).
+
+    x' = x_scale * x + x_offset;  y' = y_scale * y + y_per_x * x + y_offset;  yaw' = yaw + yaw_offset.
+    A marker size or focal length that is off scales x; a camera mount off in yaw turns (x, y) and shifts yaw;
+    a mount off in x or y shifts them.
+    """
+
+    x_scale: float = 1.0
+    x_offset: float = 0.0
+    y_scale: float = 1.0
+    y_per_x: float = 0.0
+    y_offset: float = 0.0
+    yaw_offset: float = 0.0
+
+    def apply(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Corrected (x, y, yaw) rows (or one row)."""
+        v = np.asarray(v, dtype=np.float64)
+        out = v.copy()
+        out[..., 0] = self.x_scale * v[..., 0] + self.x_offset
+        out[..., 1] = self.y_scale * v[..., 1] + self.y_per_x * v[..., 0] + self.y_offset
+        out[..., 2] = (v[..., 2] + self.yaw_offset + math.pi) % (2 * math.pi) - math.pi
+        return out
+
+    def jacobian(self) -> NDArray[np.float64]:
+        return np.array([[self.x_scale, 0.0, 0.0], [self.y_per_x, self.y_scale, 0.0], [0.0, 0.0, 1.0]])
+
+    @classmethod
+    def fit(cls, geometry: NDArray[np.float64], labels: NDArray[np.float64]) -> Correction:
+        """Least squares of the labels on the geometry, twice, leaving out rows beyond 4 robust sigmas."""
+        ok = np.all(np.isfinite(geometry), axis=1) & np.all(np.isfinite(labels), axis=1)
+        g, lab = geometry[ok], labels[ok]
+        if len(g) < 20:
+            return cls()
+        keep = np.ones(len(g), dtype=bool)
+        coef_x = coef_y = np.zeros(0)
+        yaw_off = 0.0
+        for _ in range(3):
+            ax = np.column_stack([g[keep, 0], np.ones(keep.sum())])
+            coef_x = np.linalg.lstsq(ax, lab[keep, 0], rcond=None)[0]
+            ay = np.column_stack([g[keep, 1], g[keep, 0], np.ones(keep.sum())])
+            coef_y = np.linalg.lstsq(ay, lab[keep, 1], rcond=None)[0]
+            yaw_off = float(np.median(_difference(lab[keep], g[keep])[:, 2]))
+            c = cls(float(coef_x[0]), float(coef_x[1]), float(coef_y[0]), float(coef_y[1]), float(coef_y[2]), yaw_off)
+            r = _difference(lab, c.apply(g))
+            mad = np.median(np.abs(r - np.median(r, axis=0)), axis=0) * 1.4826 + 1e-12
+            keep = np.all(np.abs(r) <= 4 * mad, axis=1)
+        return c
+
+
+@dataclass(frozen=True)
+class FusionTables:
+    """What the fused estimator learned at training time (kept in the bundle, ``metadata.fusion``).
+
+    Attributes:
+        corner_sigma: refined-corner noise model, sigma_px = corner_sigma / sqrt(marker side in px).
+        correction: the geometry's calibration residual.
+        geometry_scale: per marker set, per band: how much larger the geometry's error is than its
+            Jacobian covariance says (>= 1).
+        regression_cov: per marker set, per band: the regression's 3x3 error covariance (x m, y m, yaw rad).
+        label_cov: per band: the LiDAR labels' own error covariance, as the hat measured it.
+        rows: rows the tables were learned from, per marker set.
+    """
+
+    corner_sigma: float
+    correction: Correction = field(default_factory=Correction)
+    geometry_scale: Mapping[str, Sequence[float]] = field(default_factory=dict)
+    regression_cov: Mapping[str, Sequence[NDArray[np.float64] | None]] = field(default_factory=dict)
+    label_cov: Sequence[NDArray[np.float64] | None] = ()
+    rows: Mapping[str, int] = field(default_factory=dict)
+
+    def regression_covariance(self, set_key: str, band: int) -> NDArray[np.float64] | None:
+        """The regression's covariance for a marker set and band (the nearest band that has one)."""
+        bands = self.regression_cov.get(set_key)
+        if not bands:
+            return None
+        order = sorted(range(len(bands)), key=lambda k: abs(k - band))
+        for k in order:
+            c = bands[k]
+            if c is not None:
+                return c
+        return None
+
+    def geometry_factor(self, set_key: str, band: int) -> float:
+        scales = self.geometry_scale.get(set_key)
+        if not scales:
+            scales = self.geometry_scale.get("m2") or [1.0]
+        return float(scales[min(band, len(scales) - 1)])
+
+    def to_dict(self) -> dict[str, Any]:
+        def mat(c: NDArray[np.float64] | None) -> list[list[float]] | None:
+            return None if c is None else [[float(v) for v in row] for row in c]
+
+        return {
+            "schema": FUSION_SCHEMA,
+            "bands_m": list(BAND_EDGES_M),
+            "corner_sigma": self.corner_sigma,
+            "correction": dict(self.correction.__dict__),
+            "geometry_scale": {k: [float(v) for v in s] for k, s in self.geometry_scale.items()},
+            "regression_cov": {k: [mat(c) for c in s] for k, s in self.regression_cov.items()},
+            "label_cov": [mat(c) for c in self.label_cov],
+            "rows": dict(self.rows),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Any, where: str) -> FusionTables:
+        """Parse and check; one-line InputError on anything malformed."""
+        try:
+            if not isinstance(d, dict) or d.get("schema") != FUSION_SCHEMA:
+                found = d.get("schema") if isinstance(d, dict) else type(d).__name__
+                raise InputError(f"{where}: fusion tables of schema {found}; this monodock reads {FUSION_SCHEMA}")
+            if list(d["bands_m"]) != list(BAND_EDGES_M):
+                raise InputError(f"{where}: fusion tables use other depth bands")
+
+            def mat(c: Any) -> NDArray[np.float64] | None:
+                if c is None:
+                    return None
+                a = np.asarray(c, dtype=np.float64)
+                if a.shape != (3, 3) or not np.all(np.isfinite(a)):
+                    raise ValueError("a covariance is not a finite 3x3 matrix")
+                return a
+
+            nb = len(BAND_EDGES_M) - 1
+            reg = {str(k): [mat(c) for c in s] for k, s in d["regression_cov"].items()}
+            geo = {str(k): [float(v) for v in s] for k, s in d["geometry_scale"].items()}
+            if any(len(s) != nb for s in reg.values()) or any(len(s) != nb for s in geo.values()):
+                raise ValueError(f"every marker set needs {nb} bands")
+            sigma = float(d["corner_sigma"])
+            if not (sigma > 0 and math.isfinite(sigma)):
+                raise ValueError("corner_sigma must be positive")
+            return cls(
+                corner_sigma=sigma,
+                correction=Correction(**{k: float(v) for k, v in d["correction"].items()}),
+                geometry_scale=geo,
+                regression_cov=reg,
+                label_cov=[mat(c) for c in d["label_cov"]],
+                rows={str(k): int(v) for k, v in d["rows"].items()},
+            )
+        except InputError:
+            raise
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputError(f"{where}: malformed fusion tables ({exc})") from None
+
+
+def corner_sigmas(corners: Mapping[str, NDArray[np.float64]], corner_sigma: float) -> NDArray[np.float64]:
+    """Per-corner noise sd (px) for the roles in ``corners`` (in ROLES order): c / sqrt(mean side px)."""
+    out = []
+    for role in ROLES:
+        c = corners.get(role)
+        if c is None:
+            continue
+        side = float(np.mean(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)))
+        out += [corner_sigma / math.sqrt(max(side, 4.0))] * 4
+    return np.asarray(out, dtype=np.float64)
+
+
+# --- learning the tables --------------------------------------------------------------------------------------
+
+MIN_CELL_ROWS = 30
+
+
+@dataclass
+class TrainingRows:
+    """Per held-out row: both methods' answers, the LiDAR label and what the tables are keyed by.
+
+    Poses are (n, 3) x m, y m, yaw rad, NaN where a method had no answer or the label is invalid.
+    ``geometry_cov`` is each geometric fit's Jacobian covariance at unit corner sigma scaled by the
+    corner sigma model; ``residual_sigma`` the per-axis corner sigma its residuals imply, and ``side_px``
+    the mean marker side of the fit, which together estimate the corner sigma model.
+    """
+
+    geometry: NDArray[np.float64]
+    geometry_cov: NDArray[np.float64]
+    geometry_set: list[str]
+    residual_sigma: NDArray[np.float64]
+    side_px: NDArray[np.float64]
+    regression: NDArray[np.float64]
+    regression_set: list[str]
+    labels: NDArray[np.float64]
+    depth_from_camera: NDArray[np.float64]
+
+
+def corner_sigma_from_residuals(residual_sigma: NDArray[np.float64], side_px: NDArray[np.float64]) -> float:
+    """The corner sigma model's constant c (sigma_px = c / sqrt(side px)) from the fits' residuals."""
+    ok = np.isfinite(residual_sigma) & np.isfinite(side_px) & (side_px > 0)
+    if ok.sum() < 10:
+        raise InputError(f"only {int(ok.sum())} geometric fits to learn the corner noise from (need 10)")
+    return float(np.median(residual_sigma[ok] * np.sqrt(side_px[ok])))
+
+
+def learn_tables(rows: TrainingRows, corner_sigma: float) -> FusionTables:
+    """The fusion tables from held-out rows (see the module docstring)."""
+    bands = np.array([band_index(float(d)) if math.isfinite(d) else -1 for d in rows.depth_from_camera])
+    labelled = np.all(np.isfinite(rows.labels), axis=1)
+    geo_ok = np.all(np.isfinite(rows.geometry), axis=1) & labelled
+    reg_ok = np.all(np.isfinite(rows.regression), axis=1) & labelled
+    correction = Correction.fit(rows.geometry[geo_ok], rows.labels[geo_ok])
+    geometry = correction.apply(rows.geometry)
+    cj = correction.jacobian()
+    gcov = np.einsum("ij,njk,lk->nil", cj, rows.geometry_cov, cj)
+    r_geo = _difference(geometry, rows.labels)
+    r_reg = _difference(rows.regression, rows.labels)
+    both = geo_ok & reg_ok
+    nb = len(BAND_EDGES_M) - 1
+    gset = np.asarray(rows.geometry_set, dtype=object)
+    rset = np.asarray(rows.regression_set, dtype=object)
+
+    geometry_scale: dict[str, list[float]] = {}
+    for key in sorted({s for s, ok in zip(rows.geometry_set, both, strict=True) if ok and s}):
+        scales: list[float | None] = []
+        for b in range(nb):
+            sel = both & (gset == key) & (bands == b)
+            if sel.sum() < MIN_CELL_ROWS:
+                scales.append(None)
+                continue
+            cov_g, _, _ = three_cornered_hat(r_geo[sel], r_reg[sel])
+            predicted = np.mean(np.diagonal(gcov[sel], axis1=1, axis2=2), axis=0)
+            scales.append(float(np.clip(np.mean(np.diag(cov_g) / predicted), 1.0, 1e4)))
+        known = [s for s in scales if s is not None]
+        fill = float(np.median(known)) if known else 1.0
+        geometry_scale[key] = [fill if s is None else s for s in scales]
+
+    regression_cov: dict[str, list[NDArray[np.float64] | None]] = {}
+    label_cov: list[NDArray[np.float64] | None] = [None] * nb
+    counts: dict[str, int] = {}
+    for key in sorted({s for s, ok in zip(rows.regression_set, both, strict=True) if ok and s}):
+        cells: list[NDArray[np.float64] | None] = []
+        counts[key] = int((both & (rset == key)).sum())
+        for b in range(nb):
+            sel = both & (rset == key) & (bands == b)
+            if sel.sum() < MIN_CELL_ROWS:
+                cells.append(None)
+                continue
+            _, cov_r, cov_l = three_cornered_hat(r_geo[sel], r_reg[sel])
+            cells.append(cov_r)
+            if label_cov[b] is None or key == "m1m2m3":
+                label_cov[b] = cov_l
+        regression_cov[key] = cells
+    return FusionTables(corner_sigma, correction, geometry_scale, regression_cov, label_cov, counts)
+
+
+# --- run time -------------------------------------------------------------------------------------------------
+
+# An unrefined marker keeps OpenCV's corners: inset by ~0.2-0.4 px, so they count as this much noisier.
+UNREFINED_SIGMA_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class GeometryAnswer:
+    """The chosen planar fit, before the calibration correction: pose row, Jacobian covariance and fit quality."""
+
+    pose: NDArray[np.float64]
+    covariance: NDArray[np.float64]
+    roles: tuple[str, ...]
+    rms_px: float
+    noise_scale: float
+    side_px: float
+    candidates: int
+
+
+class FusedEstimator:
+    """The ``fused`` method: see the module docstring.
+
+    Args:
+        camera, layout, robot: the calibration (the same every method gets).
+        tables: what training learned (``FusionTables``).
+        regression: the papers' regression (``RegressionEstimator``), or None for geometry alone.
+    """
+
+    method = "fused"
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        layout: DockLayout,
+        robot: RobotConfig,
+        tables: FusionTables,
+        regression: Any | None = None,
+    ) -> None:
+        self.camera, self.layout, self.robot = camera, layout, robot
+        self.tables = tables
+        self.regression = regression
+
+    def estimate(self, detection: Detection, refined: Detection | None = None) -> PoseEstimate:
+        """The fused DockPose of a frame from its OpenCV detection and its refined corners."""
+        reg = self.regression.estimate(detection) if self.regression is not None else None
+        return self.combine(detection, refined, reg)
+
+    def geometry(
+        self,
+        detection: Detection,
+        refined: Detection | None,
+        prior: DockPose | None = None,
+        prior_cov: NDArray[np.float64] | None = None,
+    ) -> GeometryAnswer | None:
+        """The planar fit to the refined corners (OpenCV's where a marker could not be refined).
+
+        With ``prior`` (the regression's pose) a fit starts there; every IPPE start joins it when fewer than two
+        markers are seen or that fit is poor, and the minimum with the lowest cost plus distance from the prior
+        (in the prior's covariance) wins.
+        """
+        from monodock.planar import planar_candidates, solve_planar
+
+        source = refined if refined is not None else detection
+        roles = source.roles_seen
+        if not roles:
+            return None
+        corners = {r: source.observations[r].corners for r in roles}
+        unrefined = set(getattr(source, "unrefined", ())) if refined is not None else set(roles)
+        sig = corner_sigmas(corners, self.tables.corner_sigma)
+        for i, r in enumerate(r for r in ROLES if r in corners):
+            if r in unrefined:
+                sig[4 * i : 4 * i + 4] *= UNREFINED_SIGMA_FACTOR
+        fits = []
+        if prior is not None:
+            fit = solve_planar(corners, self.camera, self.layout, self.robot, start=prior, corner_sigma=sig)
+            if fit.converged and math.isfinite(fit.cost):
+                fits.append(fit)
+        good = bool(fits) and len(roles) >= 2 and fits[0].noise_scale < 3.0
+        if not good:
+            starts = (prior,) if prior is not None else ()
+            fits += planar_candidates(corners, self.camera, self.layout, self.robot, corner_sigma=sig, starts=starts)
+        if not fits:
+            return None
+
+        def score(f: Any) -> float:
+            s = float(f.cost)
+            if prior is not None and prior_cov is not None:
+                d = _difference(_as_vector(f.pose), _as_vector(prior))
+                s += float(d @ np.linalg.solve(prior_cov + f.covariance, d))
+            return s
+
+        best = min(fits, key=score)
+        side = float(np.mean([np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() for c in corners.values()]))
+        return GeometryAnswer(
+            _as_vector(best.pose), best.covariance, best.roles, best.rms_px, best.noise_scale, side, len(fits)
+        )
+
+    def combine(self, detection: Detection, refined: Detection | None, reg: PoseEstimate | None) -> PoseEstimate:
+        """Geometry and regression (either may be missing) into one estimate with its covariance."""
+        reg_vec = _as_vector(reg.pose) if reg is not None and reg.pose is not None else None
+        reg_cov = None
+        if reg_vec is not None and reg is not None:
+            reg_cov = self.tables.regression_covariance(
+                marker_set_key(reg.markers_seen), band_index(reg_vec[0] - self.robot.camera_mount.x)
+            )
+        geo = self.geometry(detection, refined, reg.pose if reg is not None else None, reg_cov)
+        if geo is None:
+            if reg_vec is None or reg_cov is None:
+                why = reg.reason if reg is not None and reg.reason else "no dock marker seen"
+                return PoseEstimate(self.method, None, why, detection.roles_seen)
+            return self._answer(reg_vec, reg_cov, reg.markers_seen if reg else (), math.nan)
+        g = self.tables.correction.apply(geo.pose)
+        cj = self.tables.correction.jacobian()
+        band = band_index(g[0] - self.robot.camera_mount.x)
+        g_cov = _psd_floor(cj @ geo.covariance @ cj.T * self.tables.geometry_factor(marker_set_key(geo.roles), band))
+        if reg_vec is None or reg_cov is None:
+            return self._answer(g, g_cov, geo.roles, geo.rms_px)
+        d = _difference(g, reg_vec)
+        if float(d @ np.linalg.solve(g_cov + reg_cov, d)) > DISAGREE_CHI2:
+            # They disagree beyond chance: an average would be wrong for both; the pixels win.
+            return self._answer(g, g_cov, geo.roles, geo.rms_px)
+        mean, cov = fuse_gaussians([g, reg_vec], [g_cov, reg_cov])
+        return self._answer(mean, cov, geo.roles, geo.rms_px)
+
+    def _answer(
+        self, v: NDArray[np.float64], cov: NDArray[np.float64], roles: Sequence[str], rms: float
+    ) -> PoseEstimate:
+        return PoseEstimate(
+            self.method,
+            DockPose(float(v[0]), float(v[1]), wrap_angle(float(v[2]))),
+            "",
+            tuple(roles),
+            rms,
+            0.0,
+            None,
+            cov,
+        )
+
+
+# --- training time: the held-out rows -------------------------------------------------------------------------
+
+# The share of a dataset's rows kept out of the regression's training to learn the fusion tables from.
+FUSION_FRACTION = 0.1
+# The labels the tables are learned against: the whole-face line's depth and lateral at marker 2's centre
+# plane, and its angle (the best the LiDAR gives; the papers' nearest-point depth is noisier).
+FUSION_LABELS = ("label_x_line_m", "label_y_m", "label_yaw_deg")
+# Before anything is learned: corner sigma 1 px * sqrt(px), i.e. 0.14 px on a 50 px marker, and a broad
+# regression covariance (5 cm, 5 cm, 10 degrees) to choose among a lone marker's minima.
+_GUESS_SIGMA = 1.0
+_GUESS_PRIOR_COV = np.diag([0.05**2, 0.05**2, math.radians(10.0) ** 2])
+
+
+def fusion_holdout(rows: int, fraction: float = FUSION_FRACTION, seed: int = 0) -> NDArray[np.bool_]:
+    """Which rows to keep out of the regression's training for the fusion tables (seeded)."""
+    if not 0.0 < fraction < 1.0:
+        raise InputError(f"the fusion hold-out must be a fraction between 0 and 1, got {fraction}")
+    rng = np.random.default_rng([seed, 0xF05E])
+    mask = np.zeros(rows, dtype=bool)
+    mask[rng.choice(rows, size=max(1, round(fraction * rows)), replace=False)] = True
+    return mask
+
+
+def training_rows(
+    dataset: Any,
+    regression: Any,
+    camera: CameraModel,
+    layout: DockLayout,
+    robot: RobotConfig,
+    rows: NDArray[np.int64],
+) -> TrainingRows:
+    """Both methods on the given rows of a labelled dataset (its stored OpenCV and refined corners)."""
+    from monodock.features import detection_from_features, refined_detection_from_row
+
+    raw = dataset.raw_features()
+    refined = dataset.refined_corners()
+    labels = np.column_stack([np.asarray(dataset[c], dtype=np.float64) for c in FUSION_LABELS])
+    labels[:, 2] = np.radians(labels[:, 2])
+    labels[~np.asarray(dataset["label_valid"], dtype=bool)] = np.nan
+    probe = FusedEstimator(camera, layout, robot, FusionTables(_GUESS_SIGMA), None)
+    n = len(rows)
+    geo = np.full((n, 3), np.nan)
+    gcov = np.tile(np.eye(3), (n, 1, 1))
+    reg = np.full((n, 3), np.nan)
+    gset, rset = [""] * n, [""] * n
+    resid = np.full(n, np.nan)
+    side = np.full(n, np.nan)
+    for k, i in enumerate(rows):
+        det = detection_from_features(raw[i], layout, camera.size)
+        ref = refined_detection_from_row(raw[i], refined[i], layout, camera.size)
+        r = regression.estimate_raw(raw[i], det.roles_seen) if regression is not None else None
+        if r is not None and r.pose is not None:
+            reg[k] = _as_vector(r.pose)
+            rset[k] = marker_set_key(r.markers_seen)
+        g = probe.geometry(det, ref, r.pose if r is not None else None, _GUESS_PRIOR_COV)
+        if g is not None:
+            geo[k], gcov[k], gset[k] = g.pose, g.covariance, marker_set_key(g.roles)
+            side[k] = g.side_px
+            resid[k] = g.noise_scale * _GUESS_SIGMA / math.sqrt(max(g.side_px, 4.0))
+    depth = labels[rows, 0] - robot.camera_mount.x
+    return TrainingRows(geo, gcov, gset, resid, side, reg, rset, labels[rows], depth)
+
+
+def learn_fusion(rows: TrainingRows) -> FusionTables:
+    """The tables from held-out rows: the corner noise first, then everything that depends on it."""
+    c = corner_sigma_from_residuals(rows.residual_sigma, rows.side_px)
+    scaled = TrainingRows(**{**rows.__dict__, "geometry_cov": rows.geometry_cov * (c / _GUESS_SIGMA) ** 2})
+    return learn_tables(scaled, c)
+
+
+def train_fusion(
+    bundle_path: Any, dataset: Any, holdout: NDArray[np.bool_], *, camera: CameraModel | None = None
+) -> FusionTables:
+    """Learn the fusion tables on a trained bundle's held-out rows and store them in the bundle.
+
+    ``holdout`` marks the rows the regression never trained on (``fusion_holdout``); ``camera`` overrides
+    the dataset's, as it did for the regression's training.
+    """
+    from monodock.bundle import update_bundle_metadata
+    from monodock.regression import RegressionEstimator
+    from monodock.selftrain import load_bundle
+
+    bundle = load_bundle(bundle_path)
+    camera = camera or dataset.camera()
+    layout, robot = dataset.layout(), dataset.robot()
+    regression = RegressionEstimator(bundle, camera, robot)
+    rows = training_rows(dataset, regression, camera, layout, robot, np.flatnonzero(holdout))
+    tables = learn_fusion(rows)
+    update_bundle_metadata(bundle_path, "fusion", tables.to_dict())
+    return tables
+
+
+def fusion_tables_of(bundle: Any) -> FusionTables:
+    """The fusion tables a bundle carries; one-line InputError for a bundle trained without them."""
+    meta = bundle.manifest.get("metadata", {})
+    if "fusion" not in meta:
+        raise InputError(
+            f"{bundle.path}: this bundle has no fusion tables (trained before the fused method); retrain it"
+        )
+    return FusionTables.from_dict(meta["fusion"], str(bundle.path))
