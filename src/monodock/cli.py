@@ -531,6 +531,7 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from monodock.atomic import atomic_directory
     from monodock.dataset import read_dataset
     from monodock.evaluate import evaluate_report
+    from monodock.fused import FusedEstimator, fusion_tables_of
     from monodock.regression import RegressionEstimator
 
     bundle = _load_bundle(args.model)
@@ -540,8 +541,13 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     else:
         ds = _label(args, layout, camera if args.camera else None)
     regression = RegressionEstimator(bundle, ds.camera(), robot)
+    fused = None
+    if "fusion" in bundle.manifest["metadata"]:
+        fused = FusedEstimator(ds.camera(), layout, robot, fusion_tables_of(bundle), regression)
+    else:
+        print("note: the bundle has no fusion tables (trained before the fused method); fused is left out")
     with atomic_directory(args.out, force=args.force) as out:
-        summary = evaluate_report(ds, regression, out, title=f"monodock evaluation: {args.recording}")
+        summary = evaluate_report(ds, regression, out, title=f"monodock evaluation: {args.recording}", fused=fused)
     for method, row in summary["against_truth" if "against_truth" in summary else "against_lidar"].items():
         print(
             f"{method:10s} valid {row['valid']}/{row['frames']}  depth MAE {row['depth_mae_cm']:.2f} cm  "

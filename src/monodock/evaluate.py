@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from monodock.camera import CameraModel
 from monodock.dataset import Dataset
 from monodock.detect import Detection
-from monodock.features import detection_from_features
+from monodock.features import detection_from_features, refined_detection_from_row
 from monodock.layout import DockLayout
 from monodock.metrics import BandRow, band_table, markdown_table
 from monodock.pnp import PoseEstimate, estimate_board, estimate_single_marker
@@ -35,11 +35,13 @@ from monodock.robot import RobotConfig
 __all__ = [
     "MethodResult",
     "MiscalibrationRow",
+    "RowInput",
     "band_rows",
     "errors",
     "estimate_dataset",
     "evaluate_report",
     "figure_errors",
+    "fused_method",
     "geometric_methods",
     "miscalibration_plot",
     "miscalibration_study",
@@ -50,12 +52,19 @@ __all__ = [
     "summary_dict",
 ]
 
-_COLOURS = {"lidar": "tab:blue", "regression": "tab:red", "pnp": "tab:green", "board": "tab:purple"}
+_COLOURS = {
+    "lidar": "tab:blue",
+    "regression": "tab:red",
+    "pnp": "tab:green",
+    "board": "tab:purple",
+    "fused": "tab:orange",
+}
 _LABELS = {
     "lidar": "LiDAR label",
     "regression": "regression (papers)",
     "pnp": "SolvePnP, marker 2",
     "board": "board PnP",
+    "fused": "fused",
 }
 
 
@@ -72,7 +81,16 @@ class MethodResult:
         return np.asarray(np.isfinite(self.poses[:, 0]))
 
 
-FrameMethod = Callable[[NDArray[np.float64], Detection], PoseEstimate]
+@dataclass(frozen=True)
+class RowInput:
+    """What a method sees of one dataset row: the raw features, OpenCV's detection and the refined one."""
+
+    raw: NDArray[np.float64]
+    detection: Detection
+    refined: Detection
+
+
+FrameMethod = Callable[[RowInput], PoseEstimate]
 
 
 def _collect(method: str, estimates: Sequence[PoseEstimate]) -> MethodResult:
@@ -86,8 +104,8 @@ def _collect(method: str, estimates: Sequence[PoseEstimate]) -> MethodResult:
 def geometric_methods(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> dict[str, FrameMethod]:
     """The PnP baselines as per-row methods, all on the given calibration."""
     return {
-        "pnp": lambda _raw, det: estimate_single_marker(det, camera, layout, robot),
-        "board": lambda _raw, det: estimate_board(det, camera, layout, robot),
+        "pnp": lambda row: estimate_single_marker(row.detection, camera, layout, robot),
+        "board": lambda row: estimate_board(row.detection, camera, layout, robot),
     }
 
 
@@ -95,10 +113,14 @@ def estimate_dataset(dataset: Dataset, methods: Mapping[str, FrameMethod]) -> di
     """Run every method on every row of a dataset, from the corners the dataset stores."""
     camera, layout = dataset.camera(), dataset.layout()
     raw = dataset.raw_features()
-    detections = [detection_from_features(r, layout, camera.size) for r in raw]
-    return {
-        name: _collect(name, [f(r, d) for r, d in zip(raw, detections, strict=True)]) for name, f in methods.items()
-    }
+    refined = dataset.refined_corners()
+    rows = [
+        RowInput(
+            r, detection_from_features(r, layout, camera.size), refined_detection_from_row(r, q, layout, camera.size)
+        )
+        for r, q in zip(raw, refined, strict=True)
+    ]
+    return {name: _collect(name, [f(row) for row in rows]) for name, f in methods.items()}
 
 
 def reference_poses(dataset: Dataset) -> dict[str, NDArray[np.float64]]:
@@ -402,7 +424,17 @@ def summary_dict(rows: Sequence[BandRow]) -> dict[str, Any]:
 
 def regression_method(estimator: Any) -> dict[str, FrameMethod]:
     """The regression as a per-row method (it works on the raw features and the roles seen)."""
-    return {"regression": lambda raw, det: estimator.estimate_raw(raw, det.roles_seen)}
+    return {"regression": lambda row: estimator.estimate_raw(row.raw, row.detection.roles_seen)}
+
+
+def fused_method(fused: Any) -> dict[str, FrameMethod]:
+    """The fused method as a per-row method (refined corners and the regression's answer for the row)."""
+
+    def run(row: RowInput) -> PoseEstimate:
+        reg = fused.regression.estimate_raw(row.raw, row.detection.roles_seen) if fused.regression else None
+        return fused.combine(row.detection, row.refined, reg)  # type: ignore[no-any-return]
+
+    return {"fused": run}
 
 
 def evaluate_report(
@@ -415,6 +447,7 @@ def evaluate_report(
     extra_sections: Callable[[HtmlReport], None] | None = None,
     extra_summary: Mapping[str, Any] | None = None,
     miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None = None,
+    fused: Any | None = None,
 ) -> dict[str, Any]:
     """Run regression, single-marker PnP and board PnP on a labelled dataset; write the report into ``out``.
 
@@ -425,6 +458,8 @@ def evaluate_report(
     if regression is not None:
         methods.update(regression_method(regression))
     methods.update(geometric_methods(camera, layout, robot))
+    if fused is not None:
+        methods.update(fused_method(fused))
     results = estimate_dataset(dataset, methods)
     refs = reference_poses(dataset)
     ref_depth = refs["truth"][:, 0] if "truth" in refs else refs["lidar"][:, 0]
