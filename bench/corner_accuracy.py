@@ -1,9 +1,13 @@
-"""Corner accuracy of OpenCV's ArUco detector against the simulator's exact corners, on clean renders.
+"""Corner accuracy of OpenCV's ArUco detector and of monodock's refiner against the simulator's exact corners.
 
-Renders ``--frames`` random poses (Simulator.sample_pose() over the default PoseDistribution) with no
-nuisance at all (Nuisances.clean(): the exact area-sampled render, quantised to 8 bits), and detects the
-dock markers in the *same* images with each corner refinement 'none', 'subpix' and 'contour' of
-monodock.detect.MarkerDetector. For every corner of a detected dock marker that lies fully in the image:
+Renders ``--frames`` random poses (Simulator.sample_pose() over the default PoseDistribution) with
+``--nuisances clean`` (the default: Nuisances.clean(), the exact area-sampled render quantised to 8 bits) or
+``--nuisances default`` (Nuisances(): defocus 0.6 px, noise, vignetting, exposure jitter, clutter), optionally
+with more blur (``--defocus PX``, ``--motion-blur PX``), and detects the dock markers in the *same* images with
+each corner refinement 'none', 'subpix' and 'contour' of monodock.detect.MarkerDetector, plus 'monodock':
+monodock.refine.refine_detection applied to the 'subpix' detection (a marker it cannot refine keeps
+OpenCV's corners and counts as "kept"). For every corner of a detected dock marker that lies fully in the
+image:
 
 - error = detected - true (FrameTruth.corners[role], ArUco order TL, TR, BR, BL), pixels;
 - outward = unit vector from the true marker centre in the image (the intersection of the true corners'
@@ -15,9 +19,13 @@ corners measured, RMS of the 2D error, mean and RMS of the outward error, mean o
 Corners more than ``--gross`` px off (a mis-detection, not a corner bias) are counted and left out of
 the statistics.
 
+Also times, per frame, in the render workers (one thread each, best of 3 calls): the SUBPIX detection
+(MarkerDetector.detect) and refine_detection on its result, and reports their medians and ratio.
+
 Run from the repo root:
 
-    python bench/corner_accuracy.py [--frames 200] [--seed 0] [--out FILE.md]
+    python bench/corner_accuracy.py [--frames 200] [--seed 0] [--nuisances clean|default]
+                                    [--defocus PX] [--motion-blur PX] [--out FILE.md]
 
 Rendering dominates the run time and runs in 2 processes; each chunk of frames has its own Simulator
 seeded from (seed, chunk index), so the numbers do not depend on the number of workers.
@@ -26,6 +34,9 @@ seeded from (seed, chunk index), so the numbers do not depend on the number of w
 from __future__ import annotations
 
 import sys
+import time
+from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -33,18 +44,21 @@ import numpy as np
 from _common import (
     bench_parser,
     chunk_seed,
+    chunks,
     emit,
     environment,
     fmt,
     markdown_table,
-    simulate_chunks,
+    parallel_map,
 )
-from monodock.detect import MarkerDetector
+from monodock.detect import Detection, MarkerDetector
 from monodock.features import marker_features
 from monodock.layout import ROLES
+from monodock.refine import refine_detection
 from monodock.sim import Nuisances, Simulator
 
-METHODS: tuple[str, ...] = ("none", "subpix", "contour")
+OPENCV_METHODS: tuple[str, ...] = ("none", "subpix", "contour")
+METHODS: tuple[str, ...] = (*OPENCV_METHODS, "monodock")
 # Marker side length bands in pixels: [lo, hi).
 BANDS: tuple[tuple[str, float, float], ...] = (
     ("< 30 px", 0.0, 30.0),
@@ -55,19 +69,53 @@ BANDS: tuple[tuple[str, float, float], ...] = (
 CHUNK = 10
 
 
-def run_chunk(task: tuple[int, int, int]) -> list[dict[str, Any]]:
-    """Render one chunk of clean frames and measure every in-view dock marker with each refinement.
+def nuisances_of(name: str, defocus: float | None, motion_blur: float | None) -> Nuisances:
+    """The run's nuisances: clean or default, with the blur overridden when asked."""
+    nuisances = Nuisances.clean() if name == "clean" else Nuisances()
+    if defocus is not None:
+        nuisances = nuisances.updated(defocus_px=defocus)
+    if motion_blur is not None:
+        nuisances = nuisances.updated(motion_blur_px=motion_blur)
+    return nuisances
+
+
+def best_of(fn: Callable[[], Any], repeat: int = 3) -> tuple[float, Any]:
+    """The fastest of ``repeat`` calls, in milliseconds, and the last result."""
+    best, result = float("inf"), None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        result = fn()
+        best = min(best, time.perf_counter() - t0)
+    return 1e3 * best, result
+
+
+def run_chunk(task: tuple[int, int, int, Nuisances]) -> list[dict[str, Any]]:
+    """Render one chunk of frames and measure every in-view dock marker with each refinement.
 
     Returns one record per (frame, in-view marker): its true side length and, per method, whether it was
-    detected and its per-corner errors, outward and perpendicular components.
+    detected and its per-corner errors, outward and perpendicular components; and one timing record per
+    frame (role None) with the SUBPIX detection and refinement milliseconds.
     """
-    seed, chunk, n = task
-    sim = Simulator(nuisances=Nuisances.clean(), seed=chunk_seed(seed, chunk))
-    detectors = {m: MarkerDetector(sim.layout, refinement=m) for m in METHODS}
+    seed, chunk, n, nuisances = task
+    sim = Simulator(nuisances=nuisances, seed=chunk_seed(seed, chunk))
+    detectors = {m: MarkerDetector(sim.layout, refinement=m) for m in OPENCV_METHODS}
     records: list[dict[str, Any]] = []
     for k in range(n):
         frame = sim.frame(sim.sample_pose())
-        detections = {m: d.detect(frame.image) for m, d in detectors.items()}
+        detections: dict[str, Detection] = {m: d.detect(frame.image) for m, d in detectors.items()}
+        detect_ms, _ = best_of(partial(detectors["subpix"].detect, frame.image))
+        refine_ms, refined = best_of(partial(refine_detection, frame.image, detections["subpix"], sim.camera))
+        detections["monodock"] = refined
+        records.append(
+            {
+                "chunk": chunk,
+                "frame": k,
+                "role": None,
+                "detect_ms": detect_ms,
+                "refine_ms": refine_ms,
+                "markers": len(refined.observations),
+            }
+        )
         for role in ROLES:
             if not frame.truth.in_view[role]:
                 continue
@@ -93,6 +141,7 @@ def run_chunk(task: tuple[int, int, int]) -> list[dict[str, Any]]:
                     "err": err.tolist(),
                     "outward": np.sum(err * outward, axis=1).tolist(),
                     "perp": np.sum(err * perp, axis=1).tolist(),
+                    "kept": role in det.unrefined,
                 }
             records.append(rec)
     return records
@@ -126,6 +175,7 @@ def _stats(records: list[dict[str, Any]], method: str, gross: float) -> dict[str
         "outward_rms": safe(lambda a: np.sqrt(np.mean(a**2)), out),
         "perp_mean": safe(np.mean, perp),
         "perp_rms": safe(lambda a: np.sqrt(np.mean(a**2)), perp),
+        "kept": sum(bool(m.get("kept")) for m in found),
     }
 
 
@@ -140,6 +190,7 @@ def _row(label: list[str], s: dict[str, float]) -> list[str]:
         fmt(s["outward_rms"], 3),
         fmt(s["perp_mean"], 3),
         str(s["gross"]),
+        str(s["kept"]) if label[-1] == "monodock" else "",
     ]
 
 
@@ -152,31 +203,74 @@ COLUMNS = [
     "outward RMS px",
     "perp. mean px",
     "gross",
+    "kept OpenCV's",
 ]
+
+
+def _ms_stats(values: list[float]) -> dict[str, float]:
+    a = np.asarray(values, dtype=np.float64)
+    if not a.size:
+        return {"frames": 0, "median": float("nan"), "p90": float("nan")}
+    return {"frames": int(a.size), "median": float(np.median(a)), "p90": float(np.percentile(a, 90))}
 
 
 def main(argv: list[str] | None = None) -> int:
     p = bench_parser(__doc__, frames=200, frames_help="random poses to render", seed=0)
     p.add_argument("--gross", type=float, default=3.0, help="corner errors above this (px) are mis-detections")
+    p.add_argument(
+        "--nuisances",
+        choices=("clean", "default"),
+        default="clean",
+        help="clean renders or Nuisances() (default clean)",
+    )
+    p.add_argument("--defocus", type=float, metavar="PX", help="Gaussian lens blur sigma, px (overrides)")
+    p.add_argument("--motion-blur", type=float, metavar="PX", help="motion streak length, px (overrides)")
     args = p.parse_args(argv)
+    for name in ("defocus", "motion_blur"):
+        value = getattr(args, name)
+        if value is not None and not (np.isfinite(value) and value >= 0):
+            p.error(f"--{name.replace('_', '-')} must be a non-negative number of pixels, got {value}")
+    nuisances = nuisances_of(args.nuisances, args.defocus, args.motion_blur)
 
-    records: list[dict[str, Any]] = simulate_chunks(run_chunk, args, "corner_accuracy", CHUNK)
+    tasks = [(args.seed, c, n, nuisances) for c, n in chunks(args.frames, CHUNK)]
+    everything: list[dict[str, Any]] = []
+    for part in parallel_map(run_chunk, tasks, lambda t: t[2], workers=args.workers, desc="corner_accuracy"):
+        everything += part
+    timing = [r for r in everything if r["role"] is None]
+    records = [r for r in everything if r["role"] is not None]
 
     overall = {m: _stats(records, m, args.gross) for m in METHODS}
     by_band: dict[str, dict[str, dict[str, float]]] = {}
     for name, lo, hi in BANDS:
         sel = [r for r in records if lo <= r["side_px"] < hi]
         by_band[name] = {m: _stats(sel, m, args.gross) for m in METHODS}
+    # Cost on frames with all three markers (the refiner's work grows with the markers seen).
+    full = [r for r in timing if r["markers"] == 3]
+    cost = {
+        "detect_ms": _ms_stats([r["detect_ms"] for r in full]),
+        "refine_ms": _ms_stats([r["refine_ms"] for r in full]),
+    }
+    ratio = cost["refine_ms"]["median"] / cost["detect_ms"]["median"] if full else float("nan")
 
+    blur = []
+    if args.defocus is not None:
+        blur.append(f"--defocus {args.defocus:g}")
+    if args.motion_blur is not None:
+        blur.append(f"--motion-blur {args.motion_blur:g}")
+    what = "clean renders" if args.nuisances == "clean" else "default nuisances"
+    if blur:
+        what += f", defocus {nuisances.defocus_px:g} px, motion blur {nuisances.motion_blur_px:g} px"
     env = environment()
     lines = [
-        "### Corner accuracy: OpenCV ArUco vs the simulator's true corners (clean renders)",
+        f"### Corner accuracy: OpenCV ArUco and monodock's refiner vs the simulator's true corners ({what})",
         "",
-        f"`python bench/corner_accuracy.py --frames {args.frames} --seed {args.seed}` — "
+        f"`python bench/corner_accuracy.py --frames {args.frames} --seed {args.seed} --nuisances {args.nuisances}"
+        f"{''.join(' ' + b for b in blur)}` — "
         f"{env['date_utc']} UTC, OpenCV {env['opencv']}, "
         f"{len(records)} in-view dock markers in {args.frames} frames. "
         "Outward = along the true centre→corner direction (negative: inside the marker); "
-        f"corners > {args.gross:g} px off are counted as gross and left out.",
+        f"corners > {args.gross:g} px off are counted as gross and left out. "
+        'monodock = refine_detection on the subpix detection; "kept OpenCV\'s" = markers it could not refine.',
         "",
         markdown_table(["refinement", *COLUMNS], [_row([m], overall[m]) for m in METHODS]),
         "",
@@ -187,15 +281,41 @@ def main(argv: list[str] | None = None) -> int:
             [_row([name, m], by_band[name][m]) for name, _, _ in BANDS for m in METHODS],
             "ll" + "r" * len(COLUMNS),
         ),
+        "",
+        f"Cost per frame with 3 markers detected ({cost['detect_ms']['frames']} frames; in the render workers, "
+        "one thread each, best of 3 calls, same frames):",
+        "",
+        markdown_table(
+            ["stage", "frames", "median ms", "p90 ms"],
+            [
+                [
+                    "detection (MarkerDetector.detect, subpix)",
+                    str(cost["detect_ms"]["frames"]),
+                    fmt(cost["detect_ms"]["median"], 3),
+                    fmt(cost["detect_ms"]["p90"], 3),
+                ],
+                [
+                    "refine_detection",
+                    str(cost["refine_ms"]["frames"]),
+                    fmt(cost["refine_ms"]["median"], 3),
+                    fmt(cost["refine_ms"]["p90"], 3),
+                ],
+                ["refine / detection (medians)", "", fmt(ratio, 3), ""],
+            ],
+        ),
     ]
     report = "\n".join(lines)
     raw = {
         "benchmark": "corner_accuracy",
         "args": vars(args),
+        "nuisances": {k: getattr(nuisances, k) for k in ("defocus_px", "motion_blur_px", "read_noise", "clutter")},
         "environment": env,
         "overall": overall,
         "by_side_band": by_band,
+        "cost": cost,
+        "refine_over_detect": ratio,
         "records": records,
+        "timing": timing,
     }
     emit(report, raw, args.out)
     return 0

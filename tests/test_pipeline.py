@@ -105,6 +105,25 @@ def test_estimate_with_the_bundle_against_truth(work: Path) -> None:
     assert np.mean(np.abs(dyaw)) < 8.0
 
 
+def test_fused_estimates_carry_a_covariance_that_covers_the_truth(work: Path) -> None:
+    est = work / "est_fused.csv"
+    args = ["estimate", "--model", str(work / "bundle"), "--method", "fused", str(work / "test_rec"), "--out", str(est)]
+    assert main(args) == 0
+    truth = _truth(work, "test_rec")
+    rows = [r for r in csv.DictReader(est.open()) if r["valid"] == "true"]
+    assert len(rows) >= 36
+    z = []
+    for r in rows:
+        t = truth[f"{float(r['stamp']):.6f}"]
+        assert r["method"] == "fused"
+        sd = [math.sqrt(float(r[c])) for c in ("cov_xx", "cov_yy", "cov_yawyaw")]
+        assert all(0 < v < 0.05 for v in sd[:2]) and 0 < sd[2] < math.radians(5)
+        err = (float(r["x_m"]) - t[0], float(r["y_m"]) - t[1], math.radians(float(r["yaw_deg"]) - t[2]))
+        z += [e / s for e, s in zip(err, sd, strict=True)]
+    # Normalised errors: neither wildly over- nor under-confident (the truth is not what trained the tables).
+    assert 0.2 < float(np.sqrt(np.mean(np.square(z)))) < 5.0
+
+
 def test_evaluate_writes_the_tables_and_compares_every_method(work: Path) -> None:
     out = work / "eval"
     assert main(["evaluate", str(work / "test_rec"), "--model", str(work / "bundle"), "--out", str(out)]) == 0
@@ -119,8 +138,12 @@ def test_evaluate_writes_the_tables_and_compares_every_method(work: Path) -> Non
         assert (out / name).is_file(), name
     summary = json.loads((out / "summary.json").read_text())
     truth = summary["against_truth"]
-    assert set(truth) == {"regression", "pnp", "board"}
+    assert set(truth) == {"regression", "pnp", "board", "fused"}
     assert truth["board"]["depth_mae_cm"] < 3.0
+    # Bias-free corners and the planar fit: the fused depth and yaw beat board PnP's against the truth.
+    assert truth["fused"]["valid"] >= truth["board"]["valid"] - 1
+    assert truth["fused"]["depth_mae_cm"] < 0.7 * truth["board"]["depth_mae_cm"]
+    assert truth["fused"]["yaw_mae_deg"] < truth["board"]["yaw_mae_deg"]
     # The papers' failure: PnP told a marker 5 % too big reads every depth ~5 % too far.
     study = {(r["quantity"], r["factor"], r["method"]): r for r in summary["miscalibration"]}
     assert study[("marker size", 1.05, "pnp")]["depth_bias_pct"] == pytest.approx(5.0, abs=1.5)

@@ -56,8 +56,19 @@ __all__ = [
 ]
 
 DATASET_SCHEMA = "monodock.dataset/2"
-# Schema 1 lacked the refined corners and is otherwise the same.
+# Schema 1 lacked the refined corners and the whole-face line (its label_yaw_deg is the marker-2 line's); it
+# reads with those columns NaN.
 _READABLE_SCHEMAS = ("monodock.dataset/1", DATASET_SCHEMA)
+_NEW_IN_SCHEMA_2 = (
+    *REFINED_CORNER_NAMES,
+    "label_yaw_marker_deg",
+    "label_y_marker_m",
+    "label_x_line_marker_m",
+    "label_face_points",
+    "label_face_span_m",
+    "label_face_rms_m",
+    "label_face_rejected",
+)
 TRUTH_COLUMNS = ("truth_x_m", "truth_y_m", "truth_yaw_deg")
 _FRAME_COLUMNS = ("frame", "image_stamp", "scan_stamp", "paired", "markers_seen")
 
@@ -68,7 +79,7 @@ def dataset_columns() -> tuple[str, ...]:
 
 
 _BOOL = {"paired", "label_valid"}
-_INT = {"frame", "label_points"}
+_INT = {"frame", "label_points", "label_face_points", "label_face_rejected"}
 _STR = {"markers_seen", "label_reason"}
 
 
@@ -147,14 +158,14 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
     meta = json.loads(raw_meta)
     if meta.get("schema") not in _READABLE_SCHEMAS:
         raise InputError(f"{p}: dataset schema {meta.get('schema')!r}, this monodock reads {DATASET_SCHEMA!r}")
-    optional = REFINED_CORNER_NAMES if meta.get("schema") != DATASET_SCHEMA else ()
+    optional = _NEW_IN_SCHEMA_2 if meta.get("schema") != DATASET_SCHEMA else ()
     missing = [n for n in dataset_columns() if n not in table.column_names and n not in optional]
     if missing:
         raise InputError(f"{p}: dataset lacks columns {', '.join(missing[:5])}{' …' if len(missing) > 5 else ''}")
     cols: dict[str, NDArray[Any]] = {}
     for n in dataset_columns():
         if n not in table.column_names:
-            cols[n] = np.full(table.num_rows, np.nan)
+            cols[n] = np.full(table.num_rows, -1 if n in _INT else np.nan, dtype=np.int64 if n in _INT else np.float64)
             continue
         col = table.column(n)
         if n in _STR:
@@ -245,8 +256,13 @@ def label_frames(
         elif scan is None:
             lab = LidarLabel(reason="no scan within the pairing tolerance")
         else:
-            m2 = raw[[FEATURE_NAMES.index(f"m2_{c}_{a}") for c in ("tl", "tr", "br", "bl") for a in ("u", "v")]]
-            lab = label_frame(m2.reshape(4, 2), scan, camera, robot)
+            corners = {
+                m: raw[[FEATURE_NAMES.index(f"{m}_{c}_{a}") for c in ("tl", "tr", "br", "bl") for a in ("u", "v")]]
+                for m in seen.split()
+            }
+            # The side markers' returns seed the face line too (they help when an occluder hides marker 2's).
+            others = [c.reshape(4, 2) for m, c in corners.items() if m != "m2"]
+            lab = label_frame(corners["m2"].reshape(4, 2), scan, camera, robot, other_corners=others)
         if lab.valid:
             run.labelled += 1
         else:
@@ -293,11 +309,8 @@ def label_recording(
     from tqdm import tqdm
 
     from monodock.detect import MarkerDetector, as_gray
-    try:  # TEMP until refine.py lands
-        from monodock.refine import refine_detection
-    except ImportError:
-        refine_detection = None  # type: ignore[assignment]
     from monodock.recording import open_recording, pair_nearest
+    from monodock.refine import refine_detection
 
     if not (tolerance_s > 0 and math.isfinite(tolerance_s)):
         raise InputError(f"pairing tolerance must be a positive number of seconds, got {tolerance_s}")
@@ -340,7 +353,7 @@ def label_recording(
             gray = as_gray(f.image)
             det = detector.detect(gray)
             frames.append((int(f.name), f.stamp, feature_vector(det, cam), ""))
-            refined.append(refined_vector(refine_detection(gray, det, cam)) if refine_detection else None)  # TEMP
+            refined.append(refined_vector(refine_detection(gray, det, cam, modules=layout.modules)))
         bar.close()
         refined += [None] * (len(frames) - len(refined))
         warnings = list(rec.warnings)

@@ -32,11 +32,15 @@ class MarkerObservation:
 
 @dataclass(frozen=True)
 class Detection:
-    """The dock markers found in one image, and the ids seen that the dock does not carry."""
+    """The dock markers found in one image, and the ids seen that the dock does not carry.
+
+    ``unrefined`` lists the roles whose corners ``monodock.refine`` could not refine and are still OpenCV's.
+    """
 
     observations: dict[str, MarkerObservation]
     ignored_ids: tuple[int, ...]
     image_size: tuple[int, int]
+    unrefined: tuple[str, ...] = ()
 
     def seen(self, role: str) -> bool:
         return role in self.observations

@@ -86,6 +86,7 @@ class Estimator:
         self.camera, self.layout, self.robot = camera, layout, robot
         self.methods = tuple(methods)
         self.detector = MarkerDetector(layout, refinement=refinement)
+        self.modules = layout.modules
 
     def check_image(self, image: NDArray[np.generic], name: str) -> None:
         """InputError when the image's size is not the calibrated camera's."""
@@ -105,7 +106,7 @@ class Estimator:
             if m == "fused" and self.fused is not None:
                 from monodock.refine import refine_detection
 
-                refined = refine_detection(gray, det, self.camera)
+                refined = refine_detection(gray, det, self.camera, modules=self.modules)
                 reg = ests.get("regression")
                 if reg is None and self.fused.regression is not None:
                     reg = self.fused.regression.estimate(det)

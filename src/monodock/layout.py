@@ -152,6 +152,11 @@ class DockLayout:
         """The OpenCV dictionary object."""
         return cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
 
+    @property
+    def modules(self) -> int:
+        """A marker's width in cells, its one-cell black border included (6 for a 4x4 dictionary)."""
+        return int(self.aruco_dictionary().markerSize) + 2
+
     def marker_bits(self, marker_id: int) -> NDArray[np.uint8]:
         """The marker's cells including its one-cell black border: 0 black, 1 white, shape (n+2, n+2)."""
         d = self.aruco_dictionary()
