@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -138,47 +138,65 @@ def three_cornered_hat(
 class Correction:
     """The geometry's calibration residual, learned from the LiDAR labels (identity when calibrated).
 
-    x' = x_scale * x + x_offset;  y' = y_scale * y + y_per_x * x + y_offset;  yaw' = yaw + yaw_offset.
-    A marker size or focal length that is off scales x; a camera mount off in yaw turns (x, y) and shifts yaw;
-    a mount off in x or y shifts them.
+    A physical model, about the camera's position (pivot_x, pivot_y) in base_link: the estimate is turned by
+    ``yaw_offset`` about the camera (a camera mount off in yaw turns everything the camera sees), then its
+    offsets from the camera are scaled (a marker size or focal length that is off scales the distance) and
+    shifted (a mount off in x or y):
+
+        (x, y) <- pivot + R(yaw_offset) (x - pivot, y - pivot);  yaw <- yaw + yaw_offset
+        x <- pivot_x + x_scale (x - pivot_x) + x_offset;  y <- pivot_y + y_scale (y - pivot_y) + y_offset
     """
 
     x_scale: float = 1.0
     x_offset: float = 0.0
     y_scale: float = 1.0
-    y_per_x: float = 0.0
     y_offset: float = 0.0
     yaw_offset: float = 0.0
+    pivot_x: float = 0.0
+    pivot_y: float = 0.0
 
-    def apply(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Corrected (x, y, yaw) rows (or one row)."""
-        v = np.asarray(v, dtype=np.float64)
-        out = v.copy()
-        out[..., 0] = self.x_scale * v[..., 0] + self.x_offset
-        out[..., 1] = self.y_scale * v[..., 1] + self.y_per_x * v[..., 0] + self.y_offset
+    def _turned(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        c, s = math.cos(self.yaw_offset), math.sin(self.yaw_offset)
+        out = np.array(v, dtype=np.float64, copy=True)
+        dx, dy = v[..., 0] - self.pivot_x, v[..., 1] - self.pivot_y
+        out[..., 0] = self.pivot_x + c * dx - s * dy
+        out[..., 1] = self.pivot_y + s * dx + c * dy
         out[..., 2] = (v[..., 2] + self.yaw_offset + math.pi) % (2 * math.pi) - math.pi
         return out
 
+    def apply(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Corrected (x, y, yaw) rows (or one row)."""
+        out = self._turned(np.asarray(v, dtype=np.float64))
+        out[..., 0] = self.pivot_x + self.x_scale * (out[..., 0] - self.pivot_x) + self.x_offset
+        out[..., 1] = self.pivot_y + self.y_scale * (out[..., 1] - self.pivot_y) + self.y_offset
+        return out
+
     def jacobian(self) -> NDArray[np.float64]:
-        return np.array([[self.x_scale, 0.0, 0.0], [self.y_per_x, self.y_scale, 0.0], [0.0, 0.0, 1.0]])
+        """d(corrected)/d(estimate), to carry a covariance through the correction."""
+        c, s = math.cos(self.yaw_offset), math.sin(self.yaw_offset)
+        turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return np.asarray(np.diag([self.x_scale, self.y_scale, 1.0]) @ turn, dtype=np.float64)
 
     @classmethod
-    def fit(cls, geometry: NDArray[np.float64], labels: NDArray[np.float64]) -> Correction:
-        """Least squares of the labels on the geometry, twice, leaving out rows beyond 4 robust sigmas."""
+    def fit(
+        cls, geometry: NDArray[np.float64], labels: NDArray[np.float64], pivot: tuple[float, float] = (0.0, 0.0)
+    ) -> Correction:
+        """The yaw offset (median), then the scales and offsets (least squares), three times over, each time
+        leaving out rows beyond 4 robust sigmas. Fewer than 20 rows: the identity."""
         ok = np.all(np.isfinite(geometry), axis=1) & np.all(np.isfinite(labels), axis=1)
         g, lab = geometry[ok], labels[ok]
         if len(g) < 20:
-            return cls()
+            return cls(pivot_x=pivot[0], pivot_y=pivot[1])
         keep = np.ones(len(g), dtype=bool)
-        coef_x = coef_y = np.zeros(0)
-        yaw_off = 0.0
+        c = cls(pivot_x=pivot[0], pivot_y=pivot[1])
         for _ in range(3):
-            ax = np.column_stack([g[keep, 0], np.ones(keep.sum())])
-            coef_x = np.linalg.lstsq(ax, lab[keep, 0], rcond=None)[0]
-            ay = np.column_stack([g[keep, 1], g[keep, 0], np.ones(keep.sum())])
-            coef_y = np.linalg.lstsq(ay, lab[keep, 1], rcond=None)[0]
             yaw_off = float(np.median(_difference(lab[keep], g[keep])[:, 2]))
-            c = cls(float(coef_x[0]), float(coef_x[1]), float(coef_y[0]), float(coef_y[1]), float(coef_y[2]), yaw_off)
+            turned = replace(c, yaw_offset=yaw_off, x_scale=1.0, x_offset=0.0, y_scale=1.0, y_offset=0.0).apply(g)
+            coef = []
+            for k, p in ((0, pivot[0]), (1, pivot[1])):
+                a = np.column_stack([turned[keep, k] - p, np.ones(keep.sum())])
+                coef.append(np.linalg.lstsq(a, lab[keep, k] - p, rcond=None)[0])
+            c = cls(float(coef[0][0]), float(coef[0][1]), float(coef[1][0]), float(coef[1][1]), yaw_off, *pivot)
             r = _difference(lab, c.apply(g))
             mad = np.median(np.abs(r - np.median(r, axis=0)), axis=0) * 1.4826 + 1e-12
             keep = np.all(np.abs(r) <= 4 * mad, axis=1)
@@ -325,13 +343,14 @@ def corner_sigma_from_residuals(residual_sigma: NDArray[np.float64], side_px: ND
     return float(np.median(residual_sigma[ok] * np.sqrt(side_px[ok])))
 
 
-def learn_tables(rows: TrainingRows, corner_sigma: float) -> FusionTables:
-    """The fusion tables from held-out rows (see the module docstring)."""
+def learn_tables(rows: TrainingRows, corner_sigma: float, pivot: tuple[float, float] = (0.0, 0.0)) -> FusionTables:
+    """The fusion tables from held-out rows (see the module docstring); ``pivot`` is the camera's position
+    in base_link, about which a calibration error turns and scales what the camera sees."""
     bands = np.array([band_index(float(d)) if math.isfinite(d) else -1 for d in rows.depth_from_camera])
     labelled = np.all(np.isfinite(rows.labels), axis=1)
     geo_ok = np.all(np.isfinite(rows.geometry), axis=1) & labelled
     reg_ok = np.all(np.isfinite(rows.regression), axis=1) & labelled
-    correction = Correction.fit(rows.geometry[geo_ok], rows.labels[geo_ok])
+    correction = Correction.fit(rows.geometry[geo_ok], rows.labels[geo_ok], pivot)
     geometry = correction.apply(rows.geometry)
     cj = correction.jacobian()
     gcov = np.einsum("ij,njk,lk->nil", cj, rows.geometry_cov, cj)
@@ -578,11 +597,11 @@ def training_rows(
     return TrainingRows(geo, gcov, gset, resid, side, reg, rset, labels[rows], depth)
 
 
-def learn_fusion(rows: TrainingRows) -> FusionTables:
+def learn_fusion(rows: TrainingRows, robot: RobotConfig) -> FusionTables:
     """The tables from held-out rows: the corner noise first, then everything that depends on it."""
     c = corner_sigma_from_residuals(rows.residual_sigma, rows.side_px)
     scaled = TrainingRows(**{**rows.__dict__, "geometry_cov": rows.geometry_cov * (c / _GUESS_SIGMA) ** 2})
-    return learn_tables(scaled, c)
+    return learn_tables(scaled, c, (robot.camera_mount.x, robot.camera_mount.y))
 
 
 def train_fusion(
@@ -602,7 +621,7 @@ def train_fusion(
     layout, robot = dataset.layout(), dataset.robot()
     regression = RegressionEstimator(bundle, camera, robot)
     rows = training_rows(dataset, regression, camera, layout, robot, np.flatnonzero(holdout))
-    tables = learn_fusion(rows)
+    tables = learn_fusion(rows, robot)
     update_bundle_metadata(bundle_path, "fusion", tables.to_dict())
     return tables
 

@@ -1,0 +1,128 @@
+"""The fused estimator: its statistics against synthetic ground truth, and on simulated frames against the truth."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from monodock.errors import InputError
+from monodock.fused import (
+    Correction,
+    FusionTables,
+    band_index,
+    fuse_gaussians,
+    fusion_holdout,
+    three_cornered_hat,
+)
+
+
+def _draw(rng: np.random.Generator, cov: np.ndarray, n: int) -> np.ndarray:
+    return rng.multivariate_normal(np.zeros(3), cov, size=n)
+
+
+def test_three_cornered_hat_separates_the_reference_noise_from_both_methods() -> None:
+    rng = np.random.default_rng(0)
+    n = 20000
+    cov_a = np.diag([0.002**2, 0.001**2, math.radians(0.1) ** 2])
+    cov_b = np.array([[0.006**2, 0.3 * 0.006 * 0.003, 0], [0.3 * 0.006 * 0.003, 0.003**2, 0], [0, 0, 0.03**2]])
+    cov_ref = np.diag([0.004**2, 0.002**2, math.radians(0.4) ** 2])
+    truth = np.zeros((n, 3))
+    a, b, ref = truth + _draw(rng, cov_a, n), truth + _draw(rng, cov_b, n), truth + _draw(rng, cov_ref, n)
+    got_a, got_b, got_ref = three_cornered_hat(a - ref, b - ref)
+    for got, want in ((got_a, cov_a), (got_b, cov_b), (got_ref, cov_ref)):
+        np.testing.assert_allclose(np.sqrt(np.diag(got)), np.sqrt(np.diag(want)), rtol=0.12)
+    # Without the hat, method a's variance would be swamped by the reference's (4x its own).
+    assert np.cov(a - ref, rowvar=False)[0, 0] > 4 * cov_a[0, 0]
+
+
+def test_three_cornered_hat_ignores_a_few_gross_rows() -> None:
+    rng = np.random.default_rng(1)
+    n = 3000
+    cov = np.diag([0.003**2, 0.003**2, 0.01**2])
+    a, b, ref = (_draw(rng, cov, n) for _ in range(3))
+    a[:15] += 0.5  # mislabelled rows
+    got_a, _, _ = three_cornered_hat(a - ref, b - ref)
+    assert math.sqrt(got_a[0, 0]) == pytest.approx(0.003, rel=0.15)
+
+
+def test_fusing_two_independent_estimates_beats_both_by_the_expected_amount() -> None:
+    rng = np.random.default_rng(2)
+    n = 4000
+    truth = np.column_stack([rng.uniform(0.5, 2.5, n), rng.uniform(-0.3, 0.3, n), rng.uniform(-3.1, 3.1, n)])
+    cov_g = np.diag([0.002**2, 0.004**2, 0.02**2])
+    cov_r = np.diag([0.004**2, 0.002**2, 0.02**2])
+    g = truth + _draw(rng, cov_g, n)
+    r = truth + _draw(rng, cov_r, n)
+    fused = np.array([fuse_gaussians([g[i], r[i]], [cov_g, cov_r])[0] for i in range(n)])
+    err = fused - truth
+    err[:, 2] = (err[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    want = np.sqrt(1 / (1 / np.diag(cov_g) + 1 / np.diag(cov_r)))
+    np.testing.assert_allclose(err.std(axis=0), want, rtol=0.06)
+    _, cov = fuse_gaussians([g[0], r[0]], [cov_g, cov_r])
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), want, rtol=1e-9)
+    # Yaws near ±pi average across the seam, not to 0.
+    mean, _ = fuse_gaussians([np.array([1, 0, math.pi - 0.01]), np.array([1, 0, -math.pi + 0.01])], [cov_g, cov_g])
+    assert abs(abs(mean[2]) - math.pi) < 1e-9
+
+
+def test_the_correction_undoes_a_miscalibrated_camera() -> None:
+    """A mount turned 1 degree and a marker 5 % larger than declared: the learned correction recovers the truth."""
+    rng = np.random.default_rng(3)
+    n = 600
+    pivot = (0.17, 0.02)
+    truth = np.column_stack([rng.uniform(0.45, 2.7, n), rng.uniform(-0.4, 0.4, n), np.radians(rng.uniform(-30, 30, n))])
+    wrong = Correction(
+        x_scale=1 / 1.05, y_scale=1 / 1.05, yaw_offset=math.radians(1.0), pivot_x=pivot[0], pivot_y=pivot[1]
+    )
+    geometry = wrong.apply(truth) + _draw(rng, np.diag([0.001**2, 0.001**2, 0.002**2]), n)
+    labels = truth + _draw(rng, np.diag([0.003**2, 0.002**2, math.radians(0.4) ** 2]), n)
+    labels[:10, 0] += 0.3  # a few bad labels
+    c = Correction.fit(geometry, labels, pivot)
+    err = c.apply(geometry) - truth
+    assert np.abs(err[:, 0]).mean() < 0.002
+    assert np.abs(err[:, 1]).mean() < 0.002
+    assert math.degrees(np.abs(err[:, 2]).mean()) < 0.15
+    before = geometry - truth
+    assert np.abs(before[:, 0]).mean() > 0.03  # what the correction removed
+    # Calibrated: the identity, give or take the label noise.
+    c0 = Correction.fit(truth + _draw(rng, np.diag([1e-6, 1e-6, 1e-6]), n), labels, pivot)
+    assert c0.x_scale == pytest.approx(1.0, abs=0.003)
+    assert abs(math.degrees(c0.yaw_offset)) < 0.05
+    assert Correction.fit(geometry[:5], labels[:5], pivot) == Correction(pivot_x=pivot[0], pivot_y=pivot[1])
+
+
+def test_tables_round_trip_and_refuse_malformed_input() -> None:
+    cov = np.diag([1e-5, 2e-5, 3e-4])
+    t = FusionTables(
+        0.7,
+        Correction(1.01, 0.001, 0.99, -0.002, 0.01, 0.17, 0.0),
+        {"m1m2m3": [1.0] * 9},
+        {"m2": [cov] * 8 + [None]},
+        [cov] * 9,
+        {"m2": 100},
+    )
+    again = FusionTables.from_dict(t.to_dict(), "test")
+    assert again.correction == t.correction
+    got = again.regression_covariance("m2", 8)
+    assert got is not None
+    np.testing.assert_array_equal(got, cov)  # the nearest band that has one
+    assert again.regression_covariance("m1m2m3", 0) is None
+    bad = t.to_dict()
+    bad["schema"] = "monodock.fusion/0"
+    with pytest.raises(InputError, match="schema"):
+        FusionTables.from_dict(bad, "b")
+    bad = t.to_dict()
+    bad["regression_cov"]["m2"][0] = [[1, 0], [0, 1]]
+    with pytest.raises(InputError, match="malformed"):
+        FusionTables.from_dict(bad, "b")
+
+
+def test_bands_and_holdout() -> None:
+    assert [band_index(d) for d in (0.10, 0.26, 0.51, 3.0)] == [0, 0, 1, 8]
+    m = fusion_holdout(1000, 0.1, seed=4)
+    assert m.sum() == 100
+    np.testing.assert_array_equal(m, fusion_holdout(1000, 0.1, seed=4))
+    with pytest.raises(InputError):
+        fusion_holdout(10, 1.5)
