@@ -1,0 +1,554 @@
+"""Maximum-likelihood planar PnP: the DockPose (x, y, yaw) that best explains the markers' corner pixels.
+
+The robot stands on the floor and the camera mount is known, so the dock has three degrees of freedom in
+base_link, not six. Fitting those three directly, through the real lens, is the efficient estimator for
+Gaussian corner noise (its covariance reaches the Cramér–Rao bound of ``monodock.crlb``) and it cannot
+tilt the dock off the floor, which is where 6-DoF PnP goes wrong on small, far markers.
+
+Model: a corner p (dock frame) lands at P = optical_T_base · base_T_dock(x, y, yaw) · p in the optical frame
+and at pixel π(P) through the lens. ``cv2.projectPoints(P, 0, 0, K, dist)`` returns dπ/dtvec per point,
+which with a zero pose is dπ/dP; the chain rule with dP/d(x, y, yaw) gives the analytic Jacobian.
+
+A lone small marker seen from afar has two planar minima (the yaw sign ambiguity of weak perspective):
+``planar_candidates`` starts from both IPPE solutions and returns every distinct local minimum with its cost.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from monodock import transforms
+from monodock.camera import CameraModel
+from monodock.errors import InputError
+from monodock.layout import ROLES, DockLayout
+from monodock.pose import DockPose, wrap_angle
+from monodock.robot import RobotConfig
+
+__all__ = [
+    "DEFAULT_CORNER_SIGMA_PX",
+    "PlanarFit",
+    "PlanarModel",
+    "PosePrior",
+    "planar_candidates",
+    "planar_model",
+    "solve_planar",
+]
+
+# One iid corner sigma for every marker size, on the conservative side: the random part of OpenCV's SUBPIX
+# corners on the simulator's default frames is ~0.05-0.1 px per axis on markers over ~31 px and ~0.46 px on
+# smaller ones (bench/crlb_whatif.py --measure-c); crlb.CornerNoise gives per-corner values to pass instead.
+DEFAULT_CORNER_SIGMA_PX = 0.3
+# Points closer to the camera plane than this (metres, optical z) make a pose invalid.
+_MIN_DEPTH = 1e-3
+_ZERO3 = np.zeros(3)
+# Converged when the next step would lower the cost (χ²) by less than this: a step of 1e-3 standard deviations.
+_CHI2_TOLERANCE = 1e-6
+# Two starts closer than this (metres and radians) are one.
+_SAME_START = 0.01
+# Two converged minima closer than this (metres and radians) are the same one.
+_SAME_MINIMUM = 1e-4
+
+
+@dataclass(frozen=True)
+class PosePrior:
+    """A Gaussian prior on the DockPose: mean and 3x3 covariance of (x m, y m, yaw rad).
+
+    Used to pull the fit towards another estimate (e.g. the regression's) where the corners say little.
+    """
+
+    mean: DockPose
+    covariance: NDArray[np.float64] = field(repr=False)
+
+    def information(self) -> NDArray[np.float64]:
+        """The inverse covariance; raises InputError unless the covariance is symmetric positive definite."""
+        c = np.asarray(self.covariance, dtype=np.float64)
+        if c.shape != (3, 3) or not np.all(np.isfinite(c)) or not np.allclose(c, c.T, rtol=1e-9, atol=0.0):
+            raise InputError("prior covariance must be a finite symmetric 3x3 matrix")
+        try:
+            np.linalg.cholesky(c)
+        except np.linalg.LinAlgError:
+            raise InputError("prior covariance must be positive definite") from None
+        return np.asarray(np.linalg.inv(c), dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class PlanarFit:
+    """The result of one planar fit.
+
+    Attributes:
+        pose: the DockPose at the minimum (yaw wrapped into [-pi, pi)).
+        covariance: 3x3 covariance of (x m, y m, yaw rad) for the given corner noise: (JᵀWJ + Λ)⁻¹, with W
+            the inverse corner covariance and Λ the prior's information (0 without a prior).
+        covariance_from_residuals: the same with the corner noise scaled by ``noise_scale`` as the residuals
+            measure it: (JᵀWJ / s² + Λ)⁻¹.
+        noise_scale: s = sqrt(χ² / (2N − 3)), the residuals' size relative to the given corner noise
+            (≈ 1 when the given sigma is right; NaN with fewer than 2 corners).
+        rms_px: RMS reprojection error of the corners (per corner, 2D distance), pixels.
+        cost: χ² of the whitened corner residuals plus the prior's Mahalanobis term.
+        iterations: projections evaluated.
+        converged: whether the last step was below the tolerance.
+        roles: the markers used, in the order their corners were stacked.
+    """
+
+    pose: DockPose
+    covariance: NDArray[np.float64] = field(repr=False)
+    covariance_from_residuals: NDArray[np.float64] = field(repr=False)
+    noise_scale: float
+    rms_px: float
+    cost: float
+    iterations: int
+    converged: bool
+    roles: tuple[str, ...] = ()
+
+    def sd(self) -> tuple[float, float, float]:
+        """Standard deviations of x (m), y (m) and yaw (rad) from ``covariance``."""
+        d = np.sqrt(np.diag(self.covariance))
+        return float(d[0]), float(d[1]), float(d[2])
+
+
+class PlanarModel:
+    """Projects the dock's corners for a planar DockPose, with the Jacobian; the fixed parts precomputed.
+
+    For a corner p and pose (x, y, yaw) with c = cos yaw, s = sin yaw, the optical-frame point is
+    P = c·U + s·V + W + x·a₀ + y·a₁ with U = p_x a₀ + p_y a₁, V = p_x a₁ − p_y a₀, W = p_z a₂ + t, where
+    (a₀ a₁ a₂ | t) = optical_T_base; and dP/dyaw = −s·U + c·V. Stacking [U V W a₀ a₁] per coordinate makes
+    both one small matrix product.
+
+    Args:
+        camera: the lens (matrix and distortion are used as they are).
+        layout: where the markers sit on the dock.
+        robot: the camera mount (``base_T_optical``).
+    """
+
+    def __init__(self, camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> None:
+        self.camera = camera
+        self.layout = layout
+        self.robot = robot
+        self._K = camera.matrix
+        self._dist = camera.dist
+        optical_T_base = transforms.invert(robot.base_T_optical())
+        self._A = np.ascontiguousarray(optical_T_base[:3, :3])
+        self._t = np.ascontiguousarray(optical_T_base[:3, 3])
+        self._parts: dict[tuple[str, ...], _Parts] = {}
+
+    def parts(self, roles: Sequence[str]) -> _Parts:
+        """The precomputed per-corner terms of these markers (cached per role tuple)."""
+        key = tuple(roles)
+        cached = self._parts.get(key)
+        if cached is None:
+            for r in key:
+                if r not in ROLES:
+                    raise InputError(f"unknown marker role '{r}' (expected {', '.join(ROLES)})")
+            if not key:
+                raise InputError("no marker roles given")
+            obj = np.concatenate([self.layout.corners_in_dock(r) for r in key])
+            a0, a1, a2 = self._A[:, 0], self._A[:, 1], self._A[:, 2]
+            n = len(obj)
+            U = np.outer(obj[:, 0], a0) + np.outer(obj[:, 1], a1)
+            V = np.outer(obj[:, 0], a1) - np.outer(obj[:, 1], a0)
+            W = np.outer(obj[:, 2], a2) + self._t
+            Z = np.stack([U.ravel(), V.ravel(), W.ravel(), np.tile(a0, n), np.tile(a1, n)], axis=1)
+            T = np.empty((n, 3, 3))
+            T[:, :, 0] = a0
+            T[:, :, 1] = a1
+            cached = _Parts(np.ascontiguousarray(Z), T, obj)
+            self._parts[key] = cached
+        return cached
+
+    def optical_points(self, pose: DockPose, roles: Sequence[str]) -> NDArray[np.float64]:
+        """The markers' corners in the optical frame at this pose, shape (4R, 3), in role order."""
+        PD = self.parts(roles).Z @ _coefficients(pose.x, pose.y, pose.yaw)
+        return np.ascontiguousarray(PD[:, 0].reshape(-1, 3))
+
+    def project(self, pose: DockPose, roles: Sequence[str]) -> NDArray[np.float64]:
+        """The corner pixels of these markers at this pose, through the lens, shape (4R, 2)."""
+        px, _ = cv2.projectPoints(self.optical_points(pose, roles), _ZERO3, _ZERO3, self._K, self._dist)
+        return np.asarray(px, dtype=np.float64).reshape(-1, 2)
+
+    def jacobian(self, pose: DockPose, roles: Sequence[str]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Corner pixels, shape (4R, 2), and their Jacobian w.r.t. (x, y, yaw), shape (8R, 3), rows u0, v0, u1, ...
+
+        Raises:
+            InputError: a corner is not in front of the camera.
+        """
+        parts = self.parts(roles)
+        X = self._design(pose.x, pose.y, pose.yaw, parts, None)
+        if X is None:
+            raise InputError("a marker corner is behind the camera at this pose")
+        return X[:, :, 3].copy(), X[:, :, :3].reshape(-1, 3).copy()
+
+    def _design(
+        self, x: float, y: float, yaw: float, parts: _Parts, img: NDArray[np.float64] | None
+    ) -> NDArray[np.float64] | None:
+        """[J | r] per corner, shape (N, 2, 4): the Jacobian rows and the residual (pixel − img), or the
+        pixels themselves when ``img`` is None; None when a point is not in front of the camera."""
+        PD = parts.Z @ _coefficients(x, y, yaw)
+        P = PD[:, 0].reshape(-1, 3)
+        if min(P[:, 2].tolist()) <= _MIN_DEPTH:
+            return None
+        px, jac = cv2.projectPoints(P, _ZERO3, _ZERO3, self._K, self._dist)
+        T = parts.T.copy()
+        T[:, :, 2] = PD[:, 1].reshape(-1, 3)
+        X = np.empty((len(T), 2, 4))
+        # With rvec = tvec = 0 the tvec columns of projectPoints' Jacobian are dπ/dP per point.
+        np.matmul(jac[:, 3:6].reshape(-1, 2, 3), T, out=X[:, :, :3])
+        X[:, :, 3] = px.reshape(-1, 2) if img is None else px.reshape(-1, 2) - img
+        return X
+
+
+@dataclass(frozen=True)
+class _Parts:
+    """Per-corner terms of a role set: Z (3N, 5) = [U V W a₀ a₁] per coordinate, T (N, 3, 3) with dP/dx,
+    dP/dy filled in (dP/dyaw goes in column 2), and the dock-frame points (N, 3)."""
+
+    Z: NDArray[np.float64]
+    T: NDArray[np.float64]
+    obj: NDArray[np.float64]
+
+
+def _coefficients(x: float, y: float, yaw: float) -> NDArray[np.float64]:
+    """Z @ this = [P, dP/dyaw] stacked per coordinate."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s], [s, c], [1.0, 0.0], [x, 0.0], [y, 0.0]])
+
+
+@functools.lru_cache(maxsize=16)
+def planar_model(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> PlanarModel:
+    """The (cached) PlanarModel of a camera, layout and robot."""
+    return PlanarModel(camera, layout, robot)
+
+
+# --- noise -------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Whitening:
+    """How to whiten corner residuals: by a scalar, per row (2N,), or by per-corner 2x2 matrices (N, 2, 2)."""
+
+    scalar: float = 1.0
+    rows: NDArray[np.float64] | None = None
+    blocks: NDArray[np.float64] | None = None
+
+    def normal(self, X: NDArray[np.float64]) -> list[list[float]]:
+        """[J | r]ᵀ W [J | r] as nested lists (4x4): JᵀWJ, JᵀWr and rᵀWr in one product."""
+        if self.blocks is not None:
+            Xw = np.matmul(self.blocks, X).reshape(-1, 4)
+        elif self.rows is not None:
+            Xw = X.reshape(-1, 4) * self.rows[:, None]
+        else:
+            Xf = X.reshape(-1, 4)
+            return (Xf.T @ Xf * self.scalar**2).tolist()  # type: ignore[no-any-return]
+        return (Xw.T @ Xw).tolist()  # type: ignore[no-any-return]
+
+
+def _whitening(corner_sigma: float | ArrayLike, n: int) -> _Whitening:
+    """Whitening of ``n`` corners' residuals from a sigma (px): scalar, per corner (n,), per axis (n, 2),
+    or a 2x2 covariance (px²) per corner (n, 2, 2)."""
+    if isinstance(corner_sigma, int | float):
+        s = float(corner_sigma)
+        if not (s > 0 and math.isfinite(s)):
+            raise InputError(f"corner sigma must be positive, got {corner_sigma}")
+        return _Whitening(scalar=1.0 / s)
+    a = np.asarray(corner_sigma, dtype=np.float64)
+    if a.ndim == 0:
+        return _whitening(float(a), n)
+    if a.shape == (n, 2, 2):
+        if not np.all(np.isfinite(a)) or not np.allclose(a, np.swapaxes(a, 1, 2)):
+            raise InputError("corner covariances must be finite symmetric 2x2 matrices")
+        try:
+            L = np.linalg.cholesky(a)
+        except np.linalg.LinAlgError:
+            raise InputError("corner covariances must be positive definite") from None
+        return _Whitening(blocks=np.ascontiguousarray(np.linalg.inv(L)))
+    if a.shape in ((n,), (n, 2)):
+        if not np.all(np.isfinite(a) & (a > 0)):
+            raise InputError("corner sigmas must be positive and finite")
+        rows = np.repeat(1.0 / a, 2) if a.ndim == 1 else (1.0 / a).reshape(-1)
+        return _Whitening(rows=np.ascontiguousarray(rows))
+    raise InputError(f"corner sigma must be a number or have shape ({n},), ({n}, 2) or ({n}, 2, 2), got {a.shape}")
+
+
+# --- the solver ----------------------------------------------------------------------------------------
+
+
+def _stack_corners(corners: Mapping[str, ArrayLike]) -> tuple[tuple[str, ...], NDArray[np.float64]]:
+    """Roles (in the layout's order) and their corner pixels stacked and flattened, shape (8R,)."""
+    roles = tuple(r for r in ROLES if r in corners)
+    if len(roles) != len(corners):
+        unknown = sorted(set(corners) - set(ROLES))
+        raise InputError(f"unknown marker role '{unknown[0]}' (expected {', '.join(ROLES)})")
+    if not roles:
+        raise InputError("no marker corners to fit")
+    parts = []
+    for r in roles:
+        c = np.asarray(corners[r], dtype=np.float64)
+        if c.size != 8:
+            raise InputError(f"marker {r}: expected 4 corners (4, 2), got shape {c.shape}")
+        parts.append(c.reshape(8))
+    img = np.concatenate(parts) if len(parts) > 1 else parts[0]
+    if not np.all(np.isfinite(img)):
+        raise InputError("corner pixels must be finite")
+    return roles, img
+
+
+def _theta(pose: DockPose) -> NDArray[np.float64]:
+    return np.array([pose.x, pose.y, pose.yaw], dtype=np.float64)
+
+
+def solve_planar(
+    corners: Mapping[str, ArrayLike],
+    camera: CameraModel,
+    layout: DockLayout,
+    robot: RobotConfig,
+    *,
+    start: DockPose,
+    corner_sigma: float | ArrayLike = DEFAULT_CORNER_SIGMA_PX,
+    prior: PosePrior | None = None,
+    max_iterations: int = 20,
+    tolerance: float = 1e-9,
+) -> PlanarFit:
+    """The maximum-likelihood (or, with a prior, maximum a posteriori) DockPose from marker corners.
+
+    Levenberg–Marquardt over (x, y, yaw) with the analytic Jacobian, from ``start``; one projection per
+    iteration, stopping when the next step is below a thousandth of the estimate's standard deviation
+    (δᵀHδ < 1e-6) or below ``tolerance`` (metres and radians).
+
+    Args:
+        corners: pixel corners per marker role, ArUco order (TL, TR, BR, BL), shape (4, 2) each; any subset.
+        camera, layout, robot: the lens, the marker layout and the camera mount.
+        start: the pose to start from.
+        corner_sigma: corner noise in pixels: a number (iid), one per corner (N,), per corner and axis
+            (N, 2), or a 2x2 covariance per corner (N, 2, 2) in px², N = 4 × markers in role order
+            (left, center, right).
+        prior: a Gaussian prior on the pose, or None.
+        max_iterations: cap on projections evaluated.
+        tolerance: absolute step size (m, rad) below which the fit has converged in any case.
+
+    Returns:
+        The fit; ``converged`` is False when the cap was hit or no valid pose was reachable (then the
+        pose is the best one seen, possibly the start, and the cost may be infinite).
+
+    Raises:
+        InputError: unknown roles, wrong shapes, non-finite pixels, bad sigma or prior.
+    """
+    roles, img = _stack_corners(corners)
+    model = planar_model(camera, layout, robot)
+    parts = model.parts(roles)
+    white = _whitening(corner_sigma, len(parts.obj))
+    return _solve(model, roles, parts, img, white, _theta(start), prior, max_iterations, tolerance)
+
+
+def _solve3(A: list[list[float]], b: list[float]) -> tuple[float, float, float] | None:
+    """x with A x = b for a 3x3 system, by cofactors in plain floats (numpy's solve costs more here)."""
+    (a, b_, c), (d, e, f), (g, h, i) = A
+    c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * c0 + b_ * c1 + c * c2
+    if not det or not math.isfinite(det):
+        return None
+    r0, r1, r2 = b
+    x0 = (r0 * c0 + r1 * (c * h - b_ * i) + r2 * (b_ * f - c * e)) / det
+    x1 = (r0 * c1 + r1 * (a * i - c * g) + r2 * (c * d - a * f)) / det
+    x2 = (r0 * c2 + r1 * (b_ * g - a * h) + r2 * (a * e - b_ * d)) / det
+    return x0, x1, x2
+
+
+def _solve(
+    model: PlanarModel,
+    roles: tuple[str, ...],
+    parts: _Parts,
+    img: NDArray[np.float64],
+    white: _Whitening,
+    theta: NDArray[np.float64],
+    prior: PosePrior | None,
+    max_iterations: int,
+    tolerance: float,
+) -> PlanarFit:
+    """Levenberg–Marquardt in plain floats around one projection (with Jacobian) per iteration."""
+    info = prior.information().tolist() if prior is not None else None
+    mu = (prior.mean.x, prior.mean.y, prior.mean.yaw) if prior is not None else (0.0, 0.0, 0.0)
+    target = img.reshape(-1, 2)
+
+    def evaluate(
+        th: tuple[float, float, float],
+    ) -> tuple[float, list[list[float]], list[float], NDArray[np.float64], list[list[float]]] | None:
+        """Cost, H = JᵀWJ (+Λ), gradient JᵀWr (+Λe), the design [J | r] and [J | r]ᵀW[J | r] at a pose."""
+        X = model._design(th[0], th[1], th[2], parts, target)
+        if X is None:
+            return None
+        N = white.normal(X)
+        H = [N[0][:3], N[1][:3], N[2][:3]]
+        g = [N[0][3], N[1][3], N[2][3]]
+        cost = N[3][3]
+        if info is not None:
+            e = (th[0] - mu[0], th[1] - mu[1], wrap_angle(th[2] - mu[2]))
+            for k in range(3):
+                ie = info[k][0] * e[0] + info[k][1] * e[1] + info[k][2] * e[2]
+                g[k] += ie
+                cost += e[k] * ie
+                for m in range(3):
+                    H[k][m] += info[k][m]
+        if not math.isfinite(cost):
+            return None
+        return cost, H, g, X, N
+
+    th = (float(theta[0]), float(theta[1]), float(theta[2]))
+    current = evaluate(th)
+    iterations = 1
+    converged = False
+    lam = 1e-4
+    while current is not None and iterations < max_iterations:
+        cost, H, g, _, _ = current
+        damped = [[H[k][m] * (1.0 + lam) if k == m else H[k][m] for m in range(3)] for k in range(3)]
+        step = _solve3(damped, [-g[0], -g[1], -g[2]])
+        if step is None:
+            break
+        # The step's size in standard deviations of the estimate (δᵀHδ, the cost it would remove): once
+        # it is a thousandth of one, further steps change nothing that the noise lets anyone measure.
+        # With noise, Gauss–Newton converges linearly (rate ~ residual size), so this saves iterations.
+        decrease = sum(step[k] * (H[k][0] * step[0] + H[k][1] * step[1] + H[k][2] * step[2]) for k in range(3))
+        if decrease < _CHI2_TOLERANCE or max(abs(step[0]), abs(step[1]), abs(step[2])) < tolerance:
+            th = (th[0] + step[0], th[1] + step[1], th[2] + step[2])
+            converged = True
+            break
+        trial_th = (th[0] + step[0], th[1] + step[1], th[2] + step[2])
+        trial = evaluate(trial_th)
+        iterations += 1
+        if trial is not None and trial[0] <= cost:
+            current, th = trial, trial_th
+            lam = max(lam * 0.1, 1e-12)
+        else:
+            lam *= 10.0
+            if lam > 1e12:
+                break
+    if current is None:
+        inf = np.full((3, 3), np.inf)
+        pose = DockPose(th[0], th[1], wrap_angle(th[2]))
+        return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles)
+    cost, _, _, X, N = current
+    n = len(parts.obj)
+    fisher = [N[0][:3], N[1][:3], N[2][:3]]
+    dof = 2 * n - 3
+    chi2 = N[3][3]
+    scale = math.sqrt(chi2 / dof) if dof > 0 else math.nan
+    lam_ = info if info is not None else [[0.0] * 3 for _ in range(3)]
+    cov = _inverse3([[fisher[k][m] + lam_[k][m] for m in range(3)] for k in range(3)], 1.0)
+    # (F/s² + Λ)⁻¹ written as s²(F + s²Λ)⁻¹, which stays finite for exact corners (s = 0).
+    s2 = scale * scale
+    cov_res = _inverse3([[fisher[k][m] + s2 * lam_[k][m] for m in range(3)] for k in range(3)], s2)
+    r = X[:, :, 3].ravel()
+    rms = math.sqrt(float(r @ r) / n)
+    pose = DockPose(th[0], th[1], wrap_angle(th[2]))
+    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles)
+
+
+def _inverse3(m: list[list[float]], factor: float) -> NDArray[np.float64]:
+    """factor · m⁻¹ for a 3x3 information matrix; infinite where it is singular (the pose is unobservable)."""
+    (a, b, c), (d, e, f), (g, h, i) = m
+    c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * c0 + b * c1 + c * c2
+    if not det or not math.isfinite(det) or not math.isfinite(factor):
+        return np.full((3, 3), np.inf if math.isfinite(factor) else np.nan)
+    k = factor / det
+    return np.array(
+        [
+            [c0 * k, (c * h - b * i) * k, (b * f - c * e) * k],
+            [c1 * k, (a * i - c * g) * k, (c * d - a * f) * k],
+            [c2 * k, (b * g - a * h) * k, (a * e - b * d) * k],
+        ]
+    )
+
+
+# --- candidate starts -------------------------------------------------------------------------------------
+
+
+def _ippe_starts(roles: tuple[str, ...], img: NDArray[np.float64], model: PlanarModel) -> list[NDArray[np.float64]]:
+    """Planar starts from every IPPE solution: each marker alone (IPPE_SQUARE) and, for several, the board."""
+    camera, layout, robot = model.camera, model.layout, model.robot
+    base_T_optical = robot.base_T_optical()
+    pixels = img.reshape(-1, 4, 2)
+    starts: list[NDArray[np.float64]] = []
+
+    def add(rvecs: Iterable[ArrayLike], tvecs: Iterable[ArrayLike], obj_T_dock: NDArray[np.float64]) -> None:
+        for rv, tv in zip(rvecs, tvecs, strict=True):
+            R, _ = cv2.Rodrigues(np.asarray(rv, dtype=np.float64))
+            optical_T_obj = transforms.transform(R, np.asarray(tv, dtype=np.float64).ravel())
+            base_T_dock = base_T_optical @ optical_T_obj @ obj_T_dock
+            if np.all(np.isfinite(base_T_dock)):
+                starts.append(_theta(DockPose.from_matrix(base_T_dock)))
+
+    square = layout.corners_in_marker()
+    for k, role in enumerate(roles):
+        try:
+            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+                square, pixels[k], camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
+            )
+        except cv2.error:
+            continue
+        if n:
+            add(rvecs, tvecs, transforms.invert(layout.dock_T_marker(role)))
+    if len(roles) > 1:
+        obj = model.parts(roles).obj
+        try:
+            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+                obj, pixels.reshape(-1, 2), camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE
+            )
+        except cv2.error:
+            n = 0
+        if n:
+            add(rvecs, tvecs, np.eye(4))
+    return starts
+
+
+def _same(a: NDArray[np.float64], b: NDArray[np.float64], tol: float) -> bool:
+    return abs(a[0] - b[0]) < tol and abs(a[1] - b[1]) < tol and abs(wrap_angle(float(a[2] - b[2]))) < tol
+
+
+def planar_candidates(
+    corners: Mapping[str, ArrayLike],
+    camera: CameraModel,
+    layout: DockLayout,
+    robot: RobotConfig,
+    *,
+    corner_sigma: float | ArrayLike = DEFAULT_CORNER_SIGMA_PX,
+    prior: PosePrior | None = None,
+    starts: Sequence[DockPose] = (),
+    max_iterations: int = 50,
+    tolerance: float = 1e-9,
+) -> list[PlanarFit]:
+    """Every distinct converged local minimum of the planar fit, lowest cost first.
+
+    Starts are ``starts`` (e.g. a regression estimate or the last frame's pose) and both IPPE solutions
+    of each marker (SOLVEPNP_IPPE_SQUARE) and, with several markers, of the board (SOLVEPNP_IPPE), each
+    turned into a planar pose (z, roll and pitch dropped). For a lone far marker the two IPPE solutions
+    lead to the two minima of the yaw sign ambiguity; the caller scores them (cost, a prior, a tracker).
+
+    Raises:
+        InputError: as ``solve_planar``.
+    """
+    roles, img = _stack_corners(corners)
+    model = planar_model(camera, layout, robot)
+    parts = model.parts(roles)
+    white = _whitening(corner_sigma, len(parts.obj))
+    seeds = [_theta(s) for s in starts] + _ippe_starts(roles, img, model)
+    tried: list[NDArray[np.float64]] = []
+    found: list[PlanarFit] = []
+    for seed in seeds:
+        # Starts this close run to the same minimum (IPPE of each marker and of the board mostly agree).
+        if any(_same(seed, t, _SAME_START) for t in tried):
+            continue
+        tried.append(seed)
+        fit = _solve(model, roles, parts, img, white, seed, prior, max_iterations, tolerance)
+        if not fit.converged:
+            continue
+        th = _theta(fit.pose)
+        if any(_same(th, _theta(f.pose), _SAME_MINIMUM) for f in found):
+            continue
+        found.append(fit)
+    return sorted(found, key=lambda f: f.cost)
