@@ -503,6 +503,10 @@ def evaluate_report(
             f"By 25 cm depth band, against {'the simulator truth' if ref_name == 'truth' else 'the LiDAR labels'}"
         )
         report.table(markdown_table(rows))
+    if "truth" in refs and fused is not None:
+        from monodock.limit import limit_section
+
+        summary["physical_limit"] = limit_section(report, dataset, {m: r.poses for m, r in results.items()}, out)
     report.heading("Tables 4 and 5 of the paper, on this recording (28 samples spread over it)")
     t4, t5, sample_rows = paper_sample_tables(refs["lidar"], results, truth=refs.get("truth"))
     report.paragraph("Depth (Table 4 layout; A is the LiDAR label, metres):")
