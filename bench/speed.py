@@ -9,13 +9,18 @@ thread, times per frame with time.perf_counter, each call repeated ``--repeat`` 
 (b) single-marker PnP: pnp.estimate_single_marker, on the frames where marker 2 was detected;
 (c) board PnP: pnp.estimate_board, on the frames where at least one dock marker was detected;
 (d) for information, the simulator: Simulator.frame (render + nuisances + LiDAR scan + truth) on
-    ``--render-frames`` (default 20) further poses, one call each.
+    ``--render-frames`` (default 20) further poses, one call each;
+(e) the refined corners alone: refine.refine_detection on the detection;
+(f) the fused method end to end: Estimator(methods=("fused",)).estimate on the image (detection, refined
+    corners, the regression, the planar fit and the fusion). With ``--model BUNDLE`` the bundle's regression and
+    tables (its camera, layout and mounts must be the simulator's defaults); without, the geometry alone with
+    default tables, which leaves out the regression's ~0.2 ms.
 
 Reports median and p90 milliseconds per frame, and ratios of medians measured in the same run.
 
 Run from the repo root:
 
-    python bench/speed.py [--frames 200] [--seed 0] [--out FILE.md]
+    python bench/speed.py [--frames 200] [--seed 0] [--model BUNDLE] [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUME
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
+from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
@@ -36,11 +42,31 @@ import numpy as np  # noqa: E402
 
 from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks  # noqa: E402
 from monodock.detect import Detection, MarkerDetector  # noqa: E402
+from monodock.estimate import Estimator  # noqa: E402
 from monodock.features import feature_vector  # noqa: E402
+from monodock.fused import FusedEstimator, FusionTables, fusion_tables_of  # noqa: E402
 from monodock.pnp import estimate_board, estimate_single_marker  # noqa: E402
+from monodock.refine import refine_detection  # noqa: E402
+from monodock.regression import RegressionEstimator  # noqa: E402
+from monodock.selftrain import load_bundle  # noqa: E402
 from monodock.sim import Simulator  # noqa: E402
 
 CHUNK = 20
+
+
+def _fused_estimator(model: str | None, camera: Any, layout: Any, robot: Any) -> Estimator:
+    """The fused method as ``monodock estimate --method fused`` runs it (geometry alone without a bundle)."""
+    if model is None:
+        return Estimator(
+            camera, layout, robot, ("fused",), fused=FusedEstimator(camera, layout, robot, FusionTables(0.22))
+        )
+    bundle = load_bundle(Path(model))
+    meta = bundle.manifest["metadata"]
+    if meta["layout"] != layout.to_dict() or meta["robot"] != robot.to_dict():
+        raise SystemExit(f"{model}: the bundle is not for the simulator's default layout and mounts")
+    regression = RegressionEstimator(bundle, camera, robot)
+    fused = FusedEstimator(camera, layout, robot, fusion_tables_of(bundle), regression)
+    return Estimator(camera, layout, robot, ("fused",), fused=fused)
 
 
 def render_chunk(task: tuple[int, int, int]) -> list[np.ndarray]:
@@ -94,6 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     p = bench_parser(__doc__, frames=200, frames_help="pre-rendered frames to time on", seed=0)
     p.add_argument("--repeat", type=int, default=5, help="calls per frame; the fastest counts (default 5)")
     p.add_argument("--render-frames", type=int, default=20, help="frames to time the renderer on (default 20)")
+    p.add_argument("--model", help="model bundle for the fused method's regression and tables")
     args = p.parse_args(argv)
     if args.repeat < 1 or args.render_frames < 0:
         p.error("--repeat must be at least 1, --render-frames at least 0")
@@ -111,7 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     sim = Simulator(seed=chunk_seed(args.seed, 10**6))
     camera, layout, robot = sim.camera, sim.layout, sim.robot
     detector = MarkerDetector(layout)
+    fused = _fused_estimator(args.model, camera, layout, robot)
     for _ in range(3):  # warm-up: lazy initialisation, caches
+        fused.estimate("", 0.0, images[0])
         d0 = detector.detect(images[0])
         feature_vector(d0, camera)
         estimate_board(d0, camera, layout, robot)
@@ -120,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
     busy0, own0, wall0 = _busy_seconds(), _own_seconds(), time.perf_counter()
-    times: dict[str, list[float]] = {k: [] for k in ("detect_features", "detect", "features", "pnp", "board")}
+    keys = ("detect_features", "detect", "features", "pnp", "board", "refine", "fused")
+    times: dict[str, list[float]] = {k: [] for k in keys}
     markers_seen: list[int] = []
     for img in tqdm(images, desc="timing", unit="frame", file=sys.stderr, dynamic_ncols=True):
         t, _ = best_of(lambda img=img: feature_vector(detector.detect(img), camera), args.repeat)
@@ -137,6 +167,12 @@ def main(argv: list[str] | None = None) -> int:
         if det.roles_seen:
             t, _ = best_of(lambda det=det: estimate_board(det, camera, layout, robot), args.repeat)
             times["board"].append(1e3 * t)
+            t, _ = best_of(
+                lambda img=img, det=det: refine_detection(img, det, camera, modules=layout.modules), args.repeat
+            )
+            times["refine"].append(1e3 * t)
+        t, _ = best_of(lambda img=img: fused.estimate("", 0.0, img), args.repeat)
+        times["fused"].append(1e3 * t)
 
     render_ms: list[float] = []
     bar = tqdm(range(args.render_frames), desc="renderer", unit="frame", file=sys.stderr, dynamic_ncols=True)
@@ -161,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
         "pnp": "(b) single-marker PnP (IPPE_SQUARE)",
         "board": "(c) board PnP (iterative + IPPE starts, LM)",
         "render": "(d) simulator: Simulator.frame",
+        "refine": "(e) refined corners (refine_detection)",
+        "fused": "(f) fused, end to end from the image" + ("" if args.model else " (geometry only: no --model)"),
     }
     rows = [[labels[k], str(stats[k]["n"]), fmt(stats[k]["median_ms"], 3), fmt(stats[k]["p90_ms"], 3)] for k in labels]
     med = {k: s["median_ms"] for k, s in stats.items()}
@@ -170,6 +208,8 @@ def main(argv: list[str] | None = None) -> int:
         "board PnP / single-marker PnP": med["board"] / med["pnp"],
         "features / detection": med["features"] / med["detect"],
         "simulator frame / (detection + features)": med["render"] / med["detect_features"],
+        "refined corners / detection": med["refine"] / med["detect"],
+        "fused end to end / detection (target ≤ 1.3)": med["fused"] / med["detect"],
     }
     env = environment()
     counts = np.bincount(markers_seen, minlength=4)

@@ -361,29 +361,37 @@ def learn_tables(rows: TrainingRows, corner_sigma: float, pivot: tuple[float, fl
     gset = np.asarray(rows.geometry_set, dtype=object)
     rset = np.asarray(rows.regression_set, dtype=object)
 
+    # The geometry's excess over its Jacobian covariance, one factor per marker set pooled over the bands:
+    # residuals divided by the Jacobian sd of their row (both methods' alike, so the hat still separates the
+    # labels' share), so that every held-out row counts, whatever its depth.
+    sd_j = np.sqrt(np.diagonal(gcov, axis1=1, axis2=2))
     geometry_scale: dict[str, list[float]] = {}
-    for key in sorted({s for s, ok in zip(rows.geometry_set, both, strict=True) if ok and s}):
-        scales: list[float | None] = []
-        for b in range(nb):
-            sel = both & (gset == key) & (bands == b)
-            if sel.sum() < MIN_CELL_ROWS:
-                scales.append(None)
-                continue
-            cov_g, _, _ = three_cornered_hat(r_geo[sel], r_reg[sel])
-            predicted = np.mean(np.diagonal(gcov[sel], axis1=1, axis2=2), axis=0)
-            scales.append(float(np.clip(np.mean(np.diag(cov_g) / predicted), 1.0, 1e4)))
-        known = [s for s in scales if s is not None]
-        fill = float(np.median(known)) if known else 1.0
-        geometry_scale[key] = [fill if s is None else s for s in scales]
+    pooled: dict[str, float] = {}
+    keys = sorted({s for s, ok in zip(rows.geometry_set, both, strict=True) if ok and s})
+    for key in [*keys, ""]:
+        sel = both & ((gset == key) if key else True)
+        if sel.sum() < MIN_CELL_ROWS:
+            continue
+        cov_g, _, _ = three_cornered_hat(r_geo[sel] / sd_j[sel], r_reg[sel] / sd_j[sel])
+        pooled[key] = float(np.clip(np.mean(np.diag(cov_g)), 1.0, 1e4))
+    for key in keys:
+        geometry_scale[key] = [pooled.get(key, pooled.get("", 1.0))] * nb
 
+    # The regression's covariance per marker set and band, from the band's rows, widened to the neighbouring
+    # bands until there are enough.
     regression_cov: dict[str, list[NDArray[np.float64] | None]] = {}
     label_cov: list[NDArray[np.float64] | None] = [None] * nb
     counts: dict[str, int] = {}
     for key in sorted({s for s, ok in zip(rows.regression_set, both, strict=True) if ok and s}):
         cells: list[NDArray[np.float64] | None] = []
-        counts[key] = int((both & (rset == key)).sum())
+        mine = both & (rset == key)
+        counts[key] = int(mine.sum())
         for b in range(nb):
-            sel = both & (rset == key) & (bands == b)
+            sel = np.zeros_like(mine)
+            for reach in range(nb):
+                sel = mine & (np.abs(bands - b) <= reach)
+                if sel.sum() >= MIN_CELL_ROWS:
+                    break
             if sel.sum() < MIN_CELL_ROWS:
                 cells.append(None)
                 continue
