@@ -29,7 +29,7 @@ from monodock.dock import (
     run_mission,
 )
 from monodock.dock.controller import blind_gap, make_perceive
-from monodock.dock.track import DockTrack, MeasurementNoise
+from monodock.dock.track import DockFilter, MeasurementNoise
 from monodock.estimate import Estimator
 from monodock.pose import DockPose, wrap_angle
 from monodock.robot import RobotConfig
@@ -115,25 +115,26 @@ def test_blind_gap_is_where_marker_2_leaves_the_image() -> None:
     assert not in_view(gap - 0.002)
 
 
-# --- the dock track -----------------------------------------------------------------------------------------
+# --- the dock filter -----------------------------------------------------------------------------------------
 
 
-def test_track_averages_frames_and_gates_outliers() -> None:
+def test_filter_averages_frames_and_gates_outliers() -> None:
+    """Frames with known noise from one standing pose: the filter lands on the truth; a 50 cm outlier is refused."""
     rng = np.random.default_rng(0)
     dock_in_odom = Pose2D(1.5, 0.2, math.radians(5.0))
-    track = DockTrack()
+    track = DockFilter()
     noise = MeasurementNoise()
     robot = Pose2D(0.0, 0.0, 0.0)
     truth = DockPose(*dock_in_odom.relative_to(robot))
     for _ in range(60):
         frame = DockPose(truth.x + rng.normal(0, 0.01), truth.y + rng.normal(0, 0.003), truth.yaw + rng.normal(0, 0.04))
-        track.update(robot, frame, noise.sigmas(frame, 3))
+        track.update(robot, frame, noise.covariance(frame, 3))
     assert track.mean is not None
     assert track.mean.x == pytest.approx(dock_in_odom.x, abs=0.005)
     assert track.mean.y == pytest.approx(dock_in_odom.y, abs=0.002)
     assert math.degrees(track.mean.theta - dock_in_odom.theta) == pytest.approx(0.0, abs=0.6)
     before = track.mean
-    assert not track.update(robot, DockPose(truth.x + 0.5, truth.y, truth.yaw), noise.sigmas(truth, 3))
+    assert not track.update(robot, DockPose(truth.x + 0.5, truth.y, truth.yaw), noise.covariance(truth, 3))
     assert track.mean == before
 
 
@@ -325,6 +326,15 @@ def test_dock_sim_writes_the_summary_contract(tmp_path: Path, capsys: pytest.Cap
     lateral = [abs(float(r["lateral_cm"])) for r in rows]
     assert summary["overall"]["final_lateral_cm"]["max"] == pytest.approx(max(lateral), abs=1e-3)
     assert max(lateral) < 1.0
+    # The filter against single frames, by the truth: every Moving₃ frame recorded, its errors small.
+    acc = summary["filter"]["board"]
+    assert [b["depth_cm"] for b in acc["bands"]] == [[d, d + 25] for d in range(25, 250, 25)]
+    assert acc["all"]["frames"] == sum(b["frames"] for b in acc["bands"]) > 50
+    assert acc["under_25cm"]["coasting_frames"] > 0  # the blind zone, driven on the filter alone
+    assert acc["all"]["filtered"]["depth_cm"] < 1.0
+    assert acc["all"]["filtered"]["lateral_cm"] < 0.5
+    assert acc["all"]["filtered"]["yaw_deg"] < acc["all"]["single_frame"]["yaw_deg"]
+    assert acc["under_25cm"]["coasting"]["lateral_cm"] < 0.5
     for name in ("report.html", "final_errors.png", "trajectories_case_2.png", "case_7.png"):
         assert (out / name).is_file(), name
     assert "docked 2/2" in capsys.readouterr().out

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import io
 import json
 import math
@@ -17,9 +18,19 @@ import numpy as np
 import pytest
 
 from monodock.errors import InputError
-from monodock.estimate import Estimator
+from monodock.estimate import COVARIANCE_COLUMNS, Estimator
 from monodock.live import LIVE_COLUMNS, FrameSource, add_parser, open_source, run_live
-from monodock.nav2 import DOCK_POSE_TOPIC, read_pose_bag, write_pose_bag
+from monodock.nav2 import (
+    DOCK_POSE_COVARIANCE_TOPIC,
+    DOCK_POSE_TOPIC,
+    POSE_WITH_COVARIANCE_STAMPED,
+    PoseStampedBagWriter,
+    planar_covariance,
+    pose_covariance_6x6,
+    read_pose_bag,
+    write_pose_bag,
+)
+from monodock.pnp import PoseEstimate, estimate_board
 from monodock.pose import DockPose, wrap_angle
 from monodock.sim import Nuisances, PoseDistribution, Simulator
 
@@ -230,3 +241,213 @@ def test_ros_node_without_rclpy_says_so() -> None:
         assert info.value.name == "rclpy"
         return
     pytest.skip("rclpy is installed; the node itself is exercised in a ROS 2 workspace")
+
+
+# --- the covariance beside the pose -------------------------------------------------------------------------
+
+
+def _cov_cells(cov: np.ndarray) -> dict[str, str]:
+    """EST.csv covariance cells of a 3x3 (x, y, yaw) covariance, as estimates_csv formats them."""
+    cells = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+    return {k: format(float(cov[i, j]), ".6g") for k, (i, j) in zip(COVARIANCE_COLUMNS, cells, strict=True)}
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_pose_bag_carries_the_covariance_on_a_second_topic(tmp_path: Path, storage: str) -> None:
+    """Rows with covariance cells: PoseStamped for every valid row, PoseWithCovarianceStamped for those with a
+    covariance, on detected_dock_pose_with_covariance; the (x, y, yaw) block round-trips into rows and columns
+    (0, 1, 5) of the 6x6, the rest zero."""
+    cov = np.array([[4e-6, 1e-7, -2e-6], [1e-7, 1e-6, 3e-7], [-2e-6, 3e-7, 9e-5]])
+    empty = dict.fromkeys(COVARIANCE_COLUMNS, "")
+    rows = [
+        {
+            "frame": "0",
+            "stamp": "1.5",
+            "valid": "true",
+            "x_m": "0.8",
+            "y_m": "-0.1",
+            "yaw_deg": "10",
+            **_cov_cells(cov),
+        },
+        {"frame": "1", "stamp": "1.6", "valid": "true", "x_m": "0.7", "y_m": "0.0", "yaw_deg": "0", **empty},
+        {"frame": "2", "stamp": "1.7", "valid": "false", "x_m": "", "y_m": "", "yaw_deg": "", **empty},
+        {
+            "frame": "3",
+            "stamp": "1.8",
+            "valid": "true",
+            "x_m": "0.6",
+            "y_m": "0.05",
+            "yaw_deg": "-5",
+            **_cov_cells(2 * cov),
+        },
+    ]
+    bag = tmp_path / "b"
+    assert write_pose_bag(bag, rows, storage=storage) == 3
+    plain = read_pose_bag(bag)
+    assert [p.stamp for p in plain] == pytest.approx([1.5, 1.6, 1.8])
+    assert all(p.covariance is None and p.pose_covariance is None for p in plain)
+    with_cov = read_pose_bag(bag, DOCK_POSE_COVARIANCE_TOPIC)
+    assert [p.msgtype for p in with_cov] == [POSE_WITH_COVARIANCE_STAMPED] * 2
+    assert [p.topic for p in with_cov] == [DOCK_POSE_COVARIANCE_TOPIC] * 2
+    for msg, twin, c in zip(with_cov, (plain[0], plain[2]), (cov, 2 * cov), strict=True):
+        assert (msg.stamp, msg.frame_id, msg.position, msg.orientation) == (
+            twin.stamp,
+            twin.frame_id,
+            twin.position,
+            twin.orientation,
+        )
+        assert msg.covariance is not None
+        full = np.array(msg.covariance).reshape(6, 6)
+        np.testing.assert_allclose(full[np.ix_((0, 1, 5), (0, 1, 5))], c, rtol=1e-5)
+        full[np.ix_((0, 1, 5), (0, 1, 5))] = 0.0
+        assert not full.any()  # z, roll and pitch: fixed by the floor, zero
+        np.testing.assert_allclose(msg.pose_covariance, c, rtol=1e-5)
+
+
+def test_covariance_cells_that_are_not_a_covariance_are_refused(tmp_path: Path) -> None:
+    row = {"frame": "7", "stamp": "1.0", "valid": "true", "x_m": "0.8", "y_m": "0", "yaw_deg": "0"}
+    bad = _cov_cells(np.diag([1e-4, -1e-4, 1e-4]))
+    with pytest.raises(InputError, match=r"frame 7.*positive semi-definite"):
+        write_pose_bag(tmp_path / "b", [{**row, **bad}])
+    half = {**_cov_cells(np.eye(3) * 1e-4), "cov_yy": ""}
+    with pytest.raises(InputError, match=r"frame 7.*not all numbers"):
+        write_pose_bag(tmp_path / "c", [{**row, **half}])
+
+
+def test_a_bag_without_covariances_has_no_covariance_topic(tmp_path: Path) -> None:
+    """Methods without a covariance (board here): the second topic is not created."""
+    rows = [{"stamp": "1.5", "valid": "true", "x_m": "0.8", "y_m": "-0.1", "yaw_deg": "10"}]
+    assert write_pose_bag(tmp_path / "b", rows) == 1
+    with pytest.raises(InputError, match="no topic"):
+        read_pose_bag(tmp_path / "b", DOCK_POSE_COVARIANCE_TOPIC)
+
+
+def test_pose_covariance_6x6_layout() -> None:
+    cov = np.arange(9, dtype=float).reshape(3, 3)
+    cov = cov + cov.T
+    full = pose_covariance_6x6(cov)
+    assert len(full) == 36
+    assert (full[0], full[1], full[5]) == (cov[0, 0], cov[0, 1], cov[0, 2])
+    assert (full[6 * 5 + 5], full[6 * 5 + 1]) == (cov[2, 2], cov[2, 1])
+    np.testing.assert_array_equal(planar_covariance(full), cov)
+    with pytest.raises(ValueError, match="3x3"):
+        pose_covariance_6x6(np.eye(2))
+
+
+def test_live_rows_and_bag_carry_a_methods_covariance(
+    drive: tuple[Simulator, list[DockPose], Path, Path], tmp_path: Path
+) -> None:
+    """A method with a covariance (the board with one attached, as the fused method will give): the live rows
+    carry it as numbers, and the bag gets the second topic with it, poses matching the truth."""
+    sim, poses, video, _ = drive
+    cov = np.diag([1e-6, 4e-7, 1e-5])
+
+    def board_with_covariance(det: Any) -> PoseEstimate:
+        e = estimate_board(det, sim.camera, sim.layout, sim.robot)
+        return dataclasses.replace(e, method="fused", covariance=cov if e.pose is not None else None)
+
+    est = Estimator(sim.camera, sim.layout, sim.robot, ("fused",), extra={"fused": board_with_covariance})
+    sink = io.StringIO()
+    with open_source(str(video)) as source, PoseStampedBagWriter(tmp_path / "cov_bag") as bag:
+        run_live(source, est, "fused", sink=sink, output_format="jsonl", bag=bag, max_frames=5)
+    rows = [json.loads(line) for line in sink.getvalue().splitlines()]
+    assert len(rows) == 5
+    assert all(isinstance(rows[0][k], float) for k in COVARIANCE_COLUMNS)
+    assert rows[0]["cov_yawyaw"] == pytest.approx(1e-5)
+    msgs = read_pose_bag(tmp_path / "cov_bag", DOCK_POSE_COVARIANCE_TOPIC)
+    assert bag.written == bag.written_with_covariance == len(msgs) == 5
+    for msg, truth in zip(msgs, poses, strict=False):
+        assert abs(msg.pose.x - truth.x) < 0.02
+        np.testing.assert_allclose(msg.pose_covariance, cov, rtol=1e-5)
+
+
+def test_ros_node_publishes_the_covariance_beside_the_pose(
+    drive: tuple[Simulator, list[DockPose], Path, Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The live node, against stand-ins for rclpy and the message packages (ROS 2 is not installed here): an
+    image in, a PoseStamped out matching the truth and, with a covariance, a PoseWithCovarianceStamped of the
+    same pose with the 6x6 layout of monodock.nav2; without one, the pose alone."""
+    import array
+    import importlib
+    import sys
+    import types
+
+    sim, poses, _, folder = drive
+
+    class Msg(types.SimpleNamespace):
+        def __init__(self, **kw: object) -> None:
+            super().__init__(**kw)
+
+    class Stamped(Msg):
+        def __init__(self, **kw: object) -> None:
+            super().__init__(header=Msg(stamp=None, frame_id=""), **kw)
+
+    published: dict[str, list[Any]] = {}
+    callbacks: dict[str, Any] = {}
+
+    class Node:
+        def __init__(self, _name: str) -> None:
+            pass
+
+        def create_publisher(self, _type: object, topic: str, _depth: int) -> object:
+            return Msg(publish=published.setdefault(topic, []).append)
+
+        def create_subscription(self, _type: object, topic: str, callback: object, _depth: int) -> None:
+            callbacks[topic] = callback
+
+        def get_logger(self) -> object:
+            return Msg(warning=pytest.fail, info=lambda _text: None)
+
+    def module(name: str, **attrs: object) -> None:
+        mod = types.ModuleType(name)
+        mod.__dict__.update(attrs)
+        monkeypatch.setitem(sys.modules, name, mod)
+
+    module("rclpy")
+    module("rclpy.node", Node=Node)
+    module(
+        "geometry_msgs.msg",
+        Point=Msg,
+        Pose=Msg,
+        Quaternion=Msg,
+        PoseStamped=Stamped,
+        PoseWithCovariance=Msg,
+        PoseWithCovarianceStamped=Stamped,
+    )
+    module("sensor_msgs.msg", CameraInfo=object, CompressedImage=object, Image=object)
+    monkeypatch.delitem(sys.modules, "monodock.ros_node", raising=False)
+    ros_node = importlib.import_module("monodock.ros_node")
+    monkeypatch.delitem(sys.modules, "monodock.ros_node")  # forgotten afterwards: it was built on stand-ins
+    args = ros_node._parser().parse_args(
+        ["--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml"), "--image-topic", "/cam"]
+    )
+    node = ros_node.DockPoseNode(args)
+    cov = np.array([[2e-6, 1e-7, 0.0], [1e-7, 1e-6, -2e-7], [0.0, -2e-7, 3e-5]])
+    attach = [True]
+
+    def board_with_covariance(det: Any) -> PoseEstimate:
+        e = estimate_board(det, sim.camera, sim.layout, sim.robot)
+        return dataclasses.replace(e, method="fused", covariance=cov if attach[0] else None)
+
+    node.estimator = Estimator(sim.camera, sim.layout, sim.robot, ("fused",), extra={"fused": board_with_covariance})
+    node.method = "fused"
+    image = sim.frame(poses[0], 0.0, np.random.default_rng(1)).image
+    h, w = image.shape
+    header = Msg(stamp=Msg(sec=3, nanosec=250_000_000), frame_id="camera")
+    raw = Msg(header=header, height=h, width=w, encoding="mono8", is_bigendian=0, step=w)
+    raw.data = array.array("B", image.tobytes())
+    callbacks["/cam"](raw)
+    attach[0] = False
+    callbacks["/cam"](raw)
+    plain, with_cov = published["detected_dock_pose"], published["detected_dock_pose_with_covariance"]
+    assert (len(plain), len(with_cov)) == (2, 1)
+    out, both = plain[0], with_cov[0]
+    assert out.header.stamp is header.stamp
+    assert both.header.stamp is header.stamp
+    assert out.header.frame_id == both.header.frame_id == "base_link"
+    assert both.pose.pose is out.pose
+    assert abs(out.pose.position.x - poses[0].x) < 0.01
+    assert abs(out.pose.position.y - poses[0].y) < 0.01
+    assert abs(2 * math.atan2(out.pose.orientation.z, out.pose.orientation.w) - poses[0].yaw) < math.radians(1.0)
+    np.testing.assert_allclose(planar_covariance(both.pose.covariance), cov)
+    assert sum(abs(v) for v in both.pose.covariance) == pytest.approx(float(np.abs(cov).sum()))

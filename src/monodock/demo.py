@@ -27,6 +27,7 @@ from monodock.dock.report import dock_section, write_dock_files
 from monodock.estimate import Estimator
 from monodock.evaluate import FrameMethod, evaluate_report, regression_method
 from monodock.features import DEFAULT_MARKER_SETS
+from monodock.fused import FusedEstimator, fusion_tables_of
 from monodock.label import points_across_marker, project_to_image, scan_in_base
 from monodock.overlay import draw_overlay
 from monodock.recording import write_recording
@@ -210,10 +211,12 @@ def run_demo(out: str | Path, config: DemoConfig, *, force: bool = False) -> dic
                 }
             )
 
+        fused = FusedEstimator(sim_test.camera, sim_test.layout, sim_test.robot, fusion_tables_of(bundle), regression)
         summary = evaluate_report(
             ds_test,
             regression,
             tmp,
+            fused=fused,
             title="monodock demo: the papers' regression against SolvePnP, on the simulator",
             intro=intro,
             extra_sections=extra,

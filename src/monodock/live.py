@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from monodock.atomic import check_writable
 from monodock.errors import InputError
-from monodock.estimate import CSV_COLUMNS, Estimator, FrameEstimates, estimates_csv
+from monodock.estimate import COVARIANCE_COLUMNS, CSV_COLUMNS, Estimator, FrameEstimates, estimates_csv
 from monodock.inputs import VIDEO_SUFFIXES, is_recording
 
 if TYPE_CHECKING:
@@ -47,7 +47,7 @@ __all__ = [
 
 # The EST.csv columns, and the milliseconds from the frame's arrival to its row being ready.
 LIVE_COLUMNS = (*CSV_COLUMNS, "latency_ms")
-_NUMERIC = ("stamp", "x_m", "y_m", "yaw_deg", "reprojection_px", "tilt_deg")
+_NUMERIC = ("stamp", "x_m", "y_m", "yaw_deg", "reprojection_px", "tilt_deg", *COVARIANCE_COLUMNS)
 STALL_TIMEOUT_S = 2.0
 
 
@@ -388,7 +388,7 @@ def run_live(
         method: the method whose estimate the rows carry.
         sink: text stream for the rows (None: no rows written), flushed after each row.
         output_format: "csv" (LIVE_COLUMNS, header first) or "jsonl" (the same keys, typed values).
-        bag: also publish the valid poses there (monodock.nav2).
+        bag: also publish the valid poses there (monodock.nav2), with their covariance when they have one.
         overlay_video: also write the overlay of every frame to this video file.
         force: replace an existing ``overlay_video``.
         show: show the overlay in a window ('q' or Esc stops the run); without a display, a message instead.
@@ -559,6 +559,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     where = "" if to_stdout else f" -> {args.out}"
     if bag is not None:
         where += f"; {bag.written} poses -> {args.bag}"
+        if bag.written_with_covariance:
+            where += f" ({bag.written_with_covariance} with covariance)"
     print(f"{method} on {source.name}: {stats.summary()}{where}", file=sys.stderr if to_stdout else sys.stdout)
     return 0
 

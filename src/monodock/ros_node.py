@@ -2,8 +2,11 @@
 
 Subscribes to a sensor_msgs/Image or CompressedImage topic (and camera_info when no camera file is given),
 runs the estimator of ``monodock run`` (a bundle's regression, or PnP on calibration files) on each image, and
-publishes a geometry_msgs/PoseStamped in base_link with the image's stamp for every valid estimate. Images are
-decoded with numpy and OpenCV (monodock.recording.messages), without cv_bridge.
+publishes a geometry_msgs/PoseStamped in base_link with the image's stamp for every valid estimate, and, when
+the method gives the estimate's covariance, the same pose as geometry_msgs/PoseWithCovarianceStamped on
+``detected_dock_pose_with_covariance`` (the 6x6 convention of monodock.nav2: x, y, yaw at rows and columns 0, 1,
+5; z, roll and pitch zero). Images are decoded with numpy and OpenCV (monodock.recording.messages), without
+cv_bridge.
 
 This is the only monodock module that needs rclpy (a sourced ROS 2 installation); nothing else imports it.
 """
@@ -29,6 +32,7 @@ from typing import Any
 from monodock.cli import add_estimator_options
 from monodock.errors import InputError, MonodockError
 from monodock.estimate import Estimator
+from monodock.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 from monodock.recording import messages as m
 
 __all__ = ["main"]
@@ -39,10 +43,24 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
 
     def __init__(self, args: argparse.Namespace) -> None:
         super().__init__("monodock")
-        from geometry_msgs.msg import Point, Pose, PoseStamped, Quaternion  # type: ignore[import-not-found, unused-ignore]
+        from geometry_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            Point,
+            Pose,
+            PoseStamped,
+            PoseWithCovariance,
+            PoseWithCovarianceStamped,
+            Quaternion,
+        )
         from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # type: ignore[import-not-found, unused-ignore]
 
-        self._msg = {"PoseStamped": PoseStamped, "Pose": Pose, "Point": Point, "Quaternion": Quaternion}
+        self._msg = {
+            "PoseStamped": PoseStamped,
+            "Pose": Pose,
+            "Point": Point,
+            "Quaternion": Quaternion,
+            "PoseWithCovarianceStamped": PoseWithCovarianceStamped,
+            "PoseWithCovariance": PoseWithCovariance,
+        }
         self.args = args
         self.frame_id: str = args.frame_id
         self.estimator: Estimator | None = None
@@ -57,6 +75,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         self.msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
         self.create_subscription(CompressedImage if compressed else Image, args.image_topic, self._on_image, 1)
         self.publisher = self.create_publisher(PoseStamped, args.pose_topic, 10)
+        self.covariance_publisher = self.create_publisher(PoseWithCovarianceStamped, args.pose_covariance_topic, 10)
 
     def _warn_once(self, text: str) -> None:
         if text not in self._warned:
@@ -88,14 +107,27 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         if est.pose is None:
             return
         half = 0.5 * est.pose.yaw
-        out = self._msg["PoseStamped"]()
-        out.header.stamp = msg.header.stamp  # the image's stamp, as opennav_docking expects
-        out.header.frame_id = self.frame_id
-        out.pose = self._msg["Pose"](
+        pose = self._msg["Pose"](
             position=self._msg["Point"](x=float(est.pose.x), y=float(est.pose.y), z=0.0),
             orientation=self._msg["Quaternion"](x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
         )
+        out = self._msg["PoseStamped"]()
+        out.header.stamp = msg.header.stamp  # the image's stamp, as opennav_docking expects
+        out.header.frame_id = self.frame_id
+        out.pose = pose
         self.publisher.publish(out)
+        if est.covariance is None:
+            return
+        try:
+            covariance = pose_covariance_6x6(est.covariance)
+        except ValueError as exc:
+            self._warn_once(f"covariance not published: {exc}")
+            return
+        with_cov = self._msg["PoseWithCovarianceStamped"]()
+        with_cov.header.stamp = msg.header.stamp
+        with_cov.header.frame_id = self.frame_id
+        with_cov.pose = self._msg["PoseWithCovariance"](pose=pose, covariance=covariance)
+        self.covariance_publisher.publish(with_cov)
 
 
 def _estimator(args: argparse.Namespace, camera: Any = None) -> tuple[Estimator, str]:
@@ -129,7 +161,12 @@ def _parser() -> argparse.ArgumentParser:
         p, camera_help="camera file (default: from camera_info)", robot_help="robot YAML (camera mount)"
     )
     p.add_argument("--camera-info-topic", default="/camera/camera_info")
-    p.add_argument("--pose-topic", default="detected_dock_pose")
+    p.add_argument("--pose-topic", default=DOCK_POSE_TOPIC)
+    p.add_argument(
+        "--pose-covariance-topic",
+        default=DOCK_POSE_COVARIANCE_TOPIC,
+        help="PoseWithCovarianceStamped of the estimates that have a covariance",
+    )
     p.add_argument("--frame-id", default="base_link")
     return p
 

@@ -3,6 +3,9 @@
 For each of the eight cases, N random starts inside that case's region; each start is docked once per method
 (the same starts and the same wheel and camera draws for every method, so the methods compare pair by pair).
 The robot sees only rendered frames and its odometry; the simulator's truth is used afterwards, to measure.
+Besides where each run ended, every camera frame after the dock filter is seeded (Moving₃ and the settle at
+the face) is recorded: the filtered DockPose (the filter's dock mapped to base_link with the odometry pose at
+the frame's exposure), the frame's own estimate and the truth, for the filtered-vs-single-frame figures.
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import io
+import itertools
 import math
 import time
 from collections import Counter
@@ -26,17 +30,19 @@ from monodock.dock.controller import (
     MissionConfig,
     Observation,
     Perceive,
+    State,
     blind_gap,
     make_perceive,
     run_mission,
 )
+from monodock.dock.interface import Odometry
 from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose2d import Pose2D
-from monodock.dock.track import MeasurementNoise
+from monodock.dock.track import FilterConfig, MeasurementNoise, OdometryNoise
 from monodock.errors import InputError
 from monodock.estimate import METHODS, Estimator
 from monodock.layout import DockLayout
-from monodock.pose import DockPose
+from monodock.pose import DockPose, wrap_angle
 from monodock.robot import RobotConfig
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances
@@ -44,7 +50,9 @@ from monodock.sim.simulator import Simulator
 
 __all__ = [
     "DockSimConfig",
+    "FilterFrame",
     "TrialResult",
+    "filter_accuracy",
     "make_perceive",
     "run_dock_sim",
     "sample_start",
@@ -87,6 +95,23 @@ class DockSimConfig:
 
 
 @dataclass(frozen=True)
+class FilterFrame:
+    """One camera frame after the filter was seeded: DockPoses (x m, y m, yaw rad) in base_link at its exposure.
+
+    Attributes:
+        truth: the true DockPose.
+        filtered: the filter's, after this frame was offered to it.
+        raw: the frame's own estimate; None when the method had none (the filter coasted).
+        nees: the filter's normalised estimation error squared against the truth (3 dof).
+    """
+
+    truth: tuple[float, float, float]
+    filtered: tuple[float, float, float]
+    raw: tuple[float, float, float] | None
+    nees: float
+
+
+@dataclass(frozen=True)
 class TrialResult:
     """One docking run: where it started, how the robot saw it end, and how it really ended."""
 
@@ -110,6 +135,7 @@ class TrialResult:
     perceive_s: float  # of wall_s: detection and the method's estimate
     path: tuple[tuple[float, float, float], ...]  # true (x, y, heading) in the dock frame, every 0.2 s
     log: tuple[tuple[float, str], ...]
+    filter_frames: tuple[FilterFrame, ...] = ()
 
 
 def case_distances(case: int, config: DockSimConfig) -> tuple[float, float]:
@@ -195,19 +221,34 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     rng = np.random.default_rng([config.seed, task.case, task.trial, 11])
     sim = env.sim
     robot = SimulatedRobot(sim, task.start, config.drive, rng)
-    mission_config = dataclasses.replace(config.mission, measurement=MeasurementNoise.for_method(task.method))
+    mission_config = dataclasses.replace(
+        config.mission,
+        measurement=MeasurementNoise.for_method(task.method),
+        track=dataclasses.replace(config.mission.track, odometry=odometry_noise(config.drive)),
+    )
     mission = DockingMission(mission_config, sim.robot, env.blind)
     perceive_s = 0.0
     inner = env.perceive[task.method]
+    frames: list[FilterFrame] = []
+    pending: list[Observation] = []
 
     def perceive(stamp: float, image: np.ndarray) -> Observation:
         nonlocal perceive_s
         t = time.perf_counter()
         observation = inner(stamp, image)
         perceive_s += time.perf_counter() - t
+        if mission.state in (State.MOVING3, State.SETTLE):  # the filter was seeded at Calculate
+            pending.append(observation)
         return observation
 
-    result = run_mission(robot, perceive, mission)
+    def on_tick(m: DockingMission, _odom: Odometry) -> None:
+        """After the mission took a frame in: the filter at the frame's exposure against the truth."""
+        while pending:
+            record = _filter_frame(m, robot, pending.pop())
+            if record is not None:
+                frames.append(record)
+
+    result = run_mission(robot, perceive, mission, on_tick=on_tick)
     c = config.mission
     p = robot.pose
     lateral, gap, heading = p.y, robot.longitudinal_error(), p.theta
@@ -239,6 +280,40 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         perceive_s=perceive_s,
         path=(*path, (p.x, p.y, p.theta)),
         log=tuple(result.log),
+        filter_frames=tuple(frames),
+    )
+
+
+def odometry_noise(drive: DiffDriveConfig) -> OdometryNoise:
+    """The filter's odometry noise for the simulated base: its own wheel model (track, scale and step noise)."""
+    return dataclasses.replace(
+        FilterConfig().odometry,
+        track_width=drive.track_width,
+        wheel_scale_sd=drive.wheel_scale_sd,
+        wheel_noise_sd=drive.wheel_noise_sd,
+        noise_period=drive.physics_dt,
+    )
+
+
+def _filter_frame(mission: DockingMission, robot: SimulatedRobot, observation: Observation) -> FilterFrame | None:
+    """One frame's record: the filtered, raw and true DockPose at its exposure (None when it cannot be placed)."""
+    odom = mission.history.at(observation.stamp)
+    true_pose = next((pose for stamp, pose in robot.exposures if stamp == observation.stamp), None)
+    if mission.track.mean is None or odom is None or true_pose is None:
+        return None
+    filtered, cov = mission.track.dock_pose(odom)
+    truth = robot.dock_pose(true_pose)
+    err = np.array([filtered.x - truth.x, filtered.y - truth.y, wrap_angle(filtered.yaw - truth.yaw)])
+    try:
+        nees = float(err @ np.linalg.solve(cov, err))
+    except np.linalg.LinAlgError:
+        nees = math.nan
+    raw = observation.pose
+    return FilterFrame(
+        truth=(truth.x, truth.y, truth.yaw),
+        filtered=(filtered.x, filtered.y, filtered.yaw),
+        raw=None if raw is None else (raw.x, raw.y, raw.yaw),
+        nees=nees,
     )
 
 
@@ -302,6 +377,58 @@ def _group(results: Sequence[TrialResult]) -> dict[str, Any]:
     }
 
 
+FILTER_BANDS_CM = tuple(range(25, 251, 25))  # camera depth band edges of the filter figures
+
+
+def _mae(frames: Sequence[FilterFrame], which: str) -> dict[str, float] | None:
+    """Mean absolute errors of the filtered or raw DockPoses: depth and lateral in cm, yaw in degrees."""
+    pairs = [(getattr(f, which), f.truth) for f in frames if getattr(f, which) is not None]
+    if not pairs:
+        return None
+    err = np.array([[e[0] - t[0], e[1] - t[1], wrap_angle(e[2] - t[2])] for e, t in pairs])
+    mae = np.abs(err).mean(axis=0)
+    return {"depth_cm": float(mae[0] * 100), "lateral_cm": float(mae[1] * 100), "yaw_deg": math.degrees(mae[2])}
+
+
+def _filter_block(frames: Sequence[FilterFrame]) -> dict[str, Any]:
+    seen = [f for f in frames if f.raw is not None]
+    coasting = [f for f in frames if f.raw is None]
+    nees = [f.nees for f in frames if math.isfinite(f.nees)]
+    return {
+        "frames": len(seen),
+        "filtered": _mae(seen, "filtered"),
+        "single_frame": _mae(seen, "raw"),
+        "coasting_frames": len(coasting),
+        "coasting": _mae(coasting, "filtered"),
+        "nees_mean": float(np.mean(nees)) if nees else None,
+    }
+
+
+def filter_accuracy(results: Sequence[TrialResult], camera_x: float) -> dict[str, Any]:
+    """The dock filter against single frames, by 25 cm band of the true depth from the camera (25-250 cm).
+
+    ``camera_x`` is the camera mount's x in base_link: the depth from the camera is DockPose.x minus it.
+    Per band: MAE of depth (x), lateral (y) and yaw, filtered and single-frame, over the frames that had an
+    estimate (like with like); frames without one (coasting) apart; and the filter's mean NEES against the
+    truth (3 for a consistent covariance). ``all`` pools 25-250 cm; ``under_25cm`` is the blind zone.
+    """
+    frames = [f for r in results for f in r.filter_frames]
+
+    def depth_cm(f: FilterFrame) -> float:
+        return (f.truth[0] - camera_x) * 100
+
+    edges = FILTER_BANDS_CM
+    bands = []
+    for lo, hi in itertools.pairwise(edges):
+        block = _filter_block([f for f in frames if lo <= depth_cm(f) < hi])
+        bands.append({"depth_cm": [lo, hi], **block})
+    return {
+        "bands": bands,
+        "all": _filter_block([f for f in frames if edges[0] <= depth_cm(f) < edges[-1]]),
+        "under_25cm": _filter_block([f for f in frames if depth_cm(f) < edges[0]]),
+    }
+
+
 def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> dict[str, Any]:
     """The summary.json contract: ``overall`` and ``cases`` of the first method; every method under ``methods``."""
     methods: dict[str, Any] = {}
@@ -318,6 +445,10 @@ def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> dict[str
         "overall": first["overall"],
         "cases": first["cases"],
         "methods": methods,
+        "filter": {
+            m: filter_accuracy([r for r in results if r.method == m], config.robot.camera_mount.x)
+            for m in config.methods
+        },
         "settings": {
             "trials_per_case": config.trials,
             "seed": config.seed,
@@ -396,6 +527,37 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
             ]
         )
     return buf.getvalue()
+
+
+def filter_table(summary: dict[str, Any]) -> str:
+    """Markdown: per method and depth band, the filter's MAE against single frames'."""
+    lines = [
+        "| method | depth from camera cm | frames | depth MAE cm (filtered / frame) "
+        "| lateral MAE cm (filtered / frame) | yaw MAE ° (filtered / frame) "
+        "| coasting frames (MAE depth / lateral / yaw) | NEES |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
+    ]
+
+    def pair(block: dict[str, Any], key: str) -> str:
+        f, r = block["filtered"], block["single_frame"]
+        return "–" if f is None or r is None else f"{f[key]:.2f} / {r[key]:.2f}"
+
+    for m, acc in summary.get("filter", {}).items():
+        rows = [(f"{b['depth_cm'][0]}-{b['depth_cm'][1]}", b) for b in acc["bands"]]
+        rows += [("25-250 (all)", acc["all"]), ("under 25 (blind)", acc["under_25cm"])]
+        for name, b in rows:
+            if not b["frames"] and not b["coasting_frames"]:
+                continue
+            c = b["coasting"]
+            coast = f"{b['coasting_frames']}" + (
+                "" if c is None else f" ({c['depth_cm']:.2f} / {c['lateral_cm']:.2f} / {c['yaw_deg']:.2f})"
+            )
+            nees = "–" if b["nees_mean"] is None else f"{b['nees_mean']:.1f}"
+            lines.append(
+                f"| {m} | {name} | {b['frames']} | {pair(b, 'depth_cm')} | {pair(b, 'lateral_cm')} | "
+                f"{pair(b, 'yaw_deg')} | {coast} | {nees} |"
+            )
+    return "\n".join(lines) + "\n"
 
 
 def comparison_table(summary: dict[str, Any]) -> str:

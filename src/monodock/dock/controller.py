@@ -3,11 +3,11 @@
 The papers' procedure (conference paper §IV, Sensors 2025 §4.9): Calculate depth, angle and K and set Point A;
 Moving₁ straight to Point A; Moving₂ rotate by the computed angle; Moving₃ straight to the dock, fine-tuned by
 P-control. Moving₁ and Moving₂ run on odometry towards targets fixed at Calculate (the markers may leave the
-view while the robot turns towards A). Moving₃ re-estimates from every frame: each frame refines the dock's
-pose in the odometry frame (``DockTrack``), and a P-controller steers the lateral and heading errors against it
-at the control rate, so frame latency and the camera's rate do not enter the loop. The last centimetres,
-where the camera is too close to see marker 2 whole, are driven on the track and odometry alone, at creep
-speed.
+view while the robot turns towards A). Moving₃ re-estimates from every frame: each frame, with its covariance,
+refines the dock's pose in the odometry frame (``DockFilter``, an extended Kalman filter predicted by the wheel
+odometry), and a P-controller steers the lateral and heading errors against it at the control rate, so frame
+latency and the camera's rate do not enter the loop. The last centimetres, where the camera is too close to
+see marker 2 whole, are driven on the filter and odometry alone (predict only), at creep speed.
 
 Safety: accelerations and speeds are limited; the speed near the face is bounded by what can stop in the
 remaining distance; markers lost for longer than ``lost_timeout`` outside that blind zone stop the robot;
@@ -23,13 +23,14 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
+from numpy.typing import NDArray
 
 from monodock import transforms
 from monodock.camera import CameraModel
 from monodock.dock.interface import Odometry, RobotInterface
 from monodock.dock.planner import Manoeuvre, PlannerConfig, plan, point_a
 from monodock.dock.pose2d import Pose2D
-from monodock.dock.track import DockTrack, MeasurementNoise, TrackNoise
+from monodock.dock.track import DockFilter, FilterConfig, MeasurementNoise
 from monodock.errors import ConfigError
 from monodock.estimate import Estimator
 from monodock.layout import DockLayout
@@ -65,11 +66,14 @@ class State(StrEnum):
 
 @dataclass(frozen=True)
 class Observation:
-    """One frame's estimate: the DockPose (None when the estimator had nothing) and how many markers it used."""
+    """One frame's estimate: the DockPose (None when the estimator had nothing), how many markers it used, and
+    its 3x3 covariance (x m, y m, yaw rad; base_link) when the method gives one (else the mission's defaults).
+    """
 
     stamp: float
     pose: DockPose | None
     markers: int = 0
+    covariance: NDArray[np.float64] | None = field(default=None, repr=False, compare=False)
 
 
 # What turns an image into an observation: the caller's estimator (regression, board PnP, ...).
@@ -81,7 +85,7 @@ def make_perceive(estimator: Estimator, method: str) -> Perceive:
 
     def perceive(stamp: float, image: np.ndarray) -> Observation:
         e = estimator.estimate("", stamp, image).estimates[method]
-        return Observation(stamp, e.pose, len(e.markers_seen))
+        return Observation(stamp, e.pose, len(e.markers_seen), e.covariance)
 
     return perceive
 
@@ -134,8 +138,8 @@ class MissionConfig:
     lost_timeout: float = 1.0
     mission_timeout: float = 120.0
     blind_margin: float = 0.04
-    track: TrackNoise = field(default_factory=TrackNoise)
-    measurement: MeasurementNoise = field(default_factory=MeasurementNoise)
+    track: FilterConfig = field(default_factory=FilterConfig)  # the dock filter: odometry noise, gate, reset
+    measurement: MeasurementNoise = field(default_factory=MeasurementNoise)  # frames without a covariance
 
     def __post_init__(self) -> None:
         for name in ("control_period", "cruise_speed", "approach_speed", "turn_rate", "linear_accel", "angular_accel"):
@@ -184,6 +188,13 @@ def blind_gap(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> fl
         mid = 0.5 * (lo + hi)
         lo, hi = (lo, mid) if fits(mid) else (mid, hi)
     return hi
+
+
+def _positive_definite(cov: NDArray[np.float64]) -> bool:
+    """Symmetric with positive eigenvalues: a covariance the filter can invert."""
+    if not np.allclose(cov, cov.T, rtol=1e-6, atol=1e-12):
+        return False
+    return bool(np.all(np.linalg.eigvalsh(cov) > 0.0))
 
 
 class _OdomHistory:
@@ -236,7 +247,7 @@ class DockingMission:
         self.blind = blind + config.blind_margin
         self.max_speed = min(config.cruise_speed, robot.max_linear_speed)
         self.max_turn = min(config.turn_rate, robot.max_angular_speed)
-        self.track = DockTrack(config.track)
+        self.track = DockFilter(config.track)
         self.history = _OdomHistory()
         self.state = State.ACQUIRE
         self.reason = ""
@@ -248,7 +259,7 @@ class DockingMission:
         self.start_time: float | None = None
         self.state_since = 0.0
         self.last_seen = -math.inf
-        self.calc_samples: list[tuple[Pose2D, DockPose, tuple[float, float, float]]] = []
+        self.calc_samples: list[tuple[Pose2D, DockPose, NDArray[np.float64]]] = []
         self.calc_markers: list[int] = []
         self.centered = False
         self.center_heading = 0.0
@@ -256,6 +267,7 @@ class DockingMission:
         self.checked = False
         self.impact_speed: float | None = None
         self._last_odom: Pose2D | None = None
+        self._last_stamp = 0.0
         self._targets = _Targets(Pose2D(0.0, 0.0, 0.0), 0.0, 0.0, False)
 
     # --- bookkeeping ------------------------------------------------------------------------
@@ -293,19 +305,19 @@ class DockingMission:
             self._enter(now, State.ACQUIRE)
         pose = odom.pose
         if self._last_odom is not None:
-            lever = pose.distance(self.track.mean) if self.track.mean is not None else 0.0
-            self.track.predict(self._last_odom.distance(pose), wrap_angle(pose.theta - self._last_odom.theta), lever)
-        self._last_odom = pose
+            # Predict: the dock stays put, its uncertainty in the odometry frame grows with the wheels' drift.
+            self.track.predict(self._last_odom, pose, odom.stamp - self._last_stamp)
+        self._last_odom, self._last_stamp = pose, odom.stamp
         self.history.add(odom.stamp, pose)
         if observation is not None and observation.pose is not None:
             at = self.history.at(observation.stamp)
             if at is not None:
-                sig = self.config.measurement.sigmas(observation.pose, observation.markers)
+                cov = self.measurement_covariance(observation)
                 if self.state is State.CALCULATE:
-                    self.calc_samples.append((at, observation.pose, sig))  # the median comes at the plan
+                    self.calc_samples.append((at, observation.pose, cov))  # the median comes at the plan
                     self.calc_markers.append(observation.markers)
                     self.last_seen = observation.stamp
-                elif self.track.update(at, observation.pose, sig):
+                elif self.track.update(at, observation.pose, cov):
                     self.last_seen = observation.stamp
         if self.finished:
             return (0.0, 0.0)
@@ -316,6 +328,16 @@ class DockingMission:
             return (0.0, 0.0)
         self.command = self._limit(v, w)
         return self.command
+
+    def measurement_covariance(self, observation: Observation) -> NDArray[np.float64]:
+        """The frame's own covariance when it has a usable one, else the method's defaults at its pose."""
+        assert observation.pose is not None
+        cov = observation.covariance
+        if cov is not None:
+            cov = np.asarray(cov, dtype=np.float64)
+            if cov.shape == (3, 3) and np.all(np.isfinite(cov)) and _positive_definite(cov):
+                return cov
+        return self.config.measurement.covariance(observation.pose, observation.markers)
 
     def _limit(self, v: float, w: float) -> tuple[float, float]:
         """Speed and acceleration limits, and the minimum speed a real base still moves at."""
