@@ -117,7 +117,8 @@ def test_fused_estimates_carry_a_covariance_that_covers_the_truth(work: Path) ->
         t = truth[f"{float(r['stamp']):.6f}"]
         assert r["method"] == "fused"
         sd = [math.sqrt(float(r[c])) for c in ("cov_xx", "cov_yy", "cov_yawyaw")]
-        assert all(0 < v < 0.05 for v in sd[:2]) and 0 < sd[2] < math.radians(5)
+        assert all(0 < v < 0.05 for v in sd[:2])
+        assert 0 < sd[2] < math.radians(5)
         err = (float(r["x_m"]) - t[0], float(r["y_m"]) - t[1], math.radians(float(r["yaw_deg"]) - t[2]))
         z += [e / s for e, s in zip(err, sd, strict=True)]
     # Normalised errors: neither wildly over- nor under-confident (the truth is not what trained the tables).
