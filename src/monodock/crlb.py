@@ -20,14 +20,14 @@ on our upright markers) and systematic corner bias (the bound is about random er
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from monodock.camera import CameraModel
-from monodock.errors import InputError
+from monodock.errors import ConfigError, InputError
 from monodock.layout import ROLES, DockLayout, MarkerSpec
 from monodock.planar import planar_model
 from monodock.pose import DockPose
@@ -235,20 +235,31 @@ def default_variants(camera: CameraModel, layout: DockLayout, robot: RobotConfig
     - a combination that fits the default 60 cm charger face: markers ×1.5 with the side markers moved out
       until their outer edges meet the face's edges (y ±0.225 m for the default layout) and the ×2 camera.
     """
-    big = scaled_markers(layout, 1.5)
     half_face = 0.30
     yc = layout.marker("center").y
     reach = max(abs(m.y - yc) for m in layout.markers if m.role != "center")
-    fit = (half_face - big.marker_size / 2) / reach if reach > 0 else 1.0
-    combo = spaced_markers(big, max(fit, 1.0))
-    return [
-        Variant("current", camera, layout, robot),
-        Variant("marker x1.5", camera, big, robot),
-        Variant("marker x2", camera, scaled_markers(layout, 2.0), robot),
-        Variant("spacing x1.5", camera, spaced_markers(layout, 1.5), robot),
-        Variant("resolution x2", scaled_camera(camera, 2.0), layout, robot),
-        Variant("combination", scaled_camera(camera, 2.0), combo, robot),
+
+    def combo() -> DockLayout:
+        big = scaled_markers(layout, 1.5)
+        fit = (half_face - big.marker_size / 2) / reach if reach > 0 else 1.0
+        return spaced_markers(big, max(fit, 1.0))
+
+    makers: list[tuple[str, Callable[[], tuple[CameraModel, DockLayout]]]] = [
+        ("current", lambda: (camera, layout)),
+        ("marker x1.5", lambda: (camera, scaled_markers(layout, 1.5))),
+        ("marker x2", lambda: (camera, scaled_markers(layout, 2.0))),
+        ("spacing x1.5", lambda: (camera, spaced_markers(layout, 1.5))),
+        ("resolution x2", lambda: (scaled_camera(camera, 2.0), layout)),
+        ("combination", lambda: (scaled_camera(camera, 2.0), combo())),
     ]
+    out = []
+    for name, make in makers:
+        try:
+            cam, lay = make()
+        except ConfigError:
+            continue  # e.g. markers x2 would overlap on a tightly spaced layout
+        out.append(Variant(name, cam, lay, robot))
+    return out
 
 
 @dataclass(frozen=True)

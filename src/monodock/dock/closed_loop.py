@@ -59,7 +59,9 @@ __all__ = [
     "summarize",
 ]
 
-ALL_METHODS = ("regression", *METHODS)
+ALL_METHODS = ("regression", *METHODS, "fused")
+# The methods that need the model bundle.
+BUNDLE_METHODS = ("regression", "fused")
 
 
 @dataclass(frozen=True)
@@ -194,14 +196,34 @@ def _environment(config: DockSimConfig) -> _Environment:
         _ENV.clear()
         sim = config.simulator()
         extra: dict[str, Callable[[Any], Any]] = {}
-        if "regression" in config.methods:
+        fused = None
+        if any(m in BUNDLE_METHODS for m in config.methods):
+            from monodock.fused import FusedEstimator, fusion_tables_of
             from monodock.regression import RegressionEstimator
             from monodock.selftrain import load_bundle
 
             assert config.bundle is not None
-            extra["regression"] = RegressionEstimator(load_bundle(config.bundle), sim.camera, sim.robot).estimate
-        estimator = Estimator(sim.camera, sim.layout, sim.robot, config.methods, extra=extra)
-        perceive = {m: make_perceive(estimator, m) for m in config.methods}
+            bundle = load_bundle(config.bundle)
+            regression = RegressionEstimator(bundle, sim.camera, sim.robot)
+            extra["regression"] = regression.estimate
+            if "fused" in config.methods:
+                tables = fusion_tables_of(bundle)
+                fused = FusedEstimator(sim.camera, sim.layout, sim.robot, tables, regression)
+        # One estimator per method, so that a frame costs only its own method.
+        perceive = {
+            m: make_perceive(
+                Estimator(
+                    sim.camera,
+                    sim.layout,
+                    sim.robot,
+                    (m,),
+                    extra={k: v for k, v in extra.items() if k == m},
+                    fused=fused if m == "fused" else None,
+                ),
+                m,
+            )
+            for m in config.methods
+        }
         _ENV[key] = _Environment(sim, blind_gap(sim.camera, sim.layout, sim.robot), perceive)
     return _ENV[key]
 
@@ -237,7 +259,8 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         t = time.perf_counter()
         observation = inner(stamp, image)
         perceive_s += time.perf_counter() - t
-        if mission.state in (State.MOVING3, State.SETTLE):  # the filter was seeded at Calculate
+        # From the plan on (the filter is seeded at Calculate): the drive to Point A, the turn, the approach.
+        if mission.state in (State.MOVING1_DRIVE, State.MOVING2, State.MOVING3, State.SETTLE):
             pending.append(observation)
         return observation
 
@@ -323,8 +346,8 @@ def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialR
 
     from monodock.parallel import map_with_state
 
-    if "regression" in config.methods and config.bundle is None:
-        raise InputError("the regression method needs a model bundle")
+    if any(m in BUNDLE_METHODS for m in config.methods) and config.bundle is None:
+        raise InputError("the regression and fused methods need a model bundle")
     sim = config.simulator(config.seed)
     planner = config.mission.planner
     tasks: list[_Task] = []

@@ -65,12 +65,13 @@ def add_parser(subparsers: Any) -> None:
         "--method",
         type=_methods,
         default=("regression",),
-        help="regression (default), board, pnp, or several separated by commas (e.g. regression,board): the "
-        "first is summary.json's overall/cases, all are under 'methods'",
+        help="regression (default), board, pnp, fused, or several separated by commas (e.g. regression,fused): "
+        "the first is summary.json's overall/cases, all are under 'methods'",
     )
     d.add_argument(
         "--model",
-        help="the regression's bundle; without it, one trained on the simulator's own robot and kept in the cache",
+        help="the bundle of the regression and fused methods; without it, one trained on the simulator's own "
+        "robot and kept in the cache",
     )
     d.add_argument("--out", help="write summary.json, runs.csv, plots and report.html into this folder")
     d.add_argument("--force", action="store_true", help="replace an existing --out folder")
@@ -112,7 +113,7 @@ def add_parser(subparsers: Any) -> None:
 def _cmd_dock_sim(args: argparse.Namespace) -> int:
     from monodock.atomic import atomic_directory, check_writable
     from monodock.camera import CameraModel
-    from monodock.dock.closed_loop import DockSimConfig, case_distances, run_dock_sim, summarize
+    from monodock.dock.closed_loop import BUNDLE_METHODS, DockSimConfig, case_distances, run_dock_sim, summarize
     from monodock.dock.controller import MissionConfig
     from monodock.dock.planner import PlannerConfig
     from monodock.dock.report import console_table, write_dock_report
@@ -150,7 +151,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
     )
     for case in config.cases:
         case_distances(case, config)  # before any training: a start region may be empty
-    if "regression" in config.methods:
+    if any(m in BUNDLE_METHODS for m in config.methods):
         config = dataclasses.replace(config, bundle=_regression_bundle(args, config, jobs))
     t0 = time.perf_counter()
     results = run_dock_sim(config)
