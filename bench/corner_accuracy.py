@@ -3,7 +3,9 @@
 Renders ``--frames`` random poses (Simulator.sample_pose() over the default PoseDistribution) with
 ``--nuisances clean`` (the default: Nuisances.clean(), the exact area-sampled render quantised to 8 bits) or
 ``--nuisances default`` (Nuisances(): defocus 0.6 px, noise, vignetting, exposure jitter, clutter), optionally
-with more blur (``--defocus PX``, ``--motion-blur PX``), and detects the dock markers in the *same* images with
+with more blur (``--defocus PX``, ``--motion-blur PX``) or another exposure (``--exposure GAIN``: 1.0 puts
+white paper at ~85 % of full scale, above ~1.2 it clips at 255; ``--exposure-jitter SIGMA``: the per-frame
+log-normal spread, 0.15 in Nuisances(), 0 for a fixed exposure), and detects the dock markers in the *same* images with
 each corner refinement 'none', 'subpix' and 'contour' of monodock.detect.MarkerDetector, plus 'monodock':
 monodock.refine.refine_detection applied to the 'subpix' detection (a marker it cannot refine keeps
 OpenCV's corners and counts as "kept"). For every corner of a detected dock marker that lies fully in the
@@ -25,7 +27,10 @@ Also times, per frame, in the render workers (one thread each, best of 3 calls):
 Run from the repo root:
 
     python bench/corner_accuracy.py [--frames 200] [--seed 0] [--nuisances clean|default]
-                                    [--defocus PX] [--motion-blur PX] [--out FILE.md]
+                                    [--defocus PX] [--motion-blur PX] [--exposure GAIN]
+                                    [--exposure-jitter SIGMA] [--out FILE.md]
+
+e.g. over-exposed frames: ``--nuisances default --exposure 1.6 --exposure-jitter 0``.
 
 Rendering dominates the run time and runs in 2 processes; each chunk of frames has its own Simulator
 seeded from (seed, chunk index), so the numbers do not depend on the number of workers.
@@ -69,14 +74,22 @@ BANDS: tuple[tuple[str, float, float], ...] = (
 CHUNK = 10
 
 
-def nuisances_of(name: str, defocus: float | None, motion_blur: float | None) -> Nuisances:
-    """The run's nuisances: clean or default, with the blur overridden when asked."""
+def nuisances_of(
+    name: str,
+    defocus: float | None,
+    motion_blur: float | None,
+    exposure: float | None = None,
+    exposure_jitter: float | None = None,
+) -> Nuisances:
+    """The run's nuisances: clean or default, with the blur and the exposure overridden when asked."""
     nuisances = Nuisances.clean() if name == "clean" else Nuisances()
-    if defocus is not None:
-        nuisances = nuisances.updated(defocus_px=defocus)
-    if motion_blur is not None:
-        nuisances = nuisances.updated(motion_blur_px=motion_blur)
-    return nuisances
+    changes = {
+        "defocus_px": defocus,
+        "motion_blur_px": motion_blur,
+        "exposure": exposure,
+        "exposure_jitter": exposure_jitter,
+    }
+    return nuisances.updated(**{k: v for k, v in changes.items() if v is not None})
 
 
 def best_of(fn: Callable[[], Any], repeat: int = 3) -> tuple[float, Any]:
@@ -225,12 +238,20 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--defocus", type=float, metavar="PX", help="Gaussian lens blur sigma, px (overrides)")
     p.add_argument("--motion-blur", type=float, metavar="PX", help="motion streak length, px (overrides)")
+    p.add_argument(
+        "--exposure", type=float, metavar="GAIN", help="albedo to full scale gain (overrides; 1.0: white at ~85 %%)"
+    )
+    p.add_argument(
+        "--exposure-jitter", type=float, metavar="SIGMA", help="per-frame log-normal gain spread (overrides; 0: fixed)"
+    )
     args = p.parse_args(argv)
-    for name in ("defocus", "motion_blur"):
+    for name in ("defocus", "motion_blur", "exposure_jitter"):
         value = getattr(args, name)
         if value is not None and not (np.isfinite(value) and value >= 0):
-            p.error(f"--{name.replace('_', '-')} must be a non-negative number of pixels, got {value}")
-    nuisances = nuisances_of(args.nuisances, args.defocus, args.motion_blur)
+            p.error(f"--{name.replace('_', '-')} must be a non-negative number, got {value}")
+    if args.exposure is not None and not (np.isfinite(args.exposure) and args.exposure > 0):
+        p.error(f"--exposure must be a positive gain, got {args.exposure}")
+    nuisances = nuisances_of(args.nuisances, args.defocus, args.motion_blur, args.exposure, args.exposure_jitter)
 
     tasks = [(args.seed, c, n, nuisances) for c, n in chunks(args.frames, CHUNK)]
     everything: list[dict[str, Any]] = []
@@ -257,15 +278,22 @@ def main(argv: list[str] | None = None) -> int:
         blur.append(f"--defocus {args.defocus:g}")
     if args.motion_blur is not None:
         blur.append(f"--motion-blur {args.motion_blur:g}")
+    exposure = []
+    if args.exposure is not None:
+        exposure.append(f"--exposure {args.exposure:g}")
+    if args.exposure_jitter is not None:
+        exposure.append(f"--exposure-jitter {args.exposure_jitter:g}")
     what = "clean renders" if args.nuisances == "clean" else "default nuisances"
     if blur:
         what += f", defocus {nuisances.defocus_px:g} px, motion blur {nuisances.motion_blur_px:g} px"
+    if exposure:
+        what += f", exposure {nuisances.exposure:g} (jitter {nuisances.exposure_jitter:g})"
     env = environment()
     lines = [
         f"### Corner accuracy: OpenCV ArUco and monodock's refiner vs the simulator's true corners ({what})",
         "",
         f"`python bench/corner_accuracy.py --frames {args.frames} --seed {args.seed} --nuisances {args.nuisances}"
-        f"{''.join(' ' + b for b in blur)}` — "
+        f"{''.join(' ' + b for b in blur + exposure)}` — "
         f"{env['date_utc']} UTC, OpenCV {env['opencv']}, "
         f"{len(records)} in-view dock markers in {args.frames} frames. "
         "Outward = along the true centre→corner direction (negative: inside the marker); "
@@ -308,7 +336,10 @@ def main(argv: list[str] | None = None) -> int:
     raw = {
         "benchmark": "corner_accuracy",
         "args": vars(args),
-        "nuisances": {k: getattr(nuisances, k) for k in ("defocus_px", "motion_blur_px", "read_noise", "clutter")},
+        "nuisances": {
+            k: getattr(nuisances, k)
+            for k in ("defocus_px", "motion_blur_px", "exposure", "exposure_jitter", "read_noise", "clutter")
+        },
         "environment": env,
         "overall": overall,
         "by_side_band": by_band,

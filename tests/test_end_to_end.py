@@ -31,6 +31,7 @@ def write_calibration(sim: Simulator, folder: Path) -> list[str]:
     ]
 
 
+@pytest.mark.timeout(900)  # the whole pipeline, with 24 docking runs; about 4 minutes on 2 quiet cores
 def test_demo_writes_report_with_truthful_numbers(tmp_path: Path) -> None:
     """`monodock demo` at a small size: the whole pipeline runs, the report's files exist, and every method's
     errors against the simulator's truth are what it can do.
@@ -67,11 +68,17 @@ def test_demo_writes_report_with_truthful_numbers(tmp_path: Path) -> None:
     assert regression["valid"] >= 36
     assert regression["depth_mae_cm"] < 4.0
     assert regression["yaw_mae_deg"] < 10.0
-    # The closed-loop docking section: one start per case, regression and board PnP, judged by the truth.
+    # The fused method: bias-free corners and the planar fit beat board PnP on the same frames.
+    fused = truth["fused"]
+    assert fused["valid"] >= board["valid"] - 1
+    assert fused["depth_mae_cm"] < board["depth_mae_cm"]
+    assert fused["yaw_mae_deg"] < board["yaw_mae_deg"]
+    # The closed-loop docking section: one start per case, regression, board PnP and fused, judged by the truth.
     docking = json.loads((out / "summary.json").read_text())["docking"]
-    assert docking["board"]["runs"] == docking["regression"]["runs"] == 8
-    assert docking["board"]["successes"] >= 7
-    assert docking["board"]["final_lateral_cm"]["median"] < 1.0
+    assert docking["board"]["runs"] == docking["regression"]["runs"] == docking["fused"]["runs"] == 8
+    for method in ("board", "fused"):
+        assert docking[method]["successes"] >= 7
+        assert docking[method]["final_lateral_cm"]["median"] < 1.0
     for name in ("docking/runs.csv", "docking/trajectories_case_1.png", "docking/final_errors.png"):
         assert (out / name).is_file(), name
     # A second run must not replace the report without --force.

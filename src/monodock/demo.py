@@ -127,10 +127,10 @@ def run_demo(out: str | Path, config: DemoConfig, *, force: bool = False) -> dic
         ds_test, _, _ = label_recording(work / "test_drive", sim_test.layout)
         write_dataset(tmp / "test.parquet", ds_test)
 
-        _log(f"[5/6] closed-loop docking: {config.dock_trials} start(s) per case, regression and board PnP ...")
+        _log(f"[5/6] closed-loop docking: {config.dock_trials} start(s) per case, regression, board PnP, fused ...")
         dock_config = DockSimConfig(
             trials=config.dock_trials,
-            methods=("regression", "board"),
+            methods=("regression", "board", "fused"),
             seed=config.seed,
             jobs=config.jobs,
             bundle=tmp / "bundle",
@@ -163,8 +163,9 @@ def run_demo(out: str | Path, config: DemoConfig, *, force: bool = False) -> dic
             report.heading("Closed-loop docking, camera in the loop (monodock dock-sim)")
             report.paragraph(
                 "The papers' eight docking cases from random starts 1-2.5 m away, the robot seeing only rendered "
-                "frames and its odometry, with the bundle trained above and with board PnP. A longer run: "
-                "monodock dock-sim --method regression,board --out DIR. Files: docking/."
+                "frames and its odometry, with the bundle trained above, with board PnP, and with the fused method "
+                "through the EKF. A longer run: monodock dock-sim --method regression,board,fused --out DIR. "
+                "Files: docking/."
             )
             dock_section(report, dock_summary, dock_config, folder="docking/")
             report.heading("The teacher: LiDAR label error against the simulator's truth (training drive)")

@@ -10,7 +10,19 @@ black border) instead of the corner itself:
    blur width): a few vectorised Gauss-Newton steps on all profiles at once;
 3. the edge points through the lens to undistorted normalised coordinates, where the sides are straight;
 4. one line per side by robustly reweighted total least squares (occluders, clutter, glints drop out);
-5. the corners as the intersections of adjacent lines, mapped back through the lens to pixels.
+5. the corners as the intersections of adjacent lines, mapped back through the lens to pixels;
+6. on a marker whose profiles hold clipped pixels (255 or 0), the clipping's shift of its edges, measured on
+   the border's inner edge, and the lines moved back by it before step 5 (``_bloom``).
+
+Clipping: an over-exposed white face reads 255 (noise may even pull a clipped pixel below 255, when the
+sensor saturates before the read-out), so the blurred step is cut off near its top and every fitted edge
+sits too far towards the black, by an amount that depends on the unknown level above full scale and on the
+exact blur. No fit of a single profile can undo that: with one or two unclipped pixels on the slope it would
+rest on the tails of an assumed blur. The black border's inner edge, where it meets a white code cell, is
+the same edge mirrored (white to black, outward): the same fit moves it towards the black by the same
+amount, outward, so the border looks 2 delta too thin. The marker's own geometry (its corners through a
+homography, the inner edge one module in) says where that edge is, whatever the blur: the difference gives
+delta. Under-exposure (a black level clipped at 0) is the same with the signs swapped.
 
 The profiles reach only a fraction of the border width inwards, so that they do not see the code pattern
 behind the border. A marker with a side that has too few good profiles (cut by the image border, hidden
@@ -18,12 +30,18 @@ behind something) keeps OpenCV's corners, and ``refine_detection`` lists its rol
 ``Detection.unrefined``.
 
 Everything runs on arrays of all the profiles of all the markers at once, in a fixed small number of numpy
-calls: a frame with three markers costs a small fraction of the marker detection itself.
+calls: a frame with three markers costs a small fraction of the marker detection itself (about 1.5 times
+as much when its markers are clipped: the inner profiles join the same fit).
+
+The correction assumes that the white right outside the border (the marker's quiet zone) and the code's
+white cells are the same white, and it would read printer ink spread (a wider black border) as negative
+clipping shift: it runs only on clipped markers.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -49,6 +67,8 @@ MAX_STEPS = 3  # Gauss-Newton steps of the edge fit; one is enough from the star
 CONVERGED_PX = 0.02  # ... that is, unless the first step still moves the typical edge further than this
 MIN_GOOD = 5  # a side needs this many good profiles, else the marker keeps OpenCV's corners
 MAX_SHIFT = 0.5  # a refined corner further than this fraction of the border width from OpenCV's is rejected
+MIN_CLIPPED = 4  # a marker with this many clipped samples (255 or 0) gets its clipping shift measured ...
+MIN_INNER = 3  # ... on at least this many white cells along its border, else it takes the frame's median shift
 
 # Sample offsets across the edge in [-1, 1] of the reach, denser near the middle where the edge lies.
 _U = np.linspace(-1.0, 1.0, SAMPLES)
@@ -158,7 +178,10 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
 
     # --- the profiles: anchors evenly along each side, straight in normalised coordinates ---------------
     # Only where the anchors go depends on these, not where the edges are found: 20 iterations are plenty.
-    xn = cv2.undistortPoints(corners[:, None, :], camera.matrix, camera.dist, criteria=_UNDISTORT).reshape(-1, 2)
+    xn = np.asarray(
+        cv2.undistortPoints(corners[:, None, :], camera.matrix, camera.dist, criteria=_UNDISTORT), np.float64
+    )
+    xn = xn.reshape(-1, 2)
     cx, cy = corners[:, 0], corners[:, 1]
     side_px = np.hypot(cx[nxt] - cx, cy[nxt] - cy)
     border = (side_px[prv] + side_px[nxt]) / (2.0 * modules)  # the border's width across side k
@@ -168,8 +191,8 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     ux, uy = xn[nxt, 0] - xn[:, 0], xn[nxt, 1] - xn[:, 1]
     ulen = np.hypot(ux, uy)
     # The inward unit normal: ArUco corners run clockwise on screen (a positive shoelace sum in pixels).
-    cross = (cx * cy[nxt] - cx[nxt] * cy).reshape(m, 4).sum(axis=1)
-    g = np.where(cross >= 0, 1.0, -1.0)[idx // 4] / ulen
+    clockwise = (cx * cy[nxt] - cx[nxt] * cy).reshape(m, 4).sum(axis=1) >= 0
+    g = np.where(clockwise, 1.0, -1.0)[idx // 4] / ulen
     nnx, nny = -uy * g, ux * g
     along = (frac - 0.5) * ulen
     ax, ay = xn[:, 0] + frac * ux, xn[:, 1] + frac * uy
@@ -189,12 +212,25 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     lo_x, hi_x = np.minimum(mapx[0], mapx[-1]), np.maximum(mapx[0], mapx[-1])
     lo_y, hi_y = np.minimum(mapy[0], mapy[-1]), np.maximum(mapy[0], mapy[-1])
     inside = ((lo_x >= 0) & (hi_x <= width - 1) & (lo_y >= 0) & (hi_y <= height - 1)).reshape(PROFILES, n_sides)
-    prof = cv2.remap(gray, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    prof = np.asarray(cv2.remap(gray, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), np.uint8)
     prof = prof.reshape(SAMPLES, PROFILES, n_sides)
-    # Clipped pixels are not on the blurred step, and samples off the image are not data: no weight.
-    w = ((prof < 255) & inside).astype(np.float32)
+    # Samples off the image are not data. Clipped samples are: dropping them leaves a fit of the slope alone,
+    # wild where only a pixel or two of it is below 255; kept, the clipped plateau is the bright level, and
+    # the edge's shift that comes with it is the same on the mirrored inner edge, which measures it (_bloom).
+    w = np.empty(prof.shape, np.float32)
+    w[...] = inside
+    args = (t, prof.astype(np.float32), w, reach.astype(np.float32))
+    inner = None
+    if prof.max() == 255 or prof.min() == 0:
+        inner = _inner_profiles(gray, camera, xn, clockwise, modules, reach, prof, inside)
+        if inner is not None:
+            args = _with_inner(args, inner)
     with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-        e, s, contrast, rms = _fit_edges(t, prof.astype(np.float32), w, reach.astype(np.float32))
+        e, s, contrast, rms = _fit_edges(*args)
+    if inner is not None:
+        fit = np.stack([e, s, contrast, rms])
+        inner_fit = fit[:, :, n_sides:].reshape(4, -1)[:, : inner.mk.size]
+        e, s, contrast, rms = fit[:, :, :n_sides]
 
     # --- which profiles saw a clean edge -------------------------------------------------------------------
     good = inside & (np.abs(e) < 0.8 * reach) & (s < reach) & (rms < 0.15 * contrast)
@@ -213,12 +249,21 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
         alpha, beta, n_good = _robust_lines(along, across, good, 0.03 / camera.fx)
         # Side k: X(a) = middle + a (u / |u|) + (alpha + beta a) n, as a line  lx X + ly Y = lc.
         dx, dy = ux / ulen + beta * nnx, uy / ulen + beta * nny
-        mx, my = xn[:, 0] + 0.5 * ux + alpha * nnx, xn[:, 1] + 0.5 * uy + alpha * nny
         lx, ly = -dy, dx
-        lc = lx * mx + ly * my
-        px_, py_, pc = lx[prv], ly[prv], lc[prv]
+        px_, py_ = lx[prv], ly[prv]
         den = px_ * ly - lx * py_
-        qx, qy = (pc * ly - lc * py_) / den, (px_ * lc - lx * pc) / den
+
+        def intersect(alpha: F64) -> tuple[F64, F64]:
+            lc = lx * (xn[:, 0] + 0.5 * ux + alpha * nnx) + ly * (xn[:, 1] + 0.5 * uy + alpha * nny)
+            pc = lc[prv]
+            return (pc * ly - lc * py_) / den, (px_ * lc - lx * pc) / den
+
+        qx, qy = intersect(alpha)
+        if inner is not None:
+            contrast_out = np.add.reduce(np.where(good, contrast, 0.0), 0).reshape(m, 4).sum(axis=1)
+            contrast_out /= np.maximum(good.reshape(PROFILES, m, 4).sum(axis=(0, 2)), 1)
+            delta = _bloom(inner, inner_fit, contrast_out, qx.reshape(m, 4), qy.reshape(m, 4), modules)
+            qx, qy = intersect(alpha - delta[idx // 4] * (np.add.reduce(kappa, 0) / PROFILES))
         ou, ov = _distort(camera, qx, qy)
         shift = np.hypot(ou - cx, ov - cy)
         limit = np.maximum(MAX_SHIFT * border.reshape(m, 4).min(axis=1), 1.5)[idx // 4]
@@ -227,11 +272,180 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     return np.where(ok[:, None, None], out, corners.reshape(m, 4, 2)), ok
 
 
+@lru_cache(maxsize=4)
+def _border_cells(modules: int) -> tuple[F64, F64, NDArray[np.intp]]:
+    """The code cells along the border's inner edge, side by side, in marker grid units ([0, 1]^2, TL at 0).
+
+    Returns the middle of each cell's edge on the border's inner line and that line's direction (from corner
+    k towards corner k + 1), each (4 (modules - 2), 2), and each cell's side k.
+    """
+    s = (np.arange(modules - 2) + 1.5) / modules
+    one, inner = np.full_like(s, 1.0 / modules), np.full_like(s, 1.0 - 1.0 / modules)
+    edge = np.concatenate([np.stack(p, axis=1) for p in ((s, one), (inner, s), (1.0 - s, inner), (one, 1.0 - s))])
+    unit = np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0], [0.0, -1.0]])
+    side = np.repeat(np.arange(4), modules - 2)
+    return edge, unit[side], side
+
+
+def _square_to_quad(x: F64, y: F64) -> F64:
+    """The homographies (8, M) from the unit square onto quads x, y (M, 4), closed form (Heckbert).
+
+    Corners in ArUco order: TL, TR, BR, BL at (0, 0), (1, 0), (1, 1), (0, 1). ``_on_quad`` applies them.
+    """
+    x0, x1, x2, x3 = x.T
+    y0, y1, y2, y3 = y.T
+    sx, sy = x0 - x1 + x2 - x3, y0 - y1 + y2 - y3
+    dx1, dx2, dy1, dy2 = x1 - x2, x3 - x2, y1 - y2, y3 - y2
+    den = dx1 * dy2 - dx2 * dy1
+    g, h = (sx * dy2 - dx2 * sy) / den, (dx1 * sy - sx * dy1) / den
+    return np.stack([x1 - x0 + g * x1, x3 - x0 + h * x3, x0, y1 - y0 + g * y1, y3 - y0 + h * y3, y0, g, h])
+
+
+def _on_quad(hom: F64, u: F64, v: F64) -> tuple[F64, F64]:
+    """Points (u, v) of the unit square through homographies ``hom`` (8, ...) that broadcast with them."""
+    a, b, c, d, e, f, g, h = hom
+    w = g * u + h * v + 1.0
+    return (a * u + b * v + c) / w, (d * u + e * v + f) / w
+
+
+@dataclass(frozen=True)
+class _Inner:
+    """Profiles across the border's inner edge of clipped markers, one per code cell along the border.
+
+    Each runs outward from the middle of the cell's edge, where the detected corners put it: across a white
+    cell, the mirror of an outer profile (white to black); across a black cell, nothing (the fit's contrast
+    drops it). ``mk`` (N,) marker, ``cell`` (N,) index into ``_border_cells``, ``x``, ``y``, ``nx``, ``ny``
+    (N,) anchor and outward unit normal (normalised coordinates), ``kappa`` (N,) normalised distance per
+    pixel along the profile, ``lim`` (N,) reach; ``t``, ``prof``, ``w`` (T, N).
+    """
+
+    mk: NDArray[np.intp]
+    cell: NDArray[np.intp]
+    clipped: NDArray[np.bool_]
+    x: F64
+    y: F64
+    nx: F64
+    ny: F64
+    kappa: F64
+    lim: F32
+    t: F32
+    prof: NDArray[np.uint8]
+    w: NDArray[np.bool_]
+
+
+def _inner_profiles(
+    gray: NDArray[np.uint8],
+    camera: CameraModel,
+    xn: F64,
+    clockwise: NDArray[np.bool_],
+    modules: int,
+    reach: F64,
+    prof: NDArray[np.uint8],
+    inside: NDArray[np.bool_],
+) -> _Inner | None:
+    """The profiles across the border's inner edge of the markers with ``MIN_CLIPPED`` clipped samples, or None.
+
+    ``xn`` (4M, 2) are the detected corners (normalised), ``clockwise`` (M,) whether they run clockwise on
+    screen, ``reach`` (4M,) the sides' profile reach, ``prof`` (T, J, 4M) and ``inside`` (J, 4M) the outer
+    profiles. Built like the outer ones: a straight normal in normalised coordinates, its direction in pixels
+    one pixel-ish out, the outer side's reach.
+    """
+    height, width = gray.shape
+    m = xn.shape[0] // 4
+    n_clipped = np.add.reduce((prof == 255) | (prof == 0), (0, 1), where=inside)
+    clipped = n_clipped.reshape(m, 4).sum(axis=1) >= MIN_CLIPPED
+    if not np.any(clipped):
+        return None
+    edge, direction, side = _border_cells(modules)
+    mk = np.repeat(np.flatnonzero(clipped), side.size)
+    cell = np.tile(np.arange(side.size), mk.size // side.size)
+    # The edge middles and a short step along the edge, through the detected corners' homographies.
+    g = edge[cell] + np.array([0.0, 1e-3])[:, None, None] * direction[cell]
+    hom = _square_to_quad(xn[:, 0].reshape(m, 4), xn[:, 1].reshape(m, 4))[:, mk]
+    x, y = _on_quad(hom, g[..., 0], g[..., 1])
+    dx, dy = x[1] - x[0], y[1] - y[0]
+    # The outward normal, on the outer sides' outer side (see _refine).
+    scale = np.where(clockwise[mk], -1.0, 1.0) / np.hypot(dx, dy)
+    nx, ny = -dy * scale, dx * scale
+    step = 1.0 / camera.fx
+    pu, pv = _distort(camera, x[0] + _PROBE * (step * nx), y[0] + _PROBE * (step * ny))
+    dpx, dpy = pu[1] - pu[0], pv[1] - pv[0]
+    inv = 1.0 / np.hypot(dpx, dpy)
+    lim = reach.reshape(m, 4)[mk, side[cell]].astype(np.float32)
+    t = lim * _GRID[:, None]  # (T, N), pixels, positive outward
+    mapx, mapy = (pu[0] + t * (dpx * inv)).astype(np.float32), (pv[0] + t * (dpy * inv)).astype(np.float32)
+    ok = (
+        (np.minimum(mapx[0], mapx[-1]) >= 0)
+        & (np.maximum(mapx[0], mapx[-1]) <= width - 1)
+        & (np.minimum(mapy[0], mapy[-1]) >= 0)
+        & (np.maximum(mapy[0], mapy[-1]) <= height - 1)
+    )
+    inner_prof = np.asarray(cv2.remap(gray, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), np.uint8)
+    w = np.broadcast_to(ok, t.shape)
+    return _Inner(mk, cell, clipped, x[0], y[0], nx, ny, step * inv, lim, t, inner_prof, w)
+
+
+def _with_inner(args: tuple[F32, F32, F32, F32], inner: _Inner) -> tuple[F32, F32, F32, F32]:
+    """The outer profiles' fit arguments with the inner profiles as extra columns of PROFILES profiles each."""
+    t, intensity, w, lim = args
+    n_sides, n = intensity.shape[2], inner.mk.size
+    cols = -(-n // PROFILES)
+    out = [np.zeros((SAMPLES, PROFILES, n_sides + cols), np.float32) for _ in range(3)]
+    lim_out = np.ones((PROFILES, n_sides + cols), np.float32)
+    lim_out[:, :n_sides] = lim
+    flat = np.zeros((SAMPLES, PROFILES * cols), np.float32)
+    extras = (inner.t, inner.prof.astype(np.float32), inner.w.astype(np.float32))
+    for dst, outer, extra in zip(out, (t, intensity, w), extras, strict=True):
+        dst[:, :, :n_sides] = outer
+        flat[:, :n] = extra
+        dst[:, :, n_sides:] = flat.reshape(SAMPLES, PROFILES, cols)
+    flat[0, :n] = inner.lim
+    lim_out[:, n_sides:] = flat[0].reshape(PROFILES, cols)
+    return out[0], out[1], out[2], lim_out
+
+
+def _bloom(inner: _Inner, fit: F32, contrast_out: F64, qx: F64, qy: F64, modules: int) -> F64:
+    """Per marker (M,): how far clipping put its fitted outer edges inside the true ones, px (0: not clipped).
+
+    ``fit`` (4, N) holds the inner profiles' edge, blur, contrast and RMS, ``contrast_out`` (M,) the
+    markers' mean contrast on their outer edges, ``qx``, ``qy`` (M, 4) the corners from the fitted outer
+    edges (normalised). If those edges sit delta inside, the corners put the inner edge 2 delta / modules
+    too far in and the fit finds it delta too far out, so that it appears e = 2 delta (1 - 1 / modules)
+    outward of where the corners put it, whatever the blur. A clipped marker with fewer than ``MIN_INNER``
+    white cells measured takes the median of the others, or 0.
+    """
+    e, s, contrast, rms = fit
+    good = inner.w[0] & (np.abs(e) < 0.8 * inner.lim) & (s < inner.lim) & (rms < 0.15 * contrast)
+    good &= contrast > 0.5 * contrast_out[inner.mk]  # a black cell, or a shadow: no edge
+    edge, _, _ = _border_cells(modules)
+    g = edge[inner.cell]
+    x, y = _on_quad(_square_to_quad(qx, qy)[:, inner.mk], g[:, 0], g[:, 1])
+    # Each white cell's edge, outward of where the refined corners put it (px); a row per marker, NaN-padded.
+    m = qx.shape[0]
+    found = np.full((m, edge.shape[0]), np.nan)
+    offset = ((inner.x - x) * inner.nx + (inner.y - y) * inner.ny) / inner.kappa
+    found[inner.mk, inner.cell] = np.where(good, e + offset, np.nan)
+    # A mean (the spread is mostly noise), without the cells more than 3 robust sigmas off the median.
+    rows = np.arange(m)
+    count = np.bincount(inner.mk, weights=good, minlength=m).astype(np.intp)
+    half = np.minimum(count // 2, found.shape[1] - 1)
+    off = np.abs(found - np.sort(found, axis=1)[rows, half, None])
+    spread = np.maximum(3.0 * 1.4826 * np.sort(off, axis=1)[rows, half], 0.1)
+    keep = off <= spread[:, None]  # NaN is not
+    with np.errstate(invalid="ignore", divide="ignore"):
+        delta = np.add.reduce(np.where(keep, found, 0.0), 1) / keep.sum(axis=1) / (2.0 * (1.0 - 1.0 / modules))
+    measured = inner.clipped & (count >= MIN_INNER)
+    if not np.any(measured):
+        return np.zeros(m)
+    delta[inner.clipped & ~measured] = np.sort(delta[measured])[np.count_nonzero(measured) // 2]
+    return np.where(inner.clipped, delta, 0.0)
+
+
 def _fit_edges(t: F32, intensity: F32, w: F32, lim: F32) -> tuple[F32, F32, F32, F32]:
     """Fit I(t) = B + (D - B) Phi((t - e) / s) to every profile: edge e, blur sigma s, contrast B - D, RMS.
 
-    ``t`` (samples, 1, sides), ``intensity`` and weights ``w`` (samples, profiles, sides), ``lim`` (sides,);
-    the results are (profiles, sides). Variable projection: the levels B, D are the
+    ``t`` (samples, 1 or profiles, sides), ``intensity`` and weights ``w`` (samples, profiles, sides), ``lim``
+    (sides,) or (profiles, sides); the results are (profiles, sides). Variable projection: the levels B, D are the
     weighted linear least-squares solution for the current e and s, and each Gauss-Newton step on (e, s)
     uses the Jacobian projected off the levels (Kaufman), so it converges like a full four-parameter fit.
     Starts from the centroid and spread of the intensity drop; e stays within +-lim.
@@ -254,8 +468,9 @@ def _fit_edges(t: F32, intensity: F32, w: F32, lim: F32) -> tuple[F32, F32, F32,
     s = np.minimum(np.maximum(np.sqrt(np.maximum(m2 / mass - e * e, 0.0)), np.float32(0.3)), lim)
     # e and s stacked, so that the step below updates and clamps both at once.
     es = np.stack([e, s])
-    lo = np.stack([-lim, np.full_like(lim, 0.2)])[:, None, :]
-    hi = np.stack([lim, lim])[:, None, :]
+    lim = np.broadcast_to(lim, e.shape)
+    lo = np.stack([-lim, np.full_like(lim, 0.2)])
+    hi = np.stack([lim, lim])
     buf = np.empty((12, *np.shape(intensity)), np.float32)
     a = b = y2 = e
     for step in range(MAX_STEPS):
