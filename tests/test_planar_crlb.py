@@ -6,6 +6,7 @@ lens, computed by the simulator independently of monodock.planar. Noise is added
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -24,8 +25,9 @@ from monodock.crlb import (
     what_if,
 )
 from monodock.errors import InputError
-from monodock.planar import PlanarFit, PosePrior, planar_candidates, solve_planar
+from monodock.planar import PlanarFit, PosePrior, planar_candidates, planar_model, pose_information, solve_planar
 from monodock.pose import DockPose, wrap_angle
+from monodock.robot import RobotConfig
 from monodock.sim import Simulator
 
 CAMERA_X = 0.17  # RobotConfig.default().camera_mount.x: poses below are given by depth from the camera
@@ -317,3 +319,190 @@ def test_what_if_resolution_law(sim: Simulator) -> None:
     assert np.all(ratio[1, 3:] < 0.8)
     # Bounds grow with depth.
     assert np.all(np.diff(res.sd[0, :, 0]) > 0)
+
+
+# --- (f) the camera pitch offset (pitch_sd) ------------------------------------------------------------------
+
+PITCH_SD = math.radians(2.0)
+
+
+def _mount_off(**change: float) -> RobotConfig:
+    """The default robot with its camera mount changed: what the simulator renders while the estimator keeps
+    RobotConfig.default()."""
+    d = RobotConfig.default()
+    return dataclasses.replace(d, camera_mount=dataclasses.replace(d.camera_mount, **change))
+
+
+MOUNT_ERRORS = {
+    "pitch +1 deg": {"pitch": math.radians(1.0)},
+    "pitch -1 deg": {"pitch": math.radians(-1.0)},
+    "height +1 cm": {"z": 0.26},
+    "height -1 cm": {"z": 0.24},
+}
+
+
+@pytest.mark.parametrize("error", list(MOUNT_ERRORS))
+def test_pitch_offset_absorbs_a_wrong_mount(error: str) -> None:
+    """The simulator's camera is pitched 1 degree (or raised 1 cm) against the estimator's RobotConfig.
+    Exact corners, 3 markers, 1-2.5 m: the 3-DoF fit is centimetres and degrees off, the fit with the pitch
+    offset is within 1 cm and 0.3 degrees (and finds the pitch error itself, sign included)."""
+    truth_sim = Simulator(robot=_mount_off(**MOUNT_ERRORS[error]), seed=0)
+    believed = RobotConfig.default()
+    args = (truth_sim.camera, truth_sim.layout, believed)
+    worst3 = 0.0
+    for depth in (1.0, 1.75, 2.5):
+        for y, yaw_deg in ((0.05, 10.0), (-0.08, -10.0), (0.0, 0.0)):
+            truth = _pose(depth, y, yaw_deg)
+            corners = truth_sim.true_corners(truth)
+            assert all(truth_sim.in_view(c) for c in corners.values())
+            start = DockPose(truth.x + 0.05, truth.y - 0.03, truth.yaw + math.radians(5.0))
+            f3 = solve_planar(corners, *args, start=start, max_iterations=50)
+            f4 = solve_planar(corners, *args, start=start, max_iterations=50, pitch_sd=PITCH_SD)
+            assert f4.converged
+            e3, e4 = _errors(f3.pose, truth), _errors(f4.pose, truth)
+            assert np.all(np.abs(e4[:2]) < 0.01), (depth, yaw_deg, e4)
+            assert abs(math.degrees(e4[2])) < 0.3, (depth, yaw_deg, e4)
+            worst3 = max(worst3, abs(e3[0]))
+            if error.startswith("pitch"):
+                # δ is the mount pitch error (zero roll): exact, and the pose with it.
+                want = MOUNT_ERRORS[error]["pitch"]
+                assert abs(f4.pitch_offset - want) < 1e-5, (f4.pitch_offset, want)
+                assert np.all(np.abs(e4) < 1e-4)
+                assert abs(e3[0]) > 0.02
+            else:
+                # A raised camera looks like one pitched up: δ has the opposite sign of the height error.
+                assert f4.pitch_offset * (MOUNT_ERRORS[error]["z"] - RobotConfig.default().camera_mount.z) < 0
+    assert worst3 > 0.05, f"the 3-DoF fit should be several cm off, worst {worst3:.3f} m"
+
+
+def test_pitch_offset_candidates_find_the_truth() -> None:
+    """planar_candidates with pitch_sd (IPPE starts only) under a 1 degree mount pitch error."""
+    truth_sim = Simulator(robot=_mount_off(pitch=math.radians(1.0)), seed=0)
+    truth = _pose(1.6, -0.1, 12.0)
+    corners = truth_sim.true_corners(truth)
+    args = (truth_sim.camera, truth_sim.layout, RobotConfig.default())
+    best = planar_candidates(corners, *args, pitch_sd=PITCH_SD)[0]
+    # Exact but for the prior's small pull towards δ = 0 (a MAP estimate).
+    assert np.all(np.abs(_errors(best.pose, truth)) < 1e-4)
+    assert abs(best.pitch_offset - math.radians(1.0)) < 1e-5
+    plain = planar_candidates(corners, *args)[0]
+    assert abs(plain.pose.x - truth.x) > 0.1
+    assert plain.pitch_offset == 0.0
+
+
+@pytest.mark.parametrize("truth", [_pose(0.8, 0.05, 10.0), _pose(2.0, -0.2, -20.0)])
+def test_pitch_jacobian_matches_finite_differences_of_true_corners(truth: DockPose) -> None:
+    """At a pitch offset of 0.7 degrees the 4-column model reproduces the corners of a simulator whose mount
+    is pitched by that much, and its Jacobian matches central differences of those corners in x, y, yaw and
+    the mount pitch."""
+    p0 = math.radians(0.7)
+    believed = RobotConfig.default()
+
+    def corners(pose: DockPose, pitch: float) -> np.ndarray:
+        c = Simulator(robot=_mount_off(pitch=pitch), seed=0).true_corners(pose)
+        return np.concatenate([c[r] for r in ("left", "center", "right")])
+
+    s = Simulator(seed=0)
+    px, J = planar_model(s.camera, s.layout, believed).jacobian(truth, ("left", "center", "right"), pitch_offset=p0)
+    assert J.shape == (24, 4)
+    assert np.allclose(px, corners(truth, p0), atol=1e-9)
+    h = 1e-6
+    fd = np.empty_like(J)
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = h
+        plus = corners(DockPose(truth.x + d[0], truth.y + d[1], truth.yaw + d[2]), p0)
+        minus = corners(DockPose(truth.x - d[0], truth.y - d[1], truth.yaw - d[2]), p0)
+        fd[:, k] = (plus - minus).ravel() / (2 * h)
+    fd[:, 3] = (corners(truth, p0 + h) - corners(truth, p0 - h)).ravel() / (2 * h)
+    assert np.allclose(J, fd, rtol=1e-6, atol=1e-4), np.abs(J - fd).max()
+
+
+def test_pitch_offset_monte_carlo_reaches_its_bound(sim: Simulator) -> None:
+    """Correct mount, σ = 0.05 px on the true corners, 3 markers at 1.5 m: the 4-DoF fit's (x, y, yaw)
+    covariance is pose_information(pitch_sd) (±15 %), which costs at most 1.3x the 3-DoF bound."""
+    sigma = 0.05
+    truth = _pose(1.5, 0.05, 8.0)
+    args = (sim.camera, sim.layout, sim.robot)
+    roles = visible_roles(truth, *args)
+    assert roles == ("left", "center", "right")
+    bound3 = pose_information(truth, *args, roles, sigma)
+    bound4 = pose_information(truth, *args, roles, sigma, pitch_sd=PITCH_SD)
+    assert np.allclose(bound3, crlb(truth, *args, sigma, roles=roles), rtol=1e-9)
+    price = np.diag(bound4) / np.diag(bound3)
+    assert np.all(price >= 1.0 - 1e-9), price
+    assert np.all(price < 1.3), price
+    corners = sim.true_corners(truth)
+    rng = np.random.default_rng(17)
+    n = 1500
+    errs = np.empty((n, 3))
+    deltas = np.empty(n)
+    for k in range(n):
+        noisy = {r: corners[r] + rng.normal(0.0, sigma, (4, 2)) for r in roles}
+        fit = solve_planar(noisy, *args, start=truth, corner_sigma=sigma, pitch_sd=PITCH_SD)
+        assert fit.converged
+        errs[k] = _errors(fit.pose, truth)
+        deltas[k] = fit.pitch_offset
+    emp = np.cov(errs.T)
+    ratio = np.diag(emp) / np.diag(bound4)
+    assert np.all(np.abs(ratio - 1.0) < 0.15), ratio
+    assert np.all(np.abs(errs.mean(axis=0)) < 0.15 * np.sqrt(np.diag(bound4)))
+    assert abs(deltas.mean()) < 4.0 * deltas.std() / math.sqrt(n)
+    assert np.allclose(np.diag(fit.covariance), np.diag(bound4), rtol=0.1)
+    # Freeing the pitch is visible in the data: the 3-DoF bound is too small for these errors in depth.
+    assert np.diag(emp)[0] > np.diag(bound3)[0]
+
+
+def test_pitch_sd_none_is_the_three_dof_fit(sim: Simulator) -> None:
+    """pitch_sd=None is today's fit (pitch_offset 0), and a vanishing pitch prior converges to it."""
+    truth = _pose(1.2, 0.04, -6.0)
+    args = (sim.camera, sim.layout, sim.robot)
+    rng = np.random.default_rng(23)
+    noisy = {r: c + rng.normal(0.0, 0.3, (4, 2)) for r, c in sim.true_corners(truth).items()}
+    plain = solve_planar(noisy, *args, start=truth)
+    none = solve_planar(noisy, *args, start=truth, pitch_sd=None)
+    assert none.pose == plain.pose
+    assert none.cost == plain.cost
+    assert none.pitch_offset == 0.0
+    assert np.array_equal(none.covariance, plain.covariance)
+    tight = solve_planar(noisy, *args, start=truth, pitch_sd=1e-9, max_iterations=50)
+    assert np.allclose(_errors(tight.pose, plain.pose), 0.0, atol=1e-7)
+    assert np.allclose(tight.covariance, plain.covariance, rtol=1e-5)
+    assert abs(tight.pitch_offset) < 1e-12
+    assert np.allclose(pose_information(truth, *args, ROLE_SETS[2], 0.3, pitch_sd=1e-9), crlb(truth, *args, 0.3))
+
+
+@pytest.mark.parametrize("bad", [0.0, -0.01, math.nan, math.inf])
+def test_bad_pitch_sd_raises_input_error(sim: Simulator, bad: float) -> None:
+    truth = _pose(1.0, 0.0, 0.0)
+    corners = sim.true_corners(truth)
+    args = (sim.camera, sim.layout, sim.robot)
+    with pytest.raises(InputError, match="pitch_sd"):
+        solve_planar(corners, *args, start=truth, pitch_sd=bad)
+    with pytest.raises(InputError, match="pitch_sd"):
+        planar_candidates(corners, *args, pitch_sd=bad)
+    with pytest.raises(InputError, match="pitch_sd"):
+        pose_information(truth, *args, ROLE_SETS[2], 0.3, pitch_sd=bad)
+
+
+def test_pitch_prior_as_strong_as_the_corners_lands_half_way() -> None:
+    """Mount pitched by 3 sd of what the corners say about δ, exact corners: with pitch_sd equal to that sd
+    the MAP pitch offset is half the truth (linear regime), and a very tight prior gives the 3-DoF fit."""
+    believed = RobotConfig.default()
+    s = Simulator(seed=0)
+    truth = _pose(1.5, 0.05, 8.0)
+    roles = ("left", "center", "right")
+    sigma = 0.3
+    _, J = planar_model(s.camera, s.layout, believed).jacobian(truth, roles, pitch_offset=0.0)
+    sd_delta = math.sqrt(np.linalg.inv(J.T @ J / sigma**2)[3, 3])
+    error = 3.0 * sd_delta
+    corners = Simulator(robot=_mount_off(pitch=error), seed=0).true_corners(truth)
+    args = (s.camera, s.layout, believed)
+    half = solve_planar(corners, *args, start=truth, corner_sigma=sigma, pitch_sd=sd_delta, max_iterations=50)
+    assert half.converged
+    assert abs(half.pitch_offset / error - 0.5) < 0.02, half.pitch_offset / error
+    free = solve_planar(corners, *args, start=truth, corner_sigma=sigma, pitch_sd=1.0, max_iterations=50)
+    assert abs(free.pitch_offset / error - 1.0) < 1e-3
+    plain = solve_planar(corners, *args, start=truth, corner_sigma=sigma, max_iterations=50)
+    tight = solve_planar(corners, *args, start=truth, corner_sigma=sigma, pitch_sd=1e-9, max_iterations=50)
+    assert np.allclose(_errors(tight.pose, plain.pose), 0.0, atol=1e-7)

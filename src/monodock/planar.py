@@ -11,6 +11,13 @@ which with a zero pose is dπ/dP; the chain rule with dP/d(x, y, yaw) gives the 
 
 A lone small marker seen from afar has two planar minima (the yaw sign ambiguity of weak perspective):
 ``planar_candidates`` starts from both IPPE solutions and returns every distinct local minimum with its cost.
+
+The 3-DoF model trusts the mount: a pitch 1° off moves every corner ~10 px vertically at f = 600 px, which
+it can only explain by moving the dock in depth (~30 cm) and yaw (~20°). With ``pitch_sd`` the fit also
+estimates a pitch offset δ of the camera about its optical x axis, P' = R_x(δ)·P, under a prior δ ~ N(0, σ²);
+dP'/dδ = (0, −P'_z, P'_y). For a mount with zero roll δ is the error of the mount's pitch (true − configured,
+> 0: the camera looks further down than configured); it also soaks up most of a height error, which shifts
+the corners nearly the same way. ``pose_information`` gives the bound with δ marginalised.
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ __all__ = [
     "PosePrior",
     "planar_candidates",
     "planar_model",
+    "pose_information",
     "solve_planar",
 ]
 
@@ -95,6 +103,8 @@ class PlanarFit:
         iterations: projections evaluated.
         converged: whether the last step was below the tolerance.
         roles: the markers used, in the order their corners were stacked.
+        pitch_offset: the estimated camera pitch offset δ (rad) when fitted with ``pitch_sd``, else 0.0;
+            the covariances are then the (x, y, yaw) marginals of the 4x4 one.
     """
 
     pose: DockPose
@@ -106,6 +116,7 @@ class PlanarFit:
     iterations: int
     converged: bool
     roles: tuple[str, ...] = ()
+    pitch_offset: float = 0.0
 
     def sd(self) -> tuple[float, float, float]:
         """Standard deviations of x (m), y (m) and yaw (rad) from ``covariance``."""
@@ -172,17 +183,24 @@ class PlanarModel:
         px, _ = cv2.projectPoints(self.optical_points(pose, roles), _ZERO3, _ZERO3, self._K, self._dist)
         return np.asarray(px, dtype=np.float64).reshape(-1, 2)
 
-    def jacobian(self, pose: DockPose, roles: Sequence[str]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Corner pixels, shape (4R, 2), and their Jacobian w.r.t. (x, y, yaw), shape (8R, 3), rows u0, v0, u1, ...
+    def jacobian(
+        self, pose: DockPose, roles: Sequence[str], pitch_offset: float | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Corner pixels, shape (4R, 2), and their Jacobian w.r.t. (x, y, yaw), shape (8R, 3), rows u0, v0, u1, ...;
+        with ``pitch_offset`` (rad) at that camera pitch offset and w.r.t. (x, y, yaw, δ), shape (8R, 4).
 
         Raises:
             InputError: a corner is not in front of the camera.
         """
         parts = self.parts(roles)
-        X = self._design(pose.x, pose.y, pose.yaw, parts, None)
+        if pitch_offset is None:
+            X = self._design(pose.x, pose.y, pose.yaw, parts, None)
+        else:
+            X = self._design4(pose.x, pose.y, pose.yaw, float(pitch_offset), parts, None)
         if X is None:
             raise InputError("a marker corner is behind the camera at this pose")
-        return X[:, :, 3].copy(), X[:, :, :3].reshape(-1, 3).copy()
+        k = X.shape[2] - 1
+        return X[:, :, k].copy(), X[:, :, :k].reshape(-1, k).copy()
 
     def _design(
         self, x: float, y: float, yaw: float, parts: _Parts, img: NDArray[np.float64] | None
@@ -200,6 +218,29 @@ class PlanarModel:
         # With rvec = tvec = 0 the tvec columns of projectPoints' Jacobian are dπ/dP per point.
         np.matmul(jac[:, 3:6].reshape(-1, 2, 3), T, out=X[:, :, :3])
         X[:, :, 3] = px.reshape(-1, 2) if img is None else px.reshape(-1, 2) - img
+        return X
+
+    def _design4(
+        self, x: float, y: float, yaw: float, delta: float, parts: _Parts, img: NDArray[np.float64] | None
+    ) -> NDArray[np.float64] | None:
+        """``_design`` with the camera pitched by δ about its optical x axis: [J | r] of shape (N, 2, 5),
+        columns x, y, yaw, δ; still one projection."""
+        c, s = math.cos(delta), math.sin(delta)
+        # G = [R_x(δ); S·R_x(δ)] with S·Q = e_x × Q: one product gives Q = R·P, dQ/dyaw = R·dP/dyaw and
+        # dQ/dδ = e_x × Q = (0, −Q_z, Q_y).
+        G = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c], [0.0, 0.0, 0.0], [0.0, -s, -c], [0.0, c, -s]])
+        M = np.matmul(G, (parts.Z @ _coefficients(x, y, yaw)).reshape(-1, 3, 2))
+        Q = np.ascontiguousarray(M[:, :3, 0])
+        if min(Q[:, 2].tolist()) <= _MIN_DEPTH:
+            return None
+        px, jac = cv2.projectPoints(Q, _ZERO3, _ZERO3, self._K, self._dist)
+        T = np.empty((len(Q), 3, 4))
+        T[:, :, :2] = G[:3] @ self._A[:, :2]  # dQ/dx, dQ/dy = R·a₀, R·a₁
+        T[:, :, 2] = M[:, :3, 1]
+        T[:, :, 3] = M[:, 3:, 0]
+        X = np.empty((len(Q), 2, 5))
+        np.matmul(jac[:, 3:6].reshape(-1, 2, 3), T, out=X[:, :, :4])
+        X[:, :, 4] = px.reshape(-1, 2) if img is None else px.reshape(-1, 2) - img
         return X
 
 
@@ -237,13 +278,14 @@ class _Whitening:
     blocks: NDArray[np.float64] | None = None
 
     def normal(self, X: NDArray[np.float64]) -> list[list[float]]:
-        """[J | r]ᵀ W [J | r] as nested lists (4x4): JᵀWJ, JᵀWr and rᵀWr in one product."""
+        """[J | r]ᵀ W [J | r] as nested lists (4x4, 5x5 with the pitch): JᵀWJ, JᵀWr and rᵀWr in one product."""
+        k = X.shape[2]
         if self.blocks is not None:
-            Xw = np.matmul(self.blocks, X).reshape(-1, 4)
+            Xw = np.matmul(self.blocks, X).reshape(-1, k)
         elif self.rows is not None:
-            Xw = X.reshape(-1, 4) * self.rows[:, None]
+            Xw = X.reshape(-1, k) * self.rows[:, None]
         else:
-            Xf = X.reshape(-1, 4)
+            Xf = X.reshape(-1, k)
             return (Xf.T @ Xf * self.scalar**2).tolist()  # type: ignore[no-any-return]
         return (Xw.T @ Xw).tolist()  # type: ignore[no-any-return]
 
@@ -313,6 +355,7 @@ def solve_planar(
     prior: PosePrior | None = None,
     max_iterations: int = 20,
     tolerance: float = 1e-9,
+    pitch_sd: float | None = None,
 ) -> PlanarFit:
     """The maximum-likelihood (or, with a prior, maximum a posteriori) DockPose from marker corners.
 
@@ -330,19 +373,35 @@ def solve_planar(
         prior: a Gaussian prior on the pose, or None.
         max_iterations: cap on projections evaluated.
         tolerance: absolute step size (m, rad) below which the fit has converged in any case.
+        pitch_sd: None fits (x, y, yaw) with the mount as given; a number (rad) also fits the camera's
+            pitch offset δ about its optical x axis, with the prior δ ~ N(0, pitch_sd²), starting at 0.
 
     Returns:
         The fit; ``converged`` is False when the cap was hit or no valid pose was reachable (then the
         pose is the best one seen, possibly the start, and the cost may be infinite).
 
     Raises:
-        InputError: unknown roles, wrong shapes, non-finite pixels, bad sigma or prior.
+        InputError: unknown roles, wrong shapes, non-finite pixels, bad sigma, prior or pitch_sd.
     """
     roles, img = _stack_corners(corners)
     model = planar_model(camera, layout, robot)
     parts = model.parts(roles)
     white = _whitening(corner_sigma, len(parts.obj))
-    return _solve(model, roles, parts, img, white, _theta(start), prior, max_iterations, tolerance)
+    if pitch_sd is None:
+        return _solve(model, roles, parts, img, white, _theta(start), prior, max_iterations, tolerance)
+    pitch_info = _pitch_information(pitch_sd)
+    return _solve4(model, roles, parts, img, white, _theta(start), prior, pitch_info, max_iterations, tolerance)
+
+
+def _pitch_information(pitch_sd: float) -> float:
+    """1/σ² of the pitch prior; raises InputError unless σ is a positive finite number."""
+    try:
+        sd = float(pitch_sd)
+    except (TypeError, ValueError):
+        raise InputError(f"pitch_sd must be a number of radians or None, got {pitch_sd!r}") from None
+    if not (sd > 0 and math.isfinite(sd)):
+        raise InputError(f"pitch_sd must be positive and finite, got {pitch_sd}")
+    return 1.0 / (sd * sd)
 
 
 def _solve3(A: list[list[float]], b: list[float]) -> tuple[float, float, float] | None:
@@ -465,6 +524,177 @@ def _inverse3(m: list[list[float]], factor: float) -> NDArray[np.float64]:
     )
 
 
+# --- the solver with the camera's pitch offset ------------------------------------------------------------
+
+
+def _solve4(
+    model: PlanarModel,
+    roles: tuple[str, ...],
+    parts: _Parts,
+    img: NDArray[np.float64],
+    white: _Whitening,
+    theta: NDArray[np.float64],
+    prior: PosePrior | None,
+    pitch_info: float,
+    max_iterations: int,
+    tolerance: float,
+) -> PlanarFit:
+    """``_solve`` over (x, y, yaw, δ) with the prior δ ~ N(0, 1/pitch_info): the same loop, a 4x4 system."""
+    info = prior.information().tolist() if prior is not None else None
+    mu = (prior.mean.x, prior.mean.y, prior.mean.yaw) if prior is not None else (0.0, 0.0, 0.0)
+    target = img.reshape(-1, 2)
+    Evaluation = tuple[float, list[list[float]], list[float], NDArray[np.float64], list[list[float]]]
+
+    def evaluate(th: list[float]) -> Evaluation | None:
+        """Cost, H = JᵀWJ + priors, gradient, the design [J | r] and [J | r]ᵀW[J | r] at (x, y, yaw, δ)."""
+        X = model._design4(th[0], th[1], th[2], th[3], parts, target)
+        if X is None:
+            return None
+        N = white.normal(X)
+        H = [N[0][:4], N[1][:4], N[2][:4], N[3][:4]]
+        g = [N[0][4], N[1][4], N[2][4], N[3][4]]
+        cost = N[4][4]
+        H[3][3] += pitch_info
+        g[3] += pitch_info * th[3]
+        cost += pitch_info * th[3] * th[3]
+        if info is not None:
+            e = (th[0] - mu[0], th[1] - mu[1], wrap_angle(th[2] - mu[2]))
+            for k in range(3):
+                ie = info[k][0] * e[0] + info[k][1] * e[1] + info[k][2] * e[2]
+                g[k] += ie
+                cost += e[k] * ie
+                for m in range(3):
+                    H[k][m] += info[k][m]
+        if not math.isfinite(cost):
+            return None
+        return cost, H, g, X, N
+
+    th = [float(theta[0]), float(theta[1]), float(theta[2]), 0.0]
+    current = evaluate(th)
+    iterations = 1
+    converged = False
+    lam = 1e-4
+    while current is not None and iterations < max_iterations:
+        cost, H, g, _, _ = current
+        damped = [[H[k][m] * (1.0 + lam) if k == m else H[k][m] for m in range(4)] for k in range(4)]
+        step = _solve4x4(damped, g)
+        if step is None:
+            break
+        # δᵀHδ = −δᵀg − λ Σ H_kk δ_k² for the damped step: no second product needed.
+        decrease = -(step[0] * g[0] + step[1] * g[1] + step[2] * g[2] + step[3] * g[3]) - lam * (
+            H[0][0] * step[0] ** 2 + H[1][1] * step[1] ** 2 + H[2][2] * step[2] ** 2 + H[3][3] * step[3] ** 2
+        )
+        trial_th = [th[0] + step[0], th[1] + step[1], th[2] + step[2], th[3] + step[3]]
+        if decrease < _CHI2_TOLERANCE or max(abs(d) for d in step) < tolerance:
+            th = trial_th
+            converged = True
+            break
+        trial = evaluate(trial_th)
+        iterations += 1
+        if trial is not None and trial[0] <= cost:
+            current, th = trial, trial_th
+            lam = max(lam * 0.1, 1e-12)
+        else:
+            lam *= 10.0
+            if lam > 1e12:
+                break
+    pose = DockPose(th[0], th[1], wrap_angle(th[2]))
+    if current is None:
+        inf = np.full((3, 3), np.inf)
+        return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles, th[3])
+    cost, _, _, X, N = current
+    n = len(parts.obj)
+    dof = 2 * n - 4
+    chi2 = N[4][4]
+    scale = math.sqrt(chi2 / dof) if dof > 0 else math.nan
+    lam4 = [[0.0] * 4 for _ in range(4)]
+    lam4[3][3] = pitch_info
+    if info is not None:
+        for k in range(3):
+            lam4[k][:3] = info[k]
+    cov = _marginal3([[N[k][m] + lam4[k][m] for m in range(4)] for k in range(4)], 1.0)
+    # (F/s² + Λ)⁻¹ = s²(F + s²Λ)⁻¹, finite for exact corners (s = 0) as in ``_solve``.
+    s2 = scale * scale
+    cov_res = _marginal3([[N[k][m] + s2 * lam4[k][m] for m in range(4)] for k in range(4)], s2)
+    r = X[:, :, 4].ravel()
+    rms = math.sqrt(float(r @ r) / n)
+    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles, th[3])
+
+
+def _schur(H: list[list[float]]) -> tuple[list[list[float]], list[float], float] | None:
+    """δ eliminated from a 4x4 information matrix: (A − b bᵀ/d, b, d) with H = [[A, b], [bᵀ, d]]; None if d ≤ 0.
+
+    A − b bᵀ/d is the information of (x, y, yaw) with δ marginalised, so its inverse is their covariance.
+    """
+    d = H[3][3]
+    if not d > 0.0 or not math.isfinite(d):
+        return None
+    b = [H[0][3], H[1][3], H[2][3]]
+    return [[H[k][m] - b[k] * b[m] / d for m in range(3)] for k in range(3)], b, d
+
+
+def _solve4x4(H: list[list[float]], g: list[float]) -> list[float] | None:
+    """The step x with H x = −g for the 4x4 (x, y, yaw, δ) system, by the Schur complement on δ."""
+    reduced = _schur(H)
+    if reduced is None:
+        return None
+    A, b, d = reduced
+    s = _solve3(A, [-g[k] + b[k] * g[3] / d for k in range(3)])
+    if s is None:
+        return None
+    return [s[0], s[1], s[2], (-g[3] - b[0] * s[0] - b[1] * s[1] - b[2] * s[2]) / d]
+
+
+def _marginal3(information: list[list[float]], factor: float) -> NDArray[np.float64]:
+    """The (x, y, yaw) block of factor · information⁻¹ for a 4x4 information; infinite where it is singular."""
+    reduced = _schur(information)
+    if reduced is None:
+        return np.full((3, 3), np.inf if math.isfinite(factor) else np.nan)
+    return _inverse3(reduced[0], factor)
+
+
+def pose_information(
+    pose: DockPose,
+    camera: CameraModel,
+    layout: DockLayout,
+    robot: RobotConfig,
+    roles: Sequence[str],
+    corner_sigma: float | ArrayLike,
+    pitch_sd: float | None = None,
+) -> NDArray[np.float64]:
+    """The Cramér–Rao bound on (x m, y m, yaw rad) at a true pose, with the camera pitch as a nuisance.
+
+    Without ``pitch_sd`` this is ``crlb.crlb`` (the mount trusted); with it, the (x, y, yaw) block of the
+    inverse of the 4x4 information JᵀWJ + diag(0, 0, 0, 1/pitch_sd²) at δ = 0: the bound of a fit that
+    estimates the pitch under that prior. The ratio of the two is what freeing the pitch costs.
+
+    Args:
+        pose: the true DockPose.
+        camera, layout, robot: the set-up.
+        roles: the markers observed.
+        corner_sigma: as in ``solve_planar`` (a number, (N,), (N, 2) or (N, 2, 2)).
+        pitch_sd: the pitch prior's standard deviation (rad), or None.
+
+    Returns:
+        The 3x3 covariance bound; infinite where the pose is unobservable.
+
+    Raises:
+        InputError: unknown or no roles, a corner behind the camera, bad sigma or pitch_sd.
+    """
+    model = planar_model(camera, layout, robot)
+    parts = model.parts(roles)
+    white = _whitening(corner_sigma, len(parts.obj))
+    pitch_info = _pitch_information(pitch_sd) if pitch_sd is not None else None
+    X = model._design4(pose.x, pose.y, pose.yaw, 0.0, parts, None)
+    if X is None:
+        raise InputError("a marker corner is behind the camera at this pose")
+    F = [row[:4] for row in white.normal(X)[:4]]
+    if pitch_info is None:
+        return _inverse3([row[:3] for row in F[:3]], 1.0)
+    F[3][3] += pitch_info
+    return _marginal3(F, 1.0)
+
+
 # --- candidate starts -------------------------------------------------------------------------------------
 
 
@@ -521,6 +751,7 @@ def planar_candidates(
     starts: Sequence[DockPose] = (),
     max_iterations: int = 50,
     tolerance: float = 1e-9,
+    pitch_sd: float | None = None,
 ) -> list[PlanarFit]:
     """Every distinct converged local minimum of the planar fit, lowest cost first.
 
@@ -528,6 +759,7 @@ def planar_candidates(
     of each marker (SOLVEPNP_IPPE_SQUARE) and, with several markers, of the board (SOLVEPNP_IPPE), each
     turned into a planar pose (z, roll and pitch dropped). For a lone far marker the two IPPE solutions
     lead to the two minima of the yaw sign ambiguity; the caller scores them (cost, a prior, a tracker).
+    ``pitch_sd`` as in ``solve_planar`` (every start with δ = 0).
 
     Raises:
         InputError: as ``solve_planar``.
@@ -536,6 +768,7 @@ def planar_candidates(
     model = planar_model(camera, layout, robot)
     parts = model.parts(roles)
     white = _whitening(corner_sigma, len(parts.obj))
+    pitch_info = _pitch_information(pitch_sd) if pitch_sd is not None else None
     seeds = [_theta(s) for s in starts] + _ippe_starts(roles, img, model)
     tried: list[NDArray[np.float64]] = []
     found: list[PlanarFit] = []
@@ -544,7 +777,10 @@ def planar_candidates(
         if any(_same(seed, t, _SAME_START) for t in tried):
             continue
         tried.append(seed)
-        fit = _solve(model, roles, parts, img, white, seed, prior, max_iterations, tolerance)
+        if pitch_info is None:
+            fit = _solve(model, roles, parts, img, white, seed, prior, max_iterations, tolerance)
+        else:
+            fit = _solve4(model, roles, parts, img, white, seed, prior, pitch_info, max_iterations, tolerance)
         if not fit.converged:
             continue
         th = _theta(fit.pose)
