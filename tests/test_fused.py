@@ -135,3 +135,54 @@ def test_bands_and_holdout() -> None:
     np.testing.assert_array_equal(m, fusion_holdout(1000, 0.1, seed=4))
     with pytest.raises(InputError):
         fusion_holdout(10, 1.5)
+
+
+def test_the_camera_mount_pitch_and_height_are_learned_from_the_images() -> None:
+    """The robot file says the camera is 1 degree less pitched and 1 cm lower than it is: the 4-DoF fits of a few
+    dozen views give both errors back, and the 3-DoF fit with them is as good as with the true mount."""
+    from dataclasses import replace
+
+    from monodock.detect import Detection, MarkerObservation
+    from monodock.fused import FusedEstimator, TrainingRows, fit_mount_offsets
+    from monodock.sim import PoseDistribution, Simulator
+
+    sim = Simulator(seed=3)
+    m = sim.robot.camera_mount
+    wrong = replace(sim.robot, camera_mount=replace(m, pitch=m.pitch - math.radians(1.0), z=m.z - 0.01))
+    rng = np.random.default_rng(8)
+    dets, truth = [], []
+    while len(dets) < 40:
+        pose = sim.sample_pose(PoseDistribution(depth=(0.6, 2.4), require_in_view=("left", "center", "right")))
+        obs = {
+            r: MarkerObservation(r, sim.layout.marker(r).id, c + rng.normal(0, 0.05, c.shape))
+            for r, c in sim.true_corners(pose).items()
+        }
+        dets.append(Detection(obs, (), sim.camera.size))
+        truth.append((pose.x, pose.y, pose.yaw))
+    probe = FusedEstimator(sim.camera, sim.layout, wrong, FusionTables(0.2))
+    fits = [probe.geometry(d, d, pitch_sd=math.radians(3.0)) for d in dets]
+    assert all(f is not None for f in fits)
+    n = len(fits)
+    rows = TrainingRows(
+        geometry=np.array([f.pose for f in fits if f is not None]),
+        geometry_cov=np.tile(np.eye(3), (n, 1, 1)),
+        geometry_set=["m1m2m3"] * n,
+        residual_sigma=np.full(n, 0.05),
+        side_px=np.full(n, 40.0),
+        regression=np.full((n, 3), np.nan),
+        regression_set=[""] * n,
+        labels=np.array(truth),
+        depth_from_camera=np.array(truth)[:, 0] - m.x,
+        pitch_offset=np.array([f.pitch_offset for f in fits if f is not None]),
+    )
+    pitch, height = fit_mount_offsets(rows, wrong.camera_mount.x)
+    assert math.degrees(pitch) == pytest.approx(1.0, abs=0.05)
+    assert height == pytest.approx(0.01, abs=0.002)
+
+    def depth_error(tables: FusionTables) -> float:
+        est = FusedEstimator(sim.camera, sim.layout, wrong, tables)
+        got = [est.geometry(d, d) for d in dets]
+        return float(np.mean([abs(g.pose[0] - t[0]) for g, t in zip(got, truth, strict=True) if g is not None]))
+
+    assert depth_error(FusionTables(0.2)) > 0.02  # the 3-DoF fit on the wrong mount
+    assert depth_error(FusionTables(0.2, mount_pitch_offset=pitch, mount_z_offset=height)) < 0.003

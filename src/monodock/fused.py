@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -48,7 +48,7 @@ __all__ = [
     "three_cornered_hat",
 ]
 
-FUSION_SCHEMA = "monodock.fusion/2"
+FUSION_SCHEMA = "monodock.fusion/3"
 # 25 cm bands of the papers' depth (from the camera) over 25-250 cm; depths outside use the end bands.
 BAND_EDGES_M = tuple(0.25 + 0.25 * k for k in range(10))
 # Chi-square, 3 dof, 99.9 %: beyond this the geometry and the regression disagree and are not averaged.
@@ -239,6 +239,8 @@ class FusionTables:
         regression_cov: per marker set, per band: the regression's 3x3 error covariance (x m, y m, yaw rad).
         label_cov: per band: the LiDAR labels' own error covariance, as the hat measured it.
         rows: rows the tables were learned from, per marker set.
+        mount_pitch_offset, mount_z_offset: what the training images say the camera mount's pitch (rad) and
+            height (m) are off by (0 when within what they can tell).
     """
 
     corner_sigma: float
@@ -247,6 +249,16 @@ class FusionTables:
     regression_cov: Mapping[str, Sequence[NDArray[np.float64] | None]] = field(default_factory=dict)
     label_cov: Sequence[NDArray[np.float64] | None] = ()
     rows: Mapping[str, int] = field(default_factory=dict)
+    mount_pitch_offset: float = 0.0
+    mount_z_offset: float = 0.0
+
+    def geometry_robot(self, robot: RobotConfig) -> RobotConfig:
+        """The mounts the geometry fits with: the camera's pitch and height as the training images saw them."""
+        if self.mount_pitch_offset == 0.0 and self.mount_z_offset == 0.0:
+            return robot
+        m = robot.camera_mount
+        mount = replace(m, pitch=m.pitch + self.mount_pitch_offset, z=m.z + self.mount_z_offset)
+        return replace(robot, camera_mount=mount)
 
     def regression_covariance(self, set_key: str, band: int) -> NDArray[np.float64] | None:
         """The regression's covariance for a marker set and band (the nearest band that has one)."""
@@ -279,6 +291,8 @@ class FusionTables:
             "regression_cov": {k: [mat(c) for c in s] for k, s in self.regression_cov.items()},
             "label_cov": [mat(c) for c in self.label_cov],
             "rows": dict(self.rows),
+            "mount_pitch_offset": self.mount_pitch_offset,
+            "mount_z_offset": self.mount_z_offset,
         }
 
     @classmethod
@@ -314,6 +328,8 @@ class FusionTables:
                 regression_cov=reg,
                 label_cov=[mat(c) for c in d["label_cov"]],
                 rows={str(k): int(v) for k, v in d["rows"].items()},
+                mount_pitch_offset=float(d["mount_pitch_offset"]),
+                mount_z_offset=float(d["mount_z_offset"]),
             )
         except InputError:
             raise
@@ -357,6 +373,7 @@ class TrainingRows:
     regression_set: list[str]
     labels: NDArray[np.float64]
     depth_from_camera: NDArray[np.float64]
+    pitch_offset: NDArray[np.float64] | None = None
 
 
 def corner_sigma_from_residuals(residual_sigma: NDArray[np.float64], side_px: NDArray[np.float64]) -> float:
@@ -461,6 +478,7 @@ class GeometryAnswer:
     noise_scale: float
     side_px: float
     candidates: int
+    pitch_offset: float = 0.0
 
 
 class FusedEstimator:
@@ -485,6 +503,7 @@ class FusedEstimator:
         self.camera, self.layout, self.robot = camera, layout, robot
         self.tables = tables
         self.regression = regression
+        self.geometry_robot = tables.geometry_robot(robot)
 
     def estimate(self, detection: Detection, refined: Detection | None = None) -> PoseEstimate:
         """The fused DockPose of a frame from its OpenCV detection and its refined corners."""
@@ -497,6 +516,8 @@ class FusedEstimator:
         refined: Detection | None,
         prior: DockPose | None = None,
         prior_cov: NDArray[np.float64] | None = None,
+        *,
+        pitch_sd: float | None = None,
     ) -> GeometryAnswer | None:
         """The planar fit to the refined corners (OpenCV's where a marker could not be refined).
 
@@ -518,13 +539,23 @@ class FusedEstimator:
                 sig[4 * i : 4 * i + 4] *= UNREFINED_SIGMA_FACTOR
         fits = []
         if prior is not None:
-            fit = solve_planar(corners, self.camera, self.layout, self.robot, start=prior, corner_sigma=sig)
+            fit = solve_planar(
+                corners, self.camera, self.layout, self.geometry_robot, start=prior, corner_sigma=sig, pitch_sd=pitch_sd
+            )
             if fit.converged and math.isfinite(fit.cost):
                 fits.append(fit)
         good = bool(fits) and len(roles) >= 2 and fits[0].noise_scale < 3.0
         if not good:
             starts = (prior,) if prior is not None else ()
-            fits += planar_candidates(corners, self.camera, self.layout, self.robot, corner_sigma=sig, starts=starts)
+            fits += planar_candidates(
+                corners,
+                self.camera,
+                self.layout,
+                self.geometry_robot,
+                corner_sigma=sig,
+                starts=starts,
+                pitch_sd=pitch_sd,
+            )
         if not fits:
             return None
 
@@ -538,7 +569,14 @@ class FusedEstimator:
         best = min(fits, key=score)
         side = float(np.mean([np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() for c in corners.values()]))
         return GeometryAnswer(
-            _as_vector(best.pose), best.covariance, best.roles, best.rms_px, best.noise_scale, side, len(fits)
+            _as_vector(best.pose),
+            best.covariance,
+            best.roles,
+            best.rms_px,
+            best.noise_scale,
+            side,
+            len(fits),
+            best.pitch_offset,
         )
 
     def combine(self, detection: Detection, refined: Detection | None, reg: PoseEstimate | None) -> PoseEstimate:
@@ -613,8 +651,15 @@ def training_rows(
     layout: DockLayout,
     robot: RobotConfig,
     rows: NDArray[np.int64],
+    *,
+    pitch_sd: float | None = None,
+    mount_offsets: tuple[float, float] = (0.0, 0.0),
 ) -> TrainingRows:
-    """Both methods on the given rows of a labelled dataset (its stored OpenCV and refined corners)."""
+    """Both methods on the given rows of a labelled dataset (its stored OpenCV and refined corners).
+
+    ``pitch_sd`` fits the camera's pitch offset too (``planar.solve_planar``); ``mount_offsets`` (pitch rad,
+    height m) corrects the camera mount the geometry fits with.
+    """
     from monodock.features import detection_from_features, refined_detection_from_row
 
     raw = dataset.raw_features()
@@ -622,7 +667,8 @@ def training_rows(
     labels = np.column_stack([np.asarray(dataset[c], dtype=np.float64) for c in FUSION_LABELS])
     labels[:, 2] = np.radians(labels[:, 2])
     labels[~np.asarray(dataset["label_valid"], dtype=bool)] = np.nan
-    probe = FusedEstimator(camera, layout, robot, FusionTables(_GUESS_SIGMA), None)
+    guess = FusionTables(_GUESS_SIGMA, mount_pitch_offset=mount_offsets[0], mount_z_offset=mount_offsets[1])
+    probe = FusedEstimator(camera, layout, robot, guess, None)
     n = len(rows)
     geo = np.full((n, 3), np.nan)
     gcov = np.tile(np.eye(3), (n, 1, 1))
@@ -630,6 +676,7 @@ def training_rows(
     gset, rset = [""] * n, [""] * n
     resid = np.full(n, np.nan)
     side = np.full(n, np.nan)
+    pitch = np.full(n, np.nan)
     for k, i in enumerate(rows):
         det = detection_from_features(raw[i], layout, camera.size)
         ref = refined_detection_from_row(raw[i], refined[i], layout, camera.size)
@@ -637,20 +684,75 @@ def training_rows(
         if r is not None and r.pose is not None:
             reg[k] = _as_vector(r.pose)
             rset[k] = marker_set_key(r.markers_seen)
-        g = probe.geometry(det, ref, r.pose if r is not None else None, _GUESS_PRIOR_COV)
+        g = probe.geometry(det, ref, r.pose if r is not None else None, _GUESS_PRIOR_COV, pitch_sd=pitch_sd)
         if g is not None:
+            pitch[k] = g.pitch_offset
             geo[k], gcov[k], gset[k] = g.pose, g.covariance, marker_set_key(g.roles)
             side[k] = g.side_px
             resid[k] = g.noise_scale * _GUESS_SIGMA / math.sqrt(max(g.side_px, 4.0))
     depth = labels[rows, 0] - robot.camera_mount.x
-    return TrainingRows(geo, gcov, gset, resid, side, reg, rset, labels[rows], depth)
+    return TrainingRows(geo, gcov, gset, resid, side, reg, rset, labels[rows], depth, pitch)
 
 
-def learn_fusion(rows: TrainingRows, robot: RobotConfig) -> FusionTables:
-    """The tables from held-out rows: the corner noise first, then everything that depends on it."""
+# A mount pitch or height error smaller than these is left alone (what a few hundred frames cannot tell apart
+# from the corners' noise and the floor's unevenness).
+MIN_PITCH_OFFSET = math.radians(0.05)
+MIN_HEIGHT_OFFSET = 0.002
+TRAINING_PITCH_SD = math.radians(3.0)
+
+
+def fit_mount_offsets(rows: TrainingRows, camera_x: float) -> tuple[float, float]:
+    """The camera mount's pitch (rad) and height (m) errors from the pitch offsets the 4-DoF fits found.
+
+    A pitch error tilts every view by the same angle; a height error by (error / depth from the camera),
+    opposite in sign: delta = pitch_error - height_error / depth. Robust least squares over the rows; a term
+    that is not significant (3 standard errors) and above MIN_* stays 0.
+    """
+    if rows.pitch_offset is None:
+        return 0.0, 0.0
+    ok = np.isfinite(rows.pitch_offset) & np.all(np.isfinite(rows.geometry), axis=1)
+    if ok.sum() < 20:
+        return 0.0, 0.0
+    delta = rows.pitch_offset[ok]
+    inv_depth = 1.0 / np.maximum(rows.geometry[ok, 0] - camera_x, 0.2)
+    a = np.column_stack([np.ones(len(delta)), -inv_depth])
+    keep = np.ones(len(delta), dtype=bool)
+    coef = np.zeros(2)
+    cov = np.eye(2)
+    for _ in range(3):
+        coef, *_ = np.linalg.lstsq(a[keep], delta[keep], rcond=None)
+        r = delta - a @ coef
+        scale = 1.4826 * float(np.median(np.abs(r[keep]))) + 1e-9
+        keep = np.abs(r) <= 4 * scale
+        cov = np.linalg.inv(a[keep].T @ a[keep]) * float(np.var(r[keep]))
+    pitch, height = float(coef[0]), float(coef[1])
+    if abs(pitch) < max(3 * math.sqrt(cov[0, 0]), MIN_PITCH_OFFSET):
+        pitch = 0.0
+    if abs(height) < max(3 * math.sqrt(cov[1, 1]), MIN_HEIGHT_OFFSET):
+        height = 0.0
+    return pitch, height
+
+
+def learn_fusion(
+    rows: TrainingRows, robot: RobotConfig, mount_offsets: tuple[float, float] = (0.0, 0.0)
+) -> FusionTables:
+    """The tables from held-out rows (fitted with ``mount_offsets``): the corner noise first, then everything that
+    depends on it."""
     c = corner_sigma_from_residuals(rows.residual_sigma, rows.side_px)
     scaled = TrainingRows(**{**rows.__dict__, "geometry_cov": rows.geometry_cov * (c / _GUESS_SIGMA) ** 2})
-    return learn_tables(scaled, c, (robot.camera_mount.x, robot.camera_mount.y))
+    tables = learn_tables(scaled, c, (robot.camera_mount.x, robot.camera_mount.y))
+    return replace(tables, mount_pitch_offset=mount_offsets[0], mount_z_offset=mount_offsets[1])
+
+
+def learn_fusion_from(
+    dataset: Any, regression: Any, camera: CameraModel, layout: DockLayout, robot: RobotConfig, rows: NDArray[np.int64]
+) -> FusionTables:
+    """Everything the fused method learns from held-out rows: first the camera mount's pitch and height as the
+    images see them (4-DoF fits), then, with those, the corner noise, the variances and the calibration residual."""
+    first = training_rows(dataset, regression, camera, layout, robot, rows, pitch_sd=TRAINING_PITCH_SD)
+    offsets = fit_mount_offsets(first, robot.camera_mount.x)
+    second = training_rows(dataset, regression, camera, layout, robot, rows, mount_offsets=offsets)
+    return learn_fusion(second, robot, offsets)
 
 
 def train_fusion(
@@ -669,8 +771,7 @@ def train_fusion(
     camera = camera or dataset.camera()
     layout, robot = dataset.layout(), dataset.robot()
     regression = RegressionEstimator(bundle, camera, robot)
-    rows = training_rows(dataset, regression, camera, layout, robot, np.flatnonzero(holdout))
-    tables = learn_fusion(rows, robot)
+    tables = learn_fusion_from(dataset, regression, camera, layout, robot, np.flatnonzero(holdout))
     update_bundle_metadata(bundle_path, "fusion", tables.to_dict())
     return tables
 

@@ -330,7 +330,7 @@ def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, Any, int]:
     """The fusion tables ``monodock train`` would learn with one level's files: label the calibration set with
     the LiDAR through those files, run both methods on it, learn. Returns (key, tables, labelled rows)."""
     from monodock.dataset import Dataset, LabelRun, label_frames
-    from monodock.fused import learn_fusion, training_rows
+    from monodock.fused import learn_fusion_from
     from monodock.regression import RegressionEstimator
     from monodock.selftrain import load_bundle
 
@@ -355,8 +355,8 @@ def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, Any, int]:
     meta = {"camera": cal.camera.to_ros_dict(), "robot": cal.robot.to_dict(), "layout": cal.layout.to_dict()}
     ds = Dataset({k: np.asarray(v) for k, v in cols.items()}, meta)
     regression = RegressionEstimator(load_bundle(Path(setup.bundle_path)), cal.camera, cal.robot)
-    rows = training_rows(ds, regression, cal.camera, cal.layout, cal.robot, np.arange(n, dtype=np.int64))
-    return key, learn_fusion(rows, cal.robot), run.labelled
+    tables = learn_fusion_from(ds, regression, cal.camera, cal.layout, cal.robot, np.arange(n, dtype=np.int64))
+    return key, tables, run.labelled
 
 
 @dataclass
