@@ -259,8 +259,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         t = time.perf_counter()
         observation = inner(stamp, image)
         perceive_s += time.perf_counter() - t
-        # From the plan on (the filter is seeded at Calculate): the drive to Point A, the turn, the approach.
-        if mission.state in (State.MOVING1_DRIVE, State.MOVING2, State.MOVING3, State.SETTLE):
+        if mission.state in (State.MOVING3, State.SETTLE):  # the filter was seeded at Calculate
             pending.append(observation)
         return observation
 

@@ -278,19 +278,8 @@ class DockingMission:
 
     @property
     def wants_frames(self) -> bool:
-        """Whether this state uses camera frames (the simulator renders only frames that are used).
-
-        Moving1 and Moving2 steer on odometry towards the targets fixed at Calculate (the papers'), but their
-        frames still refine the track, which Moving3 starts from.
-        """
-        return self.state in (
-            State.ACQUIRE,
-            State.CALCULATE,
-            State.MOVING1_DRIVE,
-            State.MOVING2,
-            State.MOVING3,
-            State.SETTLE,
-        )
+        """Whether this state uses camera frames (the simulator renders only frames that are used)."""
+        return self.state in (State.ACQUIRE, State.CALCULATE, State.MOVING3, State.SETTLE)
 
     def _enter(self, now: float, state: State, note: str = "") -> None:
         if state is State.CALCULATE:
