@@ -59,16 +59,8 @@ DATASET_SCHEMA = "monodock.dataset/2"
 # Schema 1 lacked the refined corners and the whole-face line (its label_yaw_deg is the marker-2 line's); it
 # reads with those columns NaN.
 _READABLE_SCHEMAS = ("monodock.dataset/1", DATASET_SCHEMA)
-_NEW_IN_SCHEMA_2 = (
-    *REFINED_CORNER_NAMES,
-    "label_yaw_marker_deg",
-    "label_y_marker_m",
-    "label_x_line_marker_m",
-    "label_face_points",
-    "label_face_span_m",
-    "label_face_rms_m",
-    "label_face_rejected",
-)
+# The label columns from the marker-2 line's onwards are the face line's additions.
+_NEW_IN_SCHEMA_2 = (*REFINED_CORNER_NAMES, *LABEL_COLUMNS[LABEL_COLUMNS.index("label_yaw_marker_deg") :])
 TRUTH_COLUMNS = ("truth_x_m", "truth_y_m", "truth_yaw_deg")
 _FRAME_COLUMNS = ("frame", "image_stamp", "scan_stamp", "paired", "markers_seen")
 
