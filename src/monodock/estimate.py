@@ -107,10 +107,7 @@ class Estimator:
                 from monodock.refine import refine_detection
 
                 refined = refine_detection(gray, det, self.camera, modules=self.modules)
-                reg = ests.get("regression")
-                if reg is None and self.fused.regression is not None:
-                    reg = self.fused.regression.estimate(det)
-                ests[m] = self.fused.combine(det, refined, reg)
+                ests[m] = self.fused.estimate(det, refined, ests.get("regression"))
             elif m in self.extra:
                 ests[m] = self.extra[m](det)
             else:

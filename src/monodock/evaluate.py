@@ -432,7 +432,7 @@ def fused_method(fused: Any) -> dict[str, FrameMethod]:
 
     def run(row: RowInput) -> PoseEstimate:
         reg = fused.regression.estimate_raw(row.raw, row.detection.roles_seen) if fused.regression else None
-        return fused.combine(row.detection, row.refined, reg)  # type: ignore[no-any-return]
+        return fused.estimate(row.detection, row.refined, reg)  # type: ignore[no-any-return]
 
     return {"fused": run}
 

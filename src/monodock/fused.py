@@ -55,6 +55,7 @@ BAND_EDGES_M = tuple(0.25 + 0.25 * k for k in range(10))
 DISAGREE_CHI2 = 16.27
 # Floors that keep a covariance invertible: 0.1 mm, 0.1 mm, 0.005 degrees (standard deviations).
 _FLOOR_SD = np.array([1e-4, 1e-4, math.radians(0.005)])
+_FLOOR_OUTER = np.outer(_FLOOR_SD, _FLOOR_SD)
 
 
 def band_index(depth_from_camera: float) -> int:
@@ -80,11 +81,21 @@ def _difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.fl
 
 def _psd_floor(cov: NDArray[np.float64], floor_sd: NDArray[np.float64] = _FLOOR_SD) -> NDArray[np.float64]:
     """The nearest symmetric matrix whose eigenvalues are at least the floor (scaled per component)."""
-    s = floor_sd
-    c = 0.5 * (cov + cov.T) / np.outer(s, s)
+    ss = _FLOOR_OUTER if floor_sd is _FLOOR_SD else np.outer(floor_sd, floor_sd)
+    sym = 0.5 * (cov + cov.T)
+    c = sym / ss
+    if _above_identity(c.tolist()):
+        return sym  # nothing below the floor (the usual case)
     w, v = np.linalg.eigh(c)
     c = (v * np.maximum(w, 1.0)) @ v.T
-    return np.asarray(c * np.outer(s, s), dtype=np.float64)
+    return np.asarray(c * ss, dtype=np.float64)
+
+
+def _above_identity(c: list[list[float]]) -> bool:
+    """Whether the symmetric 3x3 c − I is positive definite (Sylvester: its leading minors are positive)."""
+    a, b, d = c[0][0] - 1.0, c[0][1], c[0][2]
+    e, f, i = c[1][1] - 1.0, c[1][2], c[2][2] - 1.0
+    return a > 0 and a * e - b * b > 0 and a * (e * i - f * f) - b * (b * i - f * d) + d * (b * f - e * d) > 0
 
 
 def fuse_gaussians(
@@ -337,16 +348,25 @@ class FusionTables:
             raise InputError(f"{where}: malformed fusion tables ({exc})") from None
 
 
-def corner_sigmas(corners: Mapping[str, NDArray[np.float64]], corner_sigma: float) -> NDArray[np.float64]:
-    """Per-corner noise sd (px) for the roles in ``corners`` (in ROLES order): c / sqrt(mean side px)."""
-    out = []
-    for role in ROLES:
-        c = corners.get(role)
-        if c is None:
-            continue
-        side = float(np.mean(np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1)))
-        out += [corner_sigma / math.sqrt(max(side, 4.0))] * 4
-    return np.asarray(out, dtype=np.float64)
+def side_lengths(corners: Mapping[str, NDArray[np.float64]]) -> NDArray[np.float64]:
+    """Each marker's mean side in pixels, for the roles in ``corners`` in ROLES order."""
+    quads = [corners[r] for r in ROLES if r in corners]
+    if not quads:
+        return np.zeros(0)
+    c = np.asarray(quads, dtype=np.float64)
+    d = c - c[:, [1, 2, 3, 0]]
+    return np.asarray(np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2).mean(axis=1), dtype=np.float64)
+
+
+def corner_sigmas(
+    corners: Mapping[str, NDArray[np.float64]], corner_sigma: float, sides: NDArray[np.float64] | None = None
+) -> NDArray[np.float64]:
+    """Per-corner noise sd (px) for the roles in ``corners`` (in ROLES order): c / sqrt(mean side px).
+
+    ``sides``: the markers' ``side_lengths``, when the caller has them already.
+    """
+    side = side_lengths(corners) if sides is None else sides
+    return np.repeat(corner_sigma / np.sqrt(np.maximum(side, 4.0)), 4)
 
 
 # --- learning the tables --------------------------------------------------------------------------------------
@@ -463,6 +483,17 @@ def learn_tables(rows: TrainingRows, corner_sigma: float, pivot: tuple[float, fl
 
 # --- run time -------------------------------------------------------------------------------------------------
 
+# The regression runs on a frame only if it could make some component of the fused answer's standard deviation
+# at least ~1 % smaller: sqrt(1 + gain) with gain = tr(R⁻¹G) >= λmax(G R⁻¹), R and G the regression's and the
+# geometry's covariances (information adds: the fused variance along any direction is G / (1 + λ) at best).
+REGRESSION_GAIN = 0.25
+
+
+def _gain(g_cov: NDArray[np.float64], reg_cov: NDArray[np.float64]) -> float:
+    """tr(R⁻¹ G): a bound on how much of the geometry's variance the regression could take away."""
+    return float(np.trace(np.linalg.solve(reg_cov, g_cov)))
+
+
 # An unrefined marker keeps OpenCV's corners: inset by ~0.2-0.4 px, so they count as this much noisier.
 UNREFINED_SIGMA_FACTOR = 3.0
 
@@ -505,9 +536,20 @@ class FusedEstimator:
         self.regression = regression
         self.geometry_robot = tables.geometry_robot(robot)
 
-    def estimate(self, detection: Detection, refined: Detection | None = None) -> PoseEstimate:
-        """The fused DockPose of a frame from its OpenCV detection and its refined corners."""
-        reg = self.regression.estimate(detection) if self.regression is not None else None
+    def estimate(
+        self, detection: Detection, refined: Detection | None = None, reg: PoseEstimate | None = None
+    ) -> PoseEstimate:
+        """The fused DockPose of a frame from its OpenCV detection and its refined corners.
+
+        The regression is used only on the frames where it can improve the answer (``_geometry_alone``);
+        ``reg`` is its answer when the caller has it already (the result is the same either way), else it
+        runs when needed.
+        """
+        alone = self._geometry_alone(detection, refined)
+        if alone is not None:
+            return alone
+        if reg is None and self.regression is not None:
+            reg = self.regression.estimate(detection)
         return self.combine(detection, refined, reg)
 
     def geometry(
@@ -527,16 +569,9 @@ class FusedEstimator:
         """
         from monodock.planar import planar_candidates, solve_planar
 
-        source = refined if refined is not None else detection
-        roles = source.roles_seen
+        roles, corners, sig, sides = self._corners(detection, refined)
         if not roles:
             return None
-        corners = {r: source.observations[r].corners for r in roles}
-        unrefined = set(getattr(source, "unrefined", ())) if refined is not None else set(roles)
-        sig = corner_sigmas(corners, self.tables.corner_sigma)
-        for i, r in enumerate(r for r in ROLES if r in corners):
-            if r in unrefined:
-                sig[4 * i : 4 * i + 4] *= UNREFINED_SIGMA_FACTOR
         fits = []
         if prior is not None:
             fit = solve_planar(
@@ -567,17 +602,70 @@ class FusedEstimator:
             return s
 
         best = min(fits, key=score)
-        side = float(np.mean([np.linalg.norm(c - np.roll(c, -1, axis=0), axis=1).mean() for c in corners.values()]))
         return GeometryAnswer(
             _as_vector(best.pose),
             best.covariance,
             best.roles,
             best.rms_px,
             best.noise_scale,
-            side,
+            float(sides.mean()),
             len(fits),
             best.pitch_offset,
         )
+
+    def _corners(
+        self, detection: Detection, refined: Detection | None
+    ) -> tuple[tuple[str, ...], dict[str, NDArray[np.float64]], NDArray[np.float64], NDArray[np.float64]]:
+        """The roles the geometry fits, their corners (refined where they could be), per-corner sigmas and
+        each marker's mean side (px)."""
+        source = refined if refined is not None else detection
+        roles = source.roles_seen
+        corners = {r: source.observations[r].corners for r in roles}
+        sides = side_lengths(corners)
+        sig = corner_sigmas(corners, self.tables.corner_sigma, sides)
+        unrefined = set(getattr(source, "unrefined", ())) if refined is not None else set(roles)
+        for i, r in enumerate(roles):
+            if r in unrefined:
+                sig[4 * i : 4 * i + 4] *= UNREFINED_SIGMA_FACTOR
+        return roles, corners, sig, sides
+
+    def _geometry_alone(self, detection: Detection, refined: Detection | None) -> PoseEstimate | None:
+        """The answer without running the regression, where the regression could not have improved it.
+
+        That is: two or more markers (no yaw-sign ambiguity to settle), one clean fit from the board's IPPE
+        solution, and a regression whose learned covariance for this marker set and band could make no
+        component's standard deviation more than about 1 % smaller (``REGRESSION_GAIN``), or that would not
+        answer at all (marker 2 unseen, no table). Else None, and the caller runs the full combination.
+        """
+        from monodock.features import choose_marker_set
+        from monodock.planar import board_start, solve_planar
+
+        roles, corners, sig, _ = self._corners(detection, refined)
+        if len(roles) < 2:
+            return None
+        start = board_start(corners, self.camera, self.layout, self.geometry_robot)
+        if start is None:
+            return None
+        fit = solve_planar(corners, self.camera, self.layout, self.geometry_robot, start=start, corner_sigma=sig)
+        if not (fit.converged and math.isfinite(fit.cost) and fit.noise_scale < 3.0):
+            return None
+        g, g_cov = self._corrected(_as_vector(fit.pose), fit.covariance, fit.roles)
+        if "center" in roles and self.regression is not None:
+            reg_set = choose_marker_set(roles, self.regression.bundle.sets)
+            if reg_set is not None:
+                reg_cov = self.tables.regression_covariance(reg_set, band_index(g[0] - self.robot.camera_mount.x))
+                if reg_cov is not None and _gain(g_cov, reg_cov) >= REGRESSION_GAIN:
+                    return None
+        return self._answer(g, g_cov, fit.roles, fit.rms_px)
+
+    def _corrected(
+        self, pose: NDArray[np.float64], covariance: NDArray[np.float64], roles: Sequence[str]
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """A planar fit with the learned calibration correction, and its covariance scaled as training found."""
+        g = self.tables.correction.apply(pose)
+        cj = self.tables.correction.jacobian()
+        band = band_index(g[0] - self.robot.camera_mount.x)
+        return g, _psd_floor(cj @ covariance @ cj.T * self.tables.geometry_factor(marker_set_key(roles), band))
 
     def combine(self, detection: Detection, refined: Detection | None, reg: PoseEstimate | None) -> PoseEstimate:
         """Geometry and regression (either may be missing) into one estimate with its covariance."""
@@ -593,10 +681,7 @@ class FusedEstimator:
                 why = reg.reason if reg is not None and reg.reason else "no dock marker seen"
                 return PoseEstimate(self.method, None, why, detection.roles_seen)
             return self._answer(reg_vec, reg_cov, reg.markers_seen if reg else (), math.nan)
-        g = self.tables.correction.apply(geo.pose)
-        cj = self.tables.correction.jacobian()
-        band = band_index(g[0] - self.robot.camera_mount.x)
-        g_cov = _psd_floor(cj @ geo.covariance @ cj.T * self.tables.geometry_factor(marker_set_key(geo.roles), band))
+        g, g_cov = self._corrected(geo.pose, geo.covariance, geo.roles)
         if reg_vec is None or reg_cov is None:
             return self._answer(g, g_cov, geo.roles, geo.rms_px)
         d = _difference(g, reg_vec)

@@ -43,6 +43,7 @@ __all__ = [
     "PlanarFit",
     "PlanarModel",
     "PosePrior",
+    "board_start",
     "planar_candidates",
     "planar_model",
     "pose_information",
@@ -144,7 +145,8 @@ class PlanarModel:
         self.robot = robot
         self._K = camera.matrix
         self._dist = camera.dist
-        optical_T_base = transforms.invert(robot.base_T_optical())
+        self.base_T_optical = robot.base_T_optical()
+        optical_T_base = transforms.invert(self.base_T_optical)
         self._A = np.ascontiguousarray(optical_T_base[:3, :3])
         self._t = np.ascontiguousarray(optical_T_base[:3, 3])
         self._parts: dict[tuple[str, ...], _Parts] = {}
@@ -698,20 +700,52 @@ def pose_information(
 # --- candidate starts -------------------------------------------------------------------------------------
 
 
+def _planar_start(
+    rvec: ArrayLike, tvec: ArrayLike, base_T_optical: NDArray[np.float64], obj_T_dock: NDArray[np.float64]
+) -> NDArray[np.float64] | None:
+    """The planar pose (x, y, yaw) of one solvePnP solution (z, roll and pitch dropped), None if not finite."""
+    R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))
+    optical_T_obj = transforms.transform(R, np.asarray(tvec, dtype=np.float64).ravel())
+    base_T_dock = base_T_optical @ optical_T_obj @ obj_T_dock
+    return _theta(DockPose.from_matrix(base_T_dock)) if np.all(np.isfinite(base_T_dock)) else None
+
+
+def board_start(
+    corners: Mapping[str, ArrayLike], camera: CameraModel, layout: DockLayout, robot: RobotConfig
+) -> DockPose | None:
+    """A start for ``solve_planar`` from two or more markers: the board's better IPPE solution, as a planar pose.
+
+    With two or more markers the board is wide enough that its IPPE solutions rarely fit alike (a lone
+    far marker's do: use ``planar_candidates`` there). None for fewer than two markers or when IPPE fails.
+    """
+    roles, img = _stack_corners(corners)
+    if len(roles) < 2:
+        return None
+    model = planar_model(camera, layout, robot)
+    try:
+        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+            model.parts(roles).obj, img.reshape(-1, 2), camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE
+        )
+    except cv2.error:
+        return None
+    th = _planar_start(rvecs[0], tvecs[0], model.base_T_optical, _EYE4) if n else None
+    return DockPose(float(th[0]), float(th[1]), float(th[2])) if th is not None else None
+
+
+_EYE4 = np.eye(4)
+
+
 def _ippe_starts(roles: tuple[str, ...], img: NDArray[np.float64], model: PlanarModel) -> list[NDArray[np.float64]]:
     """Planar starts from every IPPE solution: each marker alone (IPPE_SQUARE) and, for several, the board."""
-    camera, layout, robot = model.camera, model.layout, model.robot
-    base_T_optical = robot.base_T_optical()
+    camera, layout = model.camera, model.layout
     pixels = img.reshape(-1, 4, 2)
     starts: list[NDArray[np.float64]] = []
 
     def add(rvecs: Iterable[ArrayLike], tvecs: Iterable[ArrayLike], obj_T_dock: NDArray[np.float64]) -> None:
         for rv, tv in zip(rvecs, tvecs, strict=True):
-            R, _ = cv2.Rodrigues(np.asarray(rv, dtype=np.float64))
-            optical_T_obj = transforms.transform(R, np.asarray(tv, dtype=np.float64).ravel())
-            base_T_dock = base_T_optical @ optical_T_obj @ obj_T_dock
-            if np.all(np.isfinite(base_T_dock)):
-                starts.append(_theta(DockPose.from_matrix(base_T_dock)))
+            th = _planar_start(rv, tv, model.base_T_optical, obj_T_dock)
+            if th is not None:
+                starts.append(th)
 
     square = layout.corners_in_marker()
     for k, role in enumerate(roles):
@@ -732,7 +766,7 @@ def _ippe_starts(roles: tuple[str, ...], img: NDArray[np.float64], model: Planar
         except cv2.error:
             n = 0
         if n:
-            add(rvecs, tvecs, np.eye(4))
+            add(rvecs, tvecs, _EYE4)
     return starts
 
 

@@ -440,10 +440,10 @@ def _run_methods(
         "regression": _row(reg),
         "pnp": _row(estimate_single_marker(det, cal.camera, cal.layout, cal.robot)),
         "board": _row(estimate_board(det, cal.camera, cal.layout, cal.robot)),
-        STALE: _row(stale.combine(det, refined, reg)),
+        STALE: _row(stale.estimate(det, refined, reg)),
     }
     if relearned and fused is not None:
-        out["fused"] = _row(fused.combine(det, refined, reg))
+        out["fused"] = _row(fused.estimate(det, refined, reg))
     return out
 
 
