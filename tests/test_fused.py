@@ -186,3 +186,101 @@ def test_the_camera_mount_pitch_and_height_are_learned_from_the_images() -> None
 
     assert depth_error(FusionTables(0.2)) > 0.02  # the 3-DoF fit on the wrong mount
     assert depth_error(FusionTables(0.2, mount_pitch_offset=pitch, mount_z_offset=height)) < 0.003
+
+
+class _CountingRegression:
+    """A stand-in for RegressionEstimator: answers a fixed pose and counts how often it is asked."""
+
+    def __init__(self, answer: object) -> None:
+        from types import SimpleNamespace
+
+        self.answer = answer
+        self.calls = 0
+        self.bundle = SimpleNamespace(sets=("m1m2m3", "m2"))
+
+    def estimate(self, detection: object) -> object:  # noqa: ARG002 (RegressionEstimator's signature)
+        self.calls += 1
+        return self.answer
+
+
+def _noisy_detection(sim: object, pose: object, roles: tuple[str, ...], seed: int) -> object:
+    from monodock.detect import Detection, MarkerObservation
+
+    rng = np.random.default_rng(seed)
+    corners = sim.true_corners(pose)  # type: ignore[attr-defined]
+    obs = {
+        r: MarkerObservation(r, sim.layout.marker(r).id, corners[r] + rng.normal(0, 0.05, (4, 2)))  # type: ignore[attr-defined]
+        for r in roles
+    }
+    return Detection(obs, (), sim.camera.size)  # type: ignore[attr-defined]
+
+
+def test_the_regression_runs_only_where_it_can_improve_the_answer() -> None:
+    """Three markers at 1 m: a regression 1 cm / 1 degree good cannot improve the planar fit and is not run; one
+    as good as the corners is run and pulls the answer; a lone far marker always asks it (the yaw sign). The
+    answer does not depend on whether the caller already had the regression's."""
+    from monodock.fused import FusedEstimator
+    from monodock.pnp import PoseEstimate
+    from monodock.pose import DockPose
+    from monodock.sim import Simulator
+
+    sim = Simulator(seed=4)
+    truth = DockPose(1.17, 0.05, math.radians(10.0))
+    det = _noisy_detection(sim, truth, ("left", "center", "right"), 0)
+
+    def run(reg_sd: tuple[float, float, float], answer: PoseEstimate, given: bool) -> tuple[PoseEstimate, int]:
+        cov = np.diag(np.square(reg_sd))
+        tables = FusionTables(0.2, regression_cov={"m1m2m3": [cov] * 9, "m2": [cov] * 9})
+        regression = _CountingRegression(answer)
+        est = FusedEstimator(sim.camera, sim.layout, sim.robot, tables, regression)
+        out = est.estimate(det, det, answer if given else None)  # type: ignore[arg-type]
+        return out, regression.calls
+
+    roles = ("left", "center", "right")
+    weak_sd = (0.01, 0.01, math.radians(1.0))
+    weak, calls = run(weak_sd, PoseEstimate("regression", truth, "", roles), given=False)
+    assert calls == 0
+    assert weak.pose is not None
+    assert weak.covariance is not None
+    err = np.array([weak.pose.x - truth.x, weak.pose.y - truth.y, weak.pose.yaw - truth.yaw])
+    sd = np.sqrt(np.diag(weak.covariance))
+    assert np.all(np.abs(err) < 4 * sd)  # the planar fit alone, inside its own covariance
+    assert run(weak_sd, PoseEstimate("regression", truth, "", roles), given=True)[0].pose == weak.pose
+
+    # A regression as good as the geometry (sd ~0.1 mm in depth here), 0.2 mm deeper than the planar fit:
+    # it is run, and the fused depth lands about half way between the two.
+    reg_pose = DockPose(weak.pose.x + 0.0002, weak.pose.y, weak.pose.yaw)
+    strong_sd = (1e-4, 1e-4, math.radians(0.02))
+    answer = PoseEstimate("regression", reg_pose, "", roles)
+    strong, calls = run(strong_sd, answer, given=False)
+    assert calls == 1
+    assert strong.pose is not None
+    assert 0.2 < (strong.pose.x - weak.pose.x) / 0.0002 < 0.8
+    assert run(strong_sd, answer, given=True)[0].pose == strong.pose
+
+    far = DockPose(2.3, 0.0, math.radians(20.0))
+    lone = _noisy_detection(sim, far, ("center",), 1)
+    regression = _CountingRegression(PoseEstimate("regression", far, "", ("center",)))
+    cov = np.diag([0.01**2, 0.01**2, math.radians(1.0) ** 2])
+    est = FusedEstimator(
+        sim.camera, sim.layout, sim.robot, FusionTables(0.2, regression_cov={"m2": [cov] * 9}), regression
+    )
+    got = est.estimate(lone, lone)  # type: ignore[arg-type]
+    assert regression.calls == 1
+    assert got.pose is not None
+    assert abs(math.degrees(got.pose.yaw - far.yaw)) < 5.0  # the right yaw sign
+
+
+def test_the_covariance_floor_only_changes_what_is_below_it() -> None:
+    from monodock.fused import _FLOOR_SD, _psd_floor
+
+    s = _FLOOR_SD
+    above = np.diag(np.square(10 * s))
+    above[0, 1] = above[1, 0] = 0.5 * 100 * s[0] * s[1]
+    np.testing.assert_array_equal(_psd_floor(above), above)
+    # One direction (x - y) far below the floor: it comes back at the floor, the rest is untouched.
+    rank1 = np.outer([1e-3, 1e-3, 0.0], [1e-3, 1e-3, 0.0])
+    got = _psd_floor(rank1)
+    w = np.linalg.eigvalsh(got / np.outer(s, s))
+    assert w.min() == pytest.approx(1.0, rel=1e-9)
+    np.testing.assert_allclose(got[0, 0] + got[1, 1] + 2 * got[0, 1], 4e-6, rtol=1e-6)

@@ -506,3 +506,21 @@ def test_pitch_prior_as_strong_as_the_corners_lands_half_way() -> None:
     plain = solve_planar(corners, *args, start=truth, corner_sigma=sigma, max_iterations=50)
     tight = solve_planar(corners, *args, start=truth, corner_sigma=sigma, pitch_sd=1e-9, max_iterations=50)
     assert np.allclose(_errors(tight.pose, plain.pose), 0.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("roles", ROLE_SETS, ids=["1 marker", "2 markers", "3 markers"])
+def test_board_start_is_near_the_truth_and_the_fit_from_it_reaches_it(sim: Simulator, roles: tuple[str, ...]) -> None:
+    from monodock.planar import board_start
+
+    truth = _pose(1.6, -0.1, 15.0)
+    corners = {r: c for r, c in sim.true_corners(truth).items() if r in roles}
+    start = board_start(corners, sim.camera, sim.layout, sim.robot)
+    if len(roles) < 2:
+        assert start is None  # a lone marker's IPPE solutions are ambiguous: planar_candidates handles it
+        return
+    assert start is not None
+    # IPPE's 6-DoF pose, flattened: close, not exact (it fits height, roll and pitch too).
+    assert np.all(np.abs(_errors(start, truth)) < [0.02, 0.01, math.radians(1.0)])
+    fit = solve_planar(corners, sim.camera, sim.layout, sim.robot, start=start, corner_sigma=0.1)
+    assert fit.converged
+    assert np.all(np.abs(_errors(fit.pose, truth)) < 1e-6)
