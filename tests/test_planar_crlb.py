@@ -524,3 +524,23 @@ def test_board_start_is_near_the_truth_and_the_fit_from_it_reaches_it(sim: Simul
     fit = solve_planar(corners, sim.camera, sim.layout, sim.robot, start=start, corner_sigma=0.1)
     assert fit.converged
     assert np.all(np.abs(_errors(fit.pose, truth)) < 1e-6)
+
+
+def test_crlb_with_correlated_corners(sim: Simulator) -> None:
+    """Independent corners are the identity correlation; when a marker's four corners shift sideways together
+    (correlation rho between their u errors), its lateral position is ~sqrt(1 + 3 rho) times less certain,
+    as for the mean of four correlated readings."""
+    truth = _pose(1.0, 0.0, 0.0)
+    roles = ("center",)
+    iid = crlb(truth, sim.camera, sim.layout, sim.robot, 0.05, roles)
+    np.testing.assert_allclose(crlb(truth, sim.camera, sim.layout, sim.robot, 0.05, roles, np.eye(8)), iid)
+    rho = 0.8
+    C = np.eye(8)
+    u = np.arange(0, 8, 2)
+    C[np.ix_(u, u)] = rho + (1 - rho) * np.eye(4)
+    corr = crlb(truth, sim.camera, sim.layout, sim.robot, 0.05, roles, C)
+    assert math.sqrt(corr[1, 1] / iid[1, 1]) == pytest.approx(math.sqrt(1 + 3 * rho), rel=0.15)
+    with pytest.raises(InputError):
+        crlb(truth, sim.camera, sim.layout, sim.robot, 0.05, roles, np.ones((8, 8)))  # not positive definite
+    with pytest.raises(InputError):
+        crlb(truth, sim.camera, sim.layout, sim.robot, 0.05, roles, np.eye(4))

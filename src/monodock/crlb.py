@@ -115,27 +115,41 @@ def crlb(
     robot: RobotConfig,
     corner_sigma_px: float | ArrayLike,
     roles: Sequence[str] | None = None,
+    correlation: ArrayLike | None = None,
 ) -> NDArray[np.float64]:
     """The Cramér–Rao bound: the 3x3 covariance of (x m, y m, yaw rad) no unbiased estimator beats.
 
     Args:
         pose: the true DockPose.
         camera, layout, robot: the set-up.
-        corner_sigma_px: the corner noise in pixels, independent per coordinate: a number, one per corner
-            (N,), or per corner and axis (N, 2); N = 4 × markers in ``roles`` order.
+        corner_sigma_px: the corner noise in pixels: a number, one per corner (N,), or per corner and axis
+            (N, 2); N = 4 × markers in ``roles`` order.
         roles: the markers observed; default: those fully in view at this pose.
+        correlation: None for errors independent between corners and axes; else the 8x8 correlation of one
+            marker's corner errors (u, v of its corners in ArUco order), the same for every marker, markers
+            independent of each other.
 
     Returns:
         σ²(JᵀJ)⁻¹ for iid noise, (JᵀWJ)⁻¹ in general; infinite where the pose is unobservable.
 
     Raises:
-        InputError: no marker in view, bad sigma, a corner behind the camera.
+        InputError: no marker in view, bad sigma or correlation, a corner behind the camera.
     """
     use = tuple(roles) if roles is not None else visible_roles(pose, camera, layout, robot)
     if not use:
         raise InputError(f"no dock marker fully in view at {pose}")
     J = pose_jacobian(pose, camera, layout, robot, use)
     Jw = J / _row_sigmas(corner_sigma_px, len(J) // 2)[:, None]
+    if correlation is not None:
+        C = np.asarray(correlation, dtype=np.float64)
+        if C.shape != (8, 8) or not np.all(np.isfinite(C)) or not np.allclose(C, C.T):
+            raise InputError("a corner correlation must be a finite symmetric 8x8 matrix")
+        try:
+            L = np.linalg.cholesky(C)
+        except np.linalg.LinAlgError:
+            raise InputError("a corner correlation must be positive definite") from None
+        # Whitening per marker: L⁻¹ applied to its 8 sigma-scaled rows.
+        Jw = np.linalg.solve(L, Jw.reshape(-1, 8, 3)).reshape(-1, 3)
     try:
         cov = np.linalg.inv(Jw.T @ Jw)
     except np.linalg.LinAlgError:
