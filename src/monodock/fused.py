@@ -250,8 +250,8 @@ class FusionTables:
         regression_cov: per marker set, per band: the regression's 3x3 error covariance (x m, y m, yaw rad).
         label_cov: per band: the LiDAR labels' own error covariance, as the hat measured it.
         rows: rows the tables were learned from, per marker set.
-        mount_pitch_offset, mount_z_offset: what the training images say the camera mount's pitch (rad) and
-            height (m) are off by (0 when within what they can tell).
+        mount_pitch_offset, mount_z_offset, mount_roll_offset: what the training images say the camera mount's
+            pitch (rad), height (m) and roll (rad) are off by (0 when within what they can tell).
     """
 
     corner_sigma: float
@@ -262,13 +262,19 @@ class FusionTables:
     rows: Mapping[str, int] = field(default_factory=dict)
     mount_pitch_offset: float = 0.0
     mount_z_offset: float = 0.0
+    mount_roll_offset: float = 0.0
 
     def geometry_robot(self, robot: RobotConfig) -> RobotConfig:
-        """The mounts the geometry fits with: the camera's pitch and height as the training images saw them."""
-        if self.mount_pitch_offset == 0.0 and self.mount_z_offset == 0.0:
+        """The mounts the geometry fits with: the camera's pitch, height and roll as the training images saw them."""
+        if self.mount_pitch_offset == 0.0 and self.mount_z_offset == 0.0 and self.mount_roll_offset == 0.0:
             return robot
         m = robot.camera_mount
-        mount = replace(m, pitch=m.pitch + self.mount_pitch_offset, z=m.z + self.mount_z_offset)
+        mount = replace(
+            m,
+            pitch=m.pitch + self.mount_pitch_offset,
+            z=m.z + self.mount_z_offset,
+            roll=m.roll + self.mount_roll_offset,
+        )
         return replace(robot, camera_mount=mount)
 
     def regression_covariance(self, set_key: str, band: int) -> NDArray[np.float64] | None:
@@ -304,6 +310,7 @@ class FusionTables:
             "rows": dict(self.rows),
             "mount_pitch_offset": self.mount_pitch_offset,
             "mount_z_offset": self.mount_z_offset,
+            "mount_roll_offset": self.mount_roll_offset,
         }
 
     @classmethod
@@ -341,6 +348,7 @@ class FusionTables:
                 rows={str(k): int(v) for k, v in d["rows"].items()},
                 mount_pitch_offset=float(d["mount_pitch_offset"]),
                 mount_z_offset=float(d["mount_z_offset"]),
+                mount_roll_offset=float(d.get("mount_roll_offset", 0.0)),  # added within schema 3: absent is 0
             )
         except InputError:
             raise
@@ -394,6 +402,7 @@ class TrainingRows:
     labels: NDArray[np.float64]
     depth_from_camera: NDArray[np.float64]
     pitch_offset: NDArray[np.float64] | None = None
+    roll_offset: NDArray[np.float64] | None = None
 
 
 def corner_sigma_from_residuals(residual_sigma: NDArray[np.float64], side_px: NDArray[np.float64]) -> float:
@@ -510,6 +519,7 @@ class GeometryAnswer:
     side_px: float
     candidates: int
     pitch_offset: float = 0.0
+    roll_offset: float = 0.0
 
 
 class FusedEstimator:
@@ -560,8 +570,11 @@ class FusedEstimator:
         prior_cov: NDArray[np.float64] | None = None,
         *,
         pitch_sd: float | None = None,
+        roll_sd: float | None = None,
     ) -> GeometryAnswer | None:
         """The planar fit to the refined corners (OpenCV's where a marker could not be refined).
+
+        ``pitch_sd`` or ``roll_sd`` also fit a camera pitch or roll offset (``planar.solve_planar``).
 
         With ``prior`` (the regression's pose) a fit starts there; every IPPE start joins it when fewer than two
         markers are seen or that fit is poor, and the minimum with the lowest cost plus distance from the prior
@@ -575,7 +588,14 @@ class FusedEstimator:
         fits = []
         if prior is not None:
             fit = solve_planar(
-                corners, self.camera, self.layout, self.geometry_robot, start=prior, corner_sigma=sig, pitch_sd=pitch_sd
+                corners,
+                self.camera,
+                self.layout,
+                self.geometry_robot,
+                start=prior,
+                corner_sigma=sig,
+                pitch_sd=pitch_sd,
+                roll_sd=roll_sd,
             )
             if fit.converged and math.isfinite(fit.cost):
                 fits.append(fit)
@@ -590,6 +610,7 @@ class FusedEstimator:
                 corner_sigma=sig,
                 starts=starts,
                 pitch_sd=pitch_sd,
+                roll_sd=roll_sd,
             )
         if not fits:
             return None
@@ -611,6 +632,7 @@ class FusedEstimator:
             float(sides.mean()),
             len(fits),
             best.pitch_offset,
+            best.roll_offset,
         )
 
     def _corners(
@@ -738,12 +760,13 @@ def training_rows(
     rows: NDArray[np.int64],
     *,
     pitch_sd: float | None = None,
-    mount_offsets: tuple[float, float] = (0.0, 0.0),
+    roll_sd: float | None = None,
+    mount_offsets: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ) -> TrainingRows:
     """Both methods on the given rows of a labelled dataset (its stored OpenCV and refined corners).
 
-    ``pitch_sd`` fits the camera's pitch offset too (``planar.solve_planar``); ``mount_offsets`` (pitch rad,
-    height m) corrects the camera mount the geometry fits with.
+    ``pitch_sd`` or ``roll_sd`` fits the camera's pitch or roll offset too (``planar.solve_planar``);
+    ``mount_offsets`` (pitch rad, height m, roll rad) corrects the camera mount the geometry fits with.
     """
     from monodock.features import detection_from_features, refined_detection_from_row
 
@@ -752,7 +775,7 @@ def training_rows(
     labels = np.column_stack([np.asarray(dataset[c], dtype=np.float64) for c in FUSION_LABELS])
     labels[:, 2] = np.radians(labels[:, 2])
     labels[~np.asarray(dataset["label_valid"], dtype=bool)] = np.nan
-    guess = FusionTables(_GUESS_SIGMA, mount_pitch_offset=mount_offsets[0], mount_z_offset=mount_offsets[1])
+    guess = learn_mount(FusionTables(_GUESS_SIGMA), mount_offsets)
     probe = FusedEstimator(camera, layout, robot, guess, None)
     n = len(rows)
     geo = np.full((n, 3), np.nan)
@@ -762,6 +785,7 @@ def training_rows(
     resid = np.full(n, np.nan)
     side = np.full(n, np.nan)
     pitch = np.full(n, np.nan)
+    roll = np.full(n, np.nan)
     for k, i in enumerate(rows):
         det = detection_from_features(raw[i], layout, camera.size)
         ref = refined_detection_from_row(raw[i], refined[i], layout, camera.size)
@@ -769,20 +793,23 @@ def training_rows(
         if r is not None and r.pose is not None:
             reg[k] = _as_vector(r.pose)
             rset[k] = marker_set_key(r.markers_seen)
-        g = probe.geometry(det, ref, r.pose if r is not None else None, _GUESS_PRIOR_COV, pitch_sd=pitch_sd)
+        g = probe.geometry(
+            det, ref, r.pose if r is not None else None, _GUESS_PRIOR_COV, pitch_sd=pitch_sd, roll_sd=roll_sd
+        )
         if g is not None:
-            pitch[k] = g.pitch_offset
+            pitch[k], roll[k] = g.pitch_offset, g.roll_offset
             geo[k], gcov[k], gset[k] = g.pose, g.covariance, marker_set_key(g.roles)
             side[k] = g.side_px
             resid[k] = g.noise_scale * _GUESS_SIGMA / math.sqrt(max(g.side_px, 4.0))
     depth = labels[rows, 0] - robot.camera_mount.x
-    return TrainingRows(geo, gcov, gset, resid, side, reg, rset, labels[rows], depth, pitch)
+    return TrainingRows(geo, gcov, gset, resid, side, reg, rset, labels[rows], depth, pitch, roll)
 
 
 # A mount pitch or height error smaller than these is left alone (what a few hundred frames cannot tell apart
 # from the corners' noise and the floor's unevenness).
 MIN_PITCH_OFFSET = math.radians(0.05)
 MIN_HEIGHT_OFFSET = 0.002
+MIN_ROLL_OFFSET = math.radians(0.05)
 TRAINING_PITCH_SD = math.radians(3.0)
 
 
@@ -818,24 +845,56 @@ def fit_mount_offsets(rows: TrainingRows, camera_x: float) -> tuple[float, float
     return pitch, height
 
 
+def learn_mount(tables: FusionTables, mount_offsets: tuple[float, float, float]) -> FusionTables:
+    """The tables with the camera mount's (pitch rad, height m, roll rad) offsets."""
+    pitch, height, roll = mount_offsets
+    return replace(tables, mount_pitch_offset=pitch, mount_z_offset=height, mount_roll_offset=roll)
+
+
+def fit_mount_roll(rows: TrainingRows) -> float:
+    """The camera mount's roll error (rad) from the roll offsets the 4-DoF fits found.
+
+    A roll error turns every view by the same angle about the optical axis, the opposite way (the image turns
+    against the camera): a robust mean, 0 unless significant (3 standard errors) and above MIN_ROLL_OFFSET.
+    """
+    if rows.roll_offset is None:
+        return 0.0
+    rho = rows.roll_offset[np.isfinite(rows.roll_offset)]
+    if len(rho) < 20:
+        return 0.0
+    keep = np.ones(len(rho), dtype=bool)
+    for _ in range(3):
+        centre = float(np.median(rho[keep]))
+        scale = 1.4826 * float(np.median(np.abs(rho[keep] - centre))) + 1e-12
+        keep = np.abs(rho - centre) <= 4 * scale
+    mean = float(np.mean(rho[keep]))
+    se = float(np.std(rho[keep])) / math.sqrt(keep.sum())
+    return -mean if abs(mean) >= max(3 * se, MIN_ROLL_OFFSET) else 0.0
+
+
 def learn_fusion(
-    rows: TrainingRows, robot: RobotConfig, mount_offsets: tuple[float, float] = (0.0, 0.0)
+    rows: TrainingRows, robot: RobotConfig, mount_offsets: tuple[float, float, float] = (0.0, 0.0, 0.0)
 ) -> FusionTables:
     """The tables from held-out rows (fitted with ``mount_offsets``): the corner noise first, then everything that
     depends on it."""
     c = corner_sigma_from_residuals(rows.residual_sigma, rows.side_px)
     scaled = TrainingRows(**{**rows.__dict__, "geometry_cov": rows.geometry_cov * (c / _GUESS_SIGMA) ** 2})
     tables = learn_tables(scaled, c, (robot.camera_mount.x, robot.camera_mount.y))
-    return replace(tables, mount_pitch_offset=mount_offsets[0], mount_z_offset=mount_offsets[1])
+    return learn_mount(tables, mount_offsets)
 
 
 def learn_fusion_from(
     dataset: Any, regression: Any, camera: CameraModel, layout: DockLayout, robot: RobotConfig, rows: NDArray[np.int64]
 ) -> FusionTables:
-    """Everything the fused method learns from held-out rows: first the camera mount's pitch and height as the
-    images see them (4-DoF fits), then, with those, the corner noise, the variances and the calibration residual."""
+    """Everything the fused method learns from held-out rows: first the camera mount's pitch and height, then its
+    roll, as the images see them (4-DoF fits), then, with those, the corner noise, the variances and the
+    calibration residual."""
     first = training_rows(dataset, regression, camera, layout, robot, rows, pitch_sd=TRAINING_PITCH_SD)
-    offsets = fit_mount_offsets(first, robot.camera_mount.x)
+    pitch, height = fit_mount_offsets(first, robot.camera_mount.x)
+    turned = training_rows(
+        dataset, regression, camera, layout, robot, rows, roll_sd=TRAINING_PITCH_SD, mount_offsets=(pitch, height, 0.0)
+    )
+    offsets = (pitch, height, fit_mount_roll(turned))
     second = training_rows(dataset, regression, camera, layout, robot, rows, mount_offsets=offsets)
     return learn_fusion(second, robot, offsets)
 

@@ -50,6 +50,9 @@ __all__ = [
     "solve_planar",
 ]
 
+# The optical axes a camera turn can be fitted about (see ``solve_planar``): x is the mount's pitch, z its roll.
+PITCH_AXIS, ROLL_AXIS = 0, 2
+
 # One iid corner sigma for every marker size, on the conservative side: the random part of OpenCV's SUBPIX
 # corners on the simulator's default frames is ~0.05-0.1 px per axis on markers over ~31 px and ~0.46 px on
 # smaller ones (bench/crlb_whatif.py --measure-c); crlb.CornerNoise gives per-corner values to pass instead.
@@ -106,6 +109,7 @@ class PlanarFit:
         roles: the markers used, in the order their corners were stacked.
         pitch_offset: the estimated camera pitch offset δ (rad) when fitted with ``pitch_sd``, else 0.0;
             the covariances are then the (x, y, yaw) marginals of the 4x4 one.
+        roll_offset: the same for a camera roll offset (about the optical z axis) fitted with ``roll_sd``.
     """
 
     pose: DockPose
@@ -118,6 +122,7 @@ class PlanarFit:
     converged: bool
     roles: tuple[str, ...] = ()
     pitch_offset: float = 0.0
+    roll_offset: float = 0.0
 
     def sd(self) -> tuple[float, float, float]:
         """Standard deviations of x (m), y (m) and yaw (rad) from ``covariance``."""
@@ -223,14 +228,24 @@ class PlanarModel:
         return X
 
     def _design4(
-        self, x: float, y: float, yaw: float, delta: float, parts: _Parts, img: NDArray[np.float64] | None
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        delta: float,
+        parts: _Parts,
+        img: NDArray[np.float64] | None,
+        axis: int = PITCH_AXIS,
     ) -> NDArray[np.float64] | None:
-        """``_design`` with the camera pitched by δ about its optical x axis: [J | r] of shape (N, 2, 5),
-        columns x, y, yaw, δ; still one projection."""
+        """``_design`` with the camera turned by δ about its optical x axis (pitch) or z axis (roll, ``axis``
+        ROLL_AXIS): [J | r] of shape (N, 2, 5), columns x, y, yaw, δ; still one projection."""
         c, s = math.cos(delta), math.sin(delta)
-        # G = [R_x(δ); S·R_x(δ)] with S·Q = e_x × Q: one product gives Q = R·P, dQ/dyaw = R·dP/dyaw and
-        # dQ/dδ = e_x × Q = (0, −Q_z, Q_y).
-        G = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c], [0.0, 0.0, 0.0], [0.0, -s, -c], [0.0, c, -s]])
+        # G = [R(δ); S·R(δ)] with S·Q = e × Q for the axis e: one product gives Q = R·P, dQ/dyaw = R·dP/dyaw
+        # and dQ/dδ = e × Q: (0, −Q_z, Q_y) about x, (−Q_y, Q_x, 0) about z.
+        if axis == PITCH_AXIS:
+            G = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c], [0.0, 0.0, 0.0], [0.0, -s, -c], [0.0, c, -s]])
+        else:
+            G = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0], [-s, -c, 0.0], [c, -s, 0.0], [0.0, 0.0, 0.0]])
         M = np.matmul(G, (parts.Z @ _coefficients(x, y, yaw)).reshape(-1, 3, 2))
         Q = np.ascontiguousarray(M[:, :3, 0])
         if min(Q[:, 2].tolist()) <= _MIN_DEPTH:
@@ -358,6 +373,7 @@ def solve_planar(
     max_iterations: int = 20,
     tolerance: float = 1e-9,
     pitch_sd: float | None = None,
+    roll_sd: float | None = None,
 ) -> PlanarFit:
     """The maximum-likelihood (or, with a prior, maximum a posteriori) DockPose from marker corners.
 
@@ -377,6 +393,7 @@ def solve_planar(
         tolerance: absolute step size (m, rad) below which the fit has converged in any case.
         pitch_sd: None fits (x, y, yaw) with the mount as given; a number (rad) also fits the camera's
             pitch offset δ about its optical x axis, with the prior δ ~ N(0, pitch_sd²), starting at 0.
+        roll_sd: the same for a roll offset about the optical z axis (``roll_offset``); not with pitch_sd.
 
     Returns:
         The fit; ``converged`` is False when the cap was hit or no valid pose was reachable (then the
@@ -389,10 +406,21 @@ def solve_planar(
     model = planar_model(camera, layout, robot)
     parts = model.parts(roles)
     white = _whitening(corner_sigma, len(parts.obj))
-    if pitch_sd is None:
+    nuisance = _nuisance(pitch_sd, roll_sd)
+    if nuisance is None:
         return _solve(model, roles, parts, img, white, _theta(start), prior, max_iterations, tolerance)
-    pitch_info = _pitch_information(pitch_sd)
-    return _solve4(model, roles, parts, img, white, _theta(start), prior, pitch_info, max_iterations, tolerance)
+    return _solve4(model, roles, parts, img, white, _theta(start), prior, *nuisance, max_iterations, tolerance)
+
+
+def _nuisance(pitch_sd: float | None, roll_sd: float | None) -> tuple[float, int] | None:
+    """(1/σ², axis) of the camera turn to fit, or None for the 3-DoF fit."""
+    if pitch_sd is not None and roll_sd is not None:
+        raise InputError("fit a camera pitch or a roll offset, not both at once")
+    if pitch_sd is not None:
+        return _pitch_information(pitch_sd), PITCH_AXIS
+    if roll_sd is not None:
+        return _pitch_information(roll_sd), ROLL_AXIS
+    return None
 
 
 def _pitch_information(pitch_sd: float) -> float:
@@ -538,10 +566,12 @@ def _solve4(
     theta: NDArray[np.float64],
     prior: PosePrior | None,
     pitch_info: float,
+    axis: int,
     max_iterations: int,
     tolerance: float,
 ) -> PlanarFit:
-    """``_solve`` over (x, y, yaw, δ) with the prior δ ~ N(0, 1/pitch_info): the same loop, a 4x4 system."""
+    """``_solve`` over (x, y, yaw, δ) with the prior δ ~ N(0, 1/pitch_info): the same loop, a 4x4 system.
+    δ turns the camera about its optical ``axis`` (PITCH_AXIS or ROLL_AXIS)."""
     info = prior.information().tolist() if prior is not None else None
     mu = (prior.mean.x, prior.mean.y, prior.mean.yaw) if prior is not None else (0.0, 0.0, 0.0)
     target = img.reshape(-1, 2)
@@ -549,7 +579,7 @@ def _solve4(
 
     def evaluate(th: list[float]) -> Evaluation | None:
         """Cost, H = JᵀWJ + priors, gradient, the design [J | r] and [J | r]ᵀW[J | r] at (x, y, yaw, δ)."""
-        X = model._design4(th[0], th[1], th[2], th[3], parts, target)
+        X = model._design4(th[0], th[1], th[2], th[3], parts, target, axis)
         if X is None:
             return None
         N = white.normal(X)
@@ -603,7 +633,7 @@ def _solve4(
     pose = DockPose(th[0], th[1], wrap_angle(th[2]))
     if current is None:
         inf = np.full((3, 3), np.inf)
-        return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles, th[3])
+        return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles, *_offsets(th[3], axis))
     cost, _, _, X, N = current
     n = len(parts.obj)
     dof = 2 * n - 4
@@ -620,7 +650,12 @@ def _solve4(
     cov_res = _marginal3([[N[k][m] + s2 * lam4[k][m] for m in range(4)] for k in range(4)], s2)
     r = X[:, :, 4].ravel()
     rms = math.sqrt(float(r @ r) / n)
-    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles, th[3])
+    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles, *_offsets(th[3], axis))
+
+
+def _offsets(delta: float, axis: int) -> tuple[float, float]:
+    """(pitch_offset, roll_offset) of a fitted turn δ about ``axis``."""
+    return (delta, 0.0) if axis == PITCH_AXIS else (0.0, delta)
 
 
 def _schur(H: list[list[float]]) -> tuple[list[list[float]], list[float], float] | None:
@@ -786,6 +821,7 @@ def planar_candidates(
     max_iterations: int = 50,
     tolerance: float = 1e-9,
     pitch_sd: float | None = None,
+    roll_sd: float | None = None,
 ) -> list[PlanarFit]:
     """Every distinct converged local minimum of the planar fit, lowest cost first.
 
@@ -793,7 +829,7 @@ def planar_candidates(
     of each marker (SOLVEPNP_IPPE_SQUARE) and, with several markers, of the board (SOLVEPNP_IPPE), each
     turned into a planar pose (z, roll and pitch dropped). For a lone far marker the two IPPE solutions
     lead to the two minima of the yaw sign ambiguity; the caller scores them (cost, a prior, a tracker).
-    ``pitch_sd`` as in ``solve_planar`` (every start with δ = 0).
+    ``pitch_sd``, ``roll_sd`` as in ``solve_planar`` (every start with δ = 0).
 
     Raises:
         InputError: as ``solve_planar``.
@@ -802,7 +838,7 @@ def planar_candidates(
     model = planar_model(camera, layout, robot)
     parts = model.parts(roles)
     white = _whitening(corner_sigma, len(parts.obj))
-    pitch_info = _pitch_information(pitch_sd) if pitch_sd is not None else None
+    nuisance = _nuisance(pitch_sd, roll_sd)
     seeds = [_theta(s) for s in starts] + _ippe_starts(roles, img, model)
     tried: list[NDArray[np.float64]] = []
     found: list[PlanarFit] = []
@@ -811,10 +847,10 @@ def planar_candidates(
         if any(_same(seed, t, _SAME_START) for t in tried):
             continue
         tried.append(seed)
-        if pitch_info is None:
+        if nuisance is None:
             fit = _solve(model, roles, parts, img, white, seed, prior, max_iterations, tolerance)
         else:
-            fit = _solve4(model, roles, parts, img, white, seed, prior, pitch_info, max_iterations, tolerance)
+            fit = _solve4(model, roles, parts, img, white, seed, prior, *nuisance, max_iterations, tolerance)
         if not fit.converged:
             continue
         th = _theta(fit.pose)
