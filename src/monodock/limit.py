@@ -266,20 +266,35 @@ def _plot(rows: list[LimitRow], what: Any, path: Any) -> None:
             ]
             if pts:
                 ax.plot(*zip(*pts, strict=True), "-o", ms=3, label=f"{method} RMS error")
+        # The yardstick of the ratios: the bound at these rows' own poses (the widest method's rows).
+        widest = max(dict.fromkeys(r.method for r in rows), key=lambda m: sum(r.rows for r in rows if r.method == m))
+        own = [
+            (c, r.bound[j])
+            for c, (lo, hi) in zip(centres, BANDS_M, strict=True)
+            for r in rows
+            if r.method == widest and r.band == f"{lo * 100:.0f}-{hi * 100:.0f}"
+        ]
+        if own:
+            ax.plot(*zip(*own, strict=True), "-k", lw=2, label="bound at these rows' poses")
+        # The what-if study's bounds are over its own pose grid: the current set-up's is the reference there.
         for k, name in enumerate(what.variants):
             ax.plot(
                 centres[: what.sd.shape[1]],
                 what.sd[k, :, j] * scale[j],
-                "--" if k else "-k",
-                lw=1.2 if k else 2,
-                label=f"bound: {name}",
+                "--" if k else ":k",
+                lw=1.2,
+                label=f"bound: {name}" + ("" if k else " (pose grid)"),
             )
         ax.set_yscale("log")
         ax.set_xlabel("depth from the camera (cm)")
         ax.set_title(units[j])
         ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=6)
-    fig.suptitle("Every method's RMS error against the Cramér–Rao bound (solid black), and the bounds of other set-ups")
+    fig.suptitle(
+        "Every method's RMS error against the Cramér–Rao bound at the same poses (solid black)\n"
+        "dashed: the bound of other set-ups over a pose grid (dotted: this set-up on that grid)",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
