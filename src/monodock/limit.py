@@ -305,8 +305,9 @@ def _bound_change(rows: list[LimitRow], correlated: Mapping[tuple[str, str], Lim
     changes = [
         b / a - 1.0
         for r in rows
+        if (r.method, r.band) in correlated and r.band != "all"
         for a, b in zip(r.bound, correlated[(r.method, r.band)].bound, strict=True)
-        if a > 0 and r.band != "all"
+        if a > 0
     ]
     return (min(changes), max(changes)) if changes else (0.0, 0.0)
 
@@ -381,7 +382,9 @@ def limit_section(report: Any, dataset: Any, poses: Mapping[str, NDArray[np.floa
                 "rms": list(r.rms),
                 "bound": list(r.bound),
                 "ratio": list(r.ratio),
-                "ratio_correlated": list(correlated[(r.method, r.band)].ratio),
+                "ratio_correlated": list(correlated[(r.method, r.band)].ratio)
+                if (r.method, r.band) in correlated
+                else None,
             }
             for r in rows
         ],

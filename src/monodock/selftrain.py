@@ -25,7 +25,7 @@ from monodock.bundle import Bundle, save_bundle
 from monodock.camera import CameraModel
 from monodock.dataset import Dataset, label_recording
 from monodock.features import DEFAULT_MARKER_SETS, MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
-from monodock.fused import FUSION_SCHEMA, fusion_holdout, train_fusion
+from monodock.fused import FUSION_LEARNING, FUSION_SCHEMA, fusion_holdout, train_fusion
 from monodock.recording import write_recording
 from monodock.regression import bundle_metadata, training_sets
 from monodock.sim import Simulator
@@ -128,6 +128,7 @@ def cached_bundle(sim: Simulator, config: SelfTrainConfig, *, jobs: int, cache: 
         "train": repr(config),
         "version": __version__,
         "fusion": FUSION_SCHEMA,  # bundles from before the fused method lack its tables
+        "fusion_learning": FUSION_LEARNING,
     }
     key = hashlib.sha256(json.dumps(key_data, sort_keys=True, default=str).encode()).hexdigest()[:16]
     entry = (cache or cache_root()) / f"bundle-{key}"
