@@ -337,3 +337,23 @@ def test_the_camera_mount_roll_is_learned_from_the_images() -> None:
 def _in_view(sim: object, pose: object, role: str) -> bool:
     corners = sim.true_corners(pose)[role]  # type: ignore[attr-defined]
     return bool(np.all(np.isfinite(corners)) and sim.in_view(corners, 2.0))  # type: ignore[attr-defined]
+
+
+def test_the_geometry_excess_ignores_label_and_regression_sharing_an_error() -> None:
+    """Residuals in units of the geometry's Jacobian sd: a geometry as good as it says (variance 1) next to
+    labels and a regression whose lateral errors share a common part reads as no excess; a geometry with 4x
+    its Jacobian variance in depth and yaw reads as about that."""
+    from monodock.fused import _excess
+
+    rng = np.random.default_rng(11)
+    n = 300
+    shared = rng.normal(0, 9.0, n)  # the error the regression's and the label's lateral have in common
+    label = rng.normal(0, [1.5, 12.0, 1.5], (n, 3))
+    label[:, 1] += shared
+    reg = rng.normal(0, [3.0, 40.0, 3.0], (n, 3))
+    reg[:, 1] += shared
+    # A lower bound: 4x reads as 2-4.5 with 300 rows and labels 1.5x noisier than the geometry.
+    for true_var, lo, hi in ((1.0, 1.0, 1.3), (4.0, 2.0, 4.5)):
+        geo = rng.normal(0, [math.sqrt(true_var), 1.0, math.sqrt(true_var)], (n, 3))
+        got = _excess(geo - label, reg - label)
+        assert lo <= got <= hi
