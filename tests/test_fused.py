@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -137,13 +138,33 @@ def test_bands_and_holdout() -> None:
         fusion_holdout(10, 1.5)
 
 
+def _rows_of(fits: list[Any], truth: list[tuple[float, float, float]], camera_x: float) -> Any:
+    """Training rows of geometry fits (with their pitch and roll offsets) against the true poses."""
+    from monodock.fused import TrainingRows
+
+    n = len(fits)
+    return TrainingRows(
+        geometry=np.array([f.pose for f in fits]),
+        geometry_cov=np.tile(np.eye(3), (n, 1, 1)),
+        geometry_set=["m1m2m3"] * n,
+        residual_sigma=np.full(n, 0.05),
+        side_px=np.full(n, 40.0),
+        regression=np.full((n, 3), np.nan),
+        regression_set=[""] * n,
+        labels=np.array(truth),
+        depth_from_camera=np.array(truth)[:, 0] - camera_x,
+        pitch_offset=np.array([f.pitch_offset for f in fits]),
+        roll_offset=np.array([f.roll_offset for f in fits]),
+    )
+
+
 def test_the_camera_mount_pitch_and_height_are_learned_from_the_images() -> None:
     """The robot file says the camera is 1 degree less pitched and 1 cm lower than it is: the 4-DoF fits of a few
     dozen views give both errors back, and the 3-DoF fit with them is as good as with the true mount."""
     from dataclasses import replace
 
     from monodock.detect import Detection, MarkerObservation
-    from monodock.fused import FusedEstimator, TrainingRows, fit_mount_offsets
+    from monodock.fused import FusedEstimator, fit_mount_offsets
     from monodock.sim import PoseDistribution, Simulator
 
     sim = Simulator(seed=3)
@@ -162,19 +183,7 @@ def test_the_camera_mount_pitch_and_height_are_learned_from_the_images() -> None
     probe = FusedEstimator(sim.camera, sim.layout, wrong, FusionTables(0.2))
     fits = [probe.geometry(d, d, pitch_sd=math.radians(3.0)) for d in dets]
     assert all(f is not None for f in fits)
-    n = len(fits)
-    rows = TrainingRows(
-        geometry=np.array([f.pose for f in fits if f is not None]),
-        geometry_cov=np.tile(np.eye(3), (n, 1, 1)),
-        geometry_set=["m1m2m3"] * n,
-        residual_sigma=np.full(n, 0.05),
-        side_px=np.full(n, 40.0),
-        regression=np.full((n, 3), np.nan),
-        regression_set=[""] * n,
-        labels=np.array(truth),
-        depth_from_camera=np.array(truth)[:, 0] - m.x,
-        pitch_offset=np.array([f.pitch_offset for f in fits if f is not None]),
-    )
+    rows = _rows_of(fits, truth, m.x)
     pitch, height = fit_mount_offsets(rows, wrong.camera_mount.x)
     assert math.degrees(pitch) == pytest.approx(1.0, abs=0.05)
     assert height == pytest.approx(0.01, abs=0.002)
@@ -291,7 +300,7 @@ def test_the_camera_mount_roll_is_learned_from_the_images() -> None:
     roll-offset fits of a few dozen views give the error back, and the fit with it is as good as the truth's."""
     from dataclasses import replace
 
-    from monodock.fused import FusedEstimator, TrainingRows, fit_mount_roll
+    from monodock.fused import FusedEstimator, fit_mount_roll
     from monodock.sim import PoseDistribution, Simulator
 
     sim = Simulator(seed=5)
@@ -309,19 +318,7 @@ def test_the_camera_mount_roll_is_learned_from_the_images() -> None:
     probe = FusedEstimator(sim.camera, sim.layout, wrong, FusionTables(0.2))
     fits = [probe.geometry(d, d, roll_sd=math.radians(3.0)) for d in dets]  # type: ignore[arg-type]
     assert all(f is not None for f in fits)
-    n = len(fits)
-    rows = TrainingRows(
-        geometry=np.array([f.pose for f in fits if f is not None]),
-        geometry_cov=np.tile(np.eye(3), (n, 1, 1)),
-        geometry_set=["m1m2m3"] * n,
-        residual_sigma=np.full(n, 0.05),
-        side_px=np.full(n, 40.0),
-        regression=np.full((n, 3), np.nan),
-        regression_set=[""] * n,
-        labels=np.array(truth),
-        depth_from_camera=np.array(truth)[:, 0] - m.x,
-        roll_offset=np.array([f.roll_offset for f in fits if f is not None]),
-    )
+    rows = _rows_of(fits, truth, m.x)
     roll = fit_mount_roll(rows)
     assert math.degrees(roll) == pytest.approx(1.0, abs=0.05)
 

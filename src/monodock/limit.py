@@ -246,6 +246,18 @@ def _what_if_table(result: Any) -> str:
     return head + "\n".join(lines) + "\n"
 
 
+def _band_points(
+    rows: list[LimitRow], method: str, field: str, component: int, centres: list[float]
+) -> list[tuple[float, float]]:
+    """(band centre cm, ``field`` ("rms" or "bound") of one component) of one method's rows, in band order."""
+    return [
+        (c, float(getattr(r, field)[component]))
+        for c, (lo, hi) in zip(centres, BANDS_M, strict=True)
+        for r in rows
+        if r.method == method and r.band == f"{lo * 100:.0f}-{hi * 100:.0f}"
+    ]
+
+
 def _plot(rows: list[LimitRow], what: Any, path: Any) -> None:
     import matplotlib
 
@@ -258,22 +270,12 @@ def _plot(rows: list[LimitRow], what: Any, path: Any) -> None:
     scale = np.array([100.0, 100.0, math.degrees(1.0)])
     for j, ax in enumerate(axes):
         for method in dict.fromkeys(r.method for r in rows):
-            pts = [
-                (c, r.rms[j])
-                for c, (lo, hi) in zip(centres, BANDS_M, strict=True)
-                for r in rows
-                if r.method == method and r.band == f"{lo * 100:.0f}-{hi * 100:.0f}"
-            ]
+            pts = _band_points(rows, method, "rms", j, centres)
             if pts:
                 ax.plot(*zip(*pts, strict=True), "-o", ms=3, label=f"{method} RMS error")
         # The yardstick of the ratios: the bound at these rows' own poses (the widest method's rows).
         widest = max(dict.fromkeys(r.method for r in rows), key=lambda m: sum(r.rows for r in rows if r.method == m))
-        own = [
-            (c, r.bound[j])
-            for c, (lo, hi) in zip(centres, BANDS_M, strict=True)
-            for r in rows
-            if r.method == widest and r.band == f"{lo * 100:.0f}-{hi * 100:.0f}"
-        ]
+        own = _band_points(rows, widest, "bound", j, centres)
         if own:
             ax.plot(*zip(*own, strict=True), "-k", lw=2, label="bound at these rows' poses")
         # The what-if study's bounds are over its own pose grid: the current set-up's is the reference there.
