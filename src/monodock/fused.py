@@ -11,8 +11,12 @@ Two estimators with opposite weaknesses see the same frame:
 Per frame, every local minimum of the geometry is scored by its reprojection error and by its distance from
 the regression (which settles a lone marker's yaw sign); the chosen one is corrected by the calibration
 residual learned from the LiDAR labels at training time, and the two are combined by inverse-variance
-(information) weighting. The variances come from training: the rows held out of the regression's training,
-per marker set and 25 cm depth band, as the error covariance of each method against the LiDAR labels with the
+(information) weighting. With two or more markers and a clean fit the regression is not even run where its
+learned covariance could not make the answer measurably better (``REGRESSION_GAIN``): near the dock, and
+with three markers almost everywhere, the pixels alone are the answer.
+
+The variances come from training: the rows held out of the regression's training, per marker set and 25 cm
+depth band, as the error covariance of each method against the LiDAR labels with the
 labels' own noise removed (the three-cornered hat: with three independent instruments, the cross-covariance
 of two methods' residuals against the third is that third one's covariance). The geometry's per-frame
 covariance is its Jacobian covariance from the corner noise, scaled up where training found it optimistic.
