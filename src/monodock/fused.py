@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,6 +39,9 @@ from monodock.layout import ROLE_NUMBER, ROLES, DockLayout
 from monodock.pnp import PoseEstimate
 from monodock.pose import DockPose, wrap_angle
 from monodock.robot import RobotConfig
+
+if TYPE_CHECKING:
+    from monodock.planar import PlanarFit
 
 __all__ = [
     "BAND_EDGES_M",
@@ -560,16 +563,19 @@ class FusedEstimator:
     ) -> PoseEstimate:
         """The fused DockPose of a frame from its OpenCV detection and its refined corners.
 
-        The regression is used only on the frames where it can improve the answer (``_geometry_alone``);
-        ``reg`` is its answer when the caller has it already (the result is the same either way), else it
-        runs when needed.
+        With two or more markers the planar fit starts from the board's IPPE solution (``_board_fit``), and
+        the regression is used only where it can improve that answer (``_regression_helps``); ``reg`` is its
+        answer when the caller has it already (the result is the same either way), else it runs when needed.
+        The board fit is reused by the combination, not done again.
         """
-        alone = self._geometry_alone(detection, refined)
-        if alone is not None:
-            return alone
+        fit = self._board_fit(detection, refined)
+        if fit is not None:
+            g, g_cov = self._corrected(_as_vector(fit.pose), fit.covariance, fit.roles)
+            if not self._regression_helps(fit.roles, g, g_cov):
+                return self._answer(g, g_cov, fit.roles, fit.rms_px)
         if reg is None and self.regression is not None:
             reg = self.regression.estimate(detection)
-        return self.combine(detection, refined, reg)
+        return self.combine(detection, refined, reg, fit)
 
     def geometry(
         self,
@@ -580,10 +586,13 @@ class FusedEstimator:
         *,
         pitch_sd: float | None = None,
         roll_sd: float | None = None,
+        fit: PlanarFit | None = None,
     ) -> GeometryAnswer | None:
         """The planar fit to the refined corners (OpenCV's where a marker could not be refined).
 
         ``pitch_sd`` or ``roll_sd`` also fit a camera pitch or roll offset (``planar.solve_planar``).
+        ``fit``: a clean fit of two or more markers already made (``_board_fit``), which stands for the one
+        from the prior.
 
         With ``prior`` (the regression's pose) a fit starts there; every IPPE start joins it when fewer than two
         markers are seen or that fit is poor, and the minimum with the lowest cost plus distance from the prior
@@ -594,8 +603,8 @@ class FusedEstimator:
         roles, corners, sig, sides = self._corners(detection, refined)
         if not roles:
             return None
-        fits = []
-        if prior is not None:
+        fits = [fit] if fit is not None else []
+        if prior is not None and not fits:
             fit = solve_planar(
                 corners,
                 self.camera,
@@ -660,15 +669,9 @@ class FusedEstimator:
                 sig[4 * i : 4 * i + 4] *= UNREFINED_SIGMA_FACTOR
         return roles, corners, sig, sides
 
-    def _geometry_alone(self, detection: Detection, refined: Detection | None) -> PoseEstimate | None:
-        """The answer without running the regression, where the regression could not have improved it.
-
-        That is: two or more markers (no yaw-sign ambiguity to settle), one clean fit from the board's IPPE
-        solution, and a regression whose learned covariance for this marker set and band could make no
-        component's standard deviation more than about 1 % smaller (``REGRESSION_GAIN``), or that would not
-        answer at all (marker 2 unseen, no table). Else None, and the caller runs the full combination.
-        """
-        from monodock.features import choose_marker_set
+    def _board_fit(self, detection: Detection, refined: Detection | None) -> PlanarFit | None:
+        """The planar fit of two or more markers from the board's IPPE solution, if it is clean (converged, its
+        residuals within 3x the corner noise); None for a lone marker (its yaw sign needs the regression)."""
         from monodock.planar import board_start, solve_planar
 
         roles, corners, sig, _ = self._corners(detection, refined)
@@ -678,16 +681,21 @@ class FusedEstimator:
         if start is None:
             return None
         fit = solve_planar(corners, self.camera, self.layout, self.geometry_robot, start=start, corner_sigma=sig)
-        if not (fit.converged and math.isfinite(fit.cost) and fit.noise_scale < 3.0):
-            return None
-        g, g_cov = self._corrected(_as_vector(fit.pose), fit.covariance, fit.roles)
-        if "center" in roles and self.regression is not None:
-            reg_set = choose_marker_set(roles, self.regression.bundle.sets)
-            if reg_set is not None:
-                reg_cov = self.tables.regression_covariance(reg_set, band_index(g[0] - self.robot.camera_mount.x))
-                if reg_cov is not None and _gain(g_cov, reg_cov) >= REGRESSION_GAIN:
-                    return None
-        return self._answer(g, g_cov, fit.roles, fit.rms_px)
+        return fit if fit.converged and math.isfinite(fit.cost) and fit.noise_scale < 3.0 else None
+
+    def _regression_helps(self, roles: Sequence[str], g: NDArray[np.float64], g_cov: NDArray[np.float64]) -> bool:
+        """Whether the regression's learned covariance for these markers and band could make some component of
+        the answer's standard deviation ~10 % smaller (``REGRESSION_GAIN``); not if it would not answer at all
+        (marker 2 unseen, no model or table for the markers)."""
+        from monodock.features import choose_marker_set
+
+        if "center" not in roles or self.regression is None:
+            return False
+        reg_set = choose_marker_set(tuple(roles), self.regression.bundle.sets)
+        if reg_set is None:
+            return False
+        reg_cov = self.tables.regression_covariance(reg_set, band_index(g[0] - self.robot.camera_mount.x))
+        return reg_cov is not None and _gain(g_cov, reg_cov) >= REGRESSION_GAIN
 
     def _corrected(
         self, pose: NDArray[np.float64], covariance: NDArray[np.float64], roles: Sequence[str]
@@ -698,15 +706,18 @@ class FusedEstimator:
         band = band_index(g[0] - self.robot.camera_mount.x)
         return g, _psd_floor(cj @ covariance @ cj.T * self.tables.geometry_factor(marker_set_key(roles), band))
 
-    def combine(self, detection: Detection, refined: Detection | None, reg: PoseEstimate | None) -> PoseEstimate:
-        """Geometry and regression (either may be missing) into one estimate with its covariance."""
+    def combine(
+        self, detection: Detection, refined: Detection | None, reg: PoseEstimate | None, fit: PlanarFit | None = None
+    ) -> PoseEstimate:
+        """Geometry and regression (either may be missing) into one estimate with its covariance; ``fit`` as in
+        ``geometry``."""
         reg_vec = _as_vector(reg.pose) if reg is not None and reg.pose is not None else None
         reg_cov = None
         if reg_vec is not None and reg is not None:
             reg_cov = self.tables.regression_covariance(
                 marker_set_key(reg.markers_seen), band_index(reg_vec[0] - self.robot.camera_mount.x)
             )
-        geo = self.geometry(detection, refined, reg.pose if reg is not None else None, reg_cov)
+        geo = self.geometry(detection, refined, reg.pose if reg is not None else None, reg_cov, fit=fit)
         if geo is None:
             if reg_vec is None or reg_cov is None:
                 why = reg.reason if reg is not None and reg.reason else "no dock marker seen"
