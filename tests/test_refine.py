@@ -192,7 +192,7 @@ def test_edge_fit_is_unbiased(contrast: str, levels: tuple[float, float], sigma:
         data = profile.astype(np.float32)[:, :, None]  # (samples, profiles, 1 side)
         w = np.ones_like(data)
         with np.errstate(over="ignore"):
-            e, s, c, _ = _fit_edges(t[:, None, None], data, w, np.array([reach], np.float32))
+            e, s, c, _ = _fit_edges(t[:, None, None], data, w, np.array([[reach]], np.float32))
         err = e[:, 0] - true_e
         assert abs(float(np.mean(err))) < tol_mean, (contrast, sigma, float(np.mean(err)))
         if tol_each is not None:

@@ -29,9 +29,9 @@ behind the border. A marker with a side that has too few good profiles (cut by t
 behind something) keeps OpenCV's corners, and ``refine_detection`` lists its role in
 ``Detection.unrefined``.
 
-Everything runs on arrays of all the profiles of all the markers at once, in a fixed small number of numpy
-calls: a frame with three markers costs a small fraction of the marker detection itself (about 1.5 times
-as much when its markers are clipped: the inner profiles join the same fit).
+All the profiles of all the markers are sampled with one ``cv2.remap`` and fitted in one call of a compiled
+kernel (``monodock.kernel``): a frame with three markers costs about a twentieth of the marker detection
+itself (``bench/speed.py``), a little more when its markers are clipped (the inner profiles join the fit).
 
 The correction assumes that the white right outside the border (the marker's quiet zone) and the code's
 white cells are the same white, and it would read printer ink spread (a wider black border) as negative
@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import lru_cache
+from typing import Any
 
 import cv2
 import numpy as np
@@ -50,6 +51,7 @@ from numpy.typing import NDArray
 from monodock.camera import CameraModel
 from monodock.detect import Detection
 from monodock.errors import InputError
+from monodock.kernel import kernel
 
 __all__ = ["refine_detection", "refine_marker"]
 
@@ -73,8 +75,6 @@ MIN_INNER = 3  # ... on at least this many white cells along its border, else it
 # Sample offsets across the edge in [-1, 1] of the reach, denser near the middle where the edge lies.
 _U = np.linspace(-1.0, 1.0, SAMPLES)
 _GRID = (_U * (0.55 + 0.45 * _U * _U)).astype(np.float32)
-_ALONG = (np.arange(PROFILES) + 0.5) / PROFILES
-_PROBE = np.array([0.0, 1.0])[:, None, None]
 _UNDISTORT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
 # Logistic approximation of the standard normal CDF (error < 1.4e-4): Phi(z) ~ 1 / (1 + exp(-(C1 z + C3 z^3))).
 _C1 = np.float32(1.5976)
@@ -147,129 +147,289 @@ def _check_image(gray: NDArray[np.uint8], camera: CameraModel, modules: int) -> 
     return gray
 
 
-def _distort(camera: CameraModel, x: F64, y: F64) -> tuple[F64, F64]:
-    """Pixels (u, v) of undistorted normalised coordinates, through the lens (OpenCV's plumb_bob / rational)."""
-    d = camera.D
-    k1, k2, p1, p2, k3 = d[:5]
+@lru_cache(maxsize=8)
+def _lens(camera: CameraModel) -> F64:
+    """The camera's numbers as ``_distort`` reads them: fx, skew, cx, fy, cy, k1, k2, p1, p2, k3, k4-k6, rational."""
+    d = np.zeros(8)
+    d[: len(camera.D)] = camera.D
+    K = camera.K
+    out = np.array([K[0], K[1], K[2], K[4], K[5], *d, 1.0 if len(camera.D) == 8 else 0.0])
+    out.flags.writeable = False
+    return out
+
+
+@kernel
+def _distort(lens: F64, x: Any, y: Any) -> tuple[Any, Any]:  # pragma: no cover - compiled
+    """Pixels (u, v) of undistorted normalised coordinates (scalars or arrays), through the lens (``_lens``).
+
+    OpenCV's plumb_bob and rational_polynomial models.
+    """
+    k1, k2, p1, p2, k3 = lens[5], lens[6], lens[7], lens[8], lens[9]
     xx, yy, xy = x * x, y * y, x * y
     r2 = xx + yy
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    if len(d) == 8:
-        radial = radial / (1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7])))
+    if lens[13] != 0.0:
+        radial = radial / (1.0 + r2 * (lens[10] + r2 * (lens[11] + r2 * lens[12])))
     xd = x * radial + (2.0 * p1) * xy + p2 * (r2 + 2.0 * xx)
     yd = y * radial + p1 * (r2 + 2.0 * yy) + (2.0 * p2) * xy
-    K = camera.K
-    return K[0] * xd + K[1] * yd + K[2], K[4] * yd + K[5]
+    return lens[0] * xd + lens[1] * yd + lens[2], lens[3] * yd + lens[4]
 
 
 def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules: int) -> tuple[F64, NDArray[np.bool_]]:
     """Refined corners (M, 4, 2) of M markers' detected corners (4M, 2), and which markers were refined.
 
     Arrays are laid out (profile j, side) or (sample, profile j, side), side = 4 * marker + k, where side k
-    runs from corner k to corner k + 1, so that every sum runs over the first axis. Each side has its own
-    frame in normalised coordinates: ``along`` from its middle towards corner k + 1, ``across`` inwards.
+    runs from corner k to corner k + 1. Each side has its own frame in normalised coordinates: ``along``
+    from its middle towards corner k + 1, ``across`` inwards. The loops over profiles and sides run in
+    compiled kernels; the image is sampled by ``cv2.remap``.
     """
     n_sides = corners.shape[0]
     m = n_sides // 4
     height, width = gray.shape
-    idx = np.arange(n_sides)
-    nxt = idx - idx % 4 + (idx + 1) % 4
-    prv = idx - idx % 4 + (idx + 3) % 4
-
-    # --- the profiles: anchors evenly along each side, straight in normalised coordinates ---------------
+    lens = _lens(camera)
     # Only where the anchors go depends on these, not where the edges are found: 20 iterations are plenty.
     xn = np.asarray(
         cv2.undistortPoints(corners[:, None, :], camera.matrix, camera.dist, criteria=_UNDISTORT), np.float64
-    )
-    xn = xn.reshape(-1, 2)
-    cx, cy = corners[:, 0], corners[:, 1]
-    side_px = np.hypot(cx[nxt] - cx, cy[nxt] - cy)
-    border = (side_px[prv] + side_px[nxt]) / (2.0 * modules)  # the border's width across side k
-    reach = np.minimum(np.maximum(REACH * border, MIN_REACH_PX), MAX_REACH_PX)
-    skip = np.minimum(CORNER_SKIP_PX / np.maximum(side_px, 1e-9), 0.25)
-    frac = skip + (1.0 - 2.0 * skip) * _ALONG[:, None]  # (J, S), 0 at corner k, 1 at corner k + 1
-    ux, uy = xn[nxt, 0] - xn[:, 0], xn[nxt, 1] - xn[:, 1]
-    ulen = np.hypot(ux, uy)
-    # The inward unit normal: ArUco corners run clockwise on screen (a positive shoelace sum in pixels).
-    clockwise = (cx * cy[nxt] - cx[nxt] * cy).reshape(m, 4).sum(axis=1) >= 0
-    g = np.where(clockwise, 1.0, -1.0)[idx // 4] / ulen
-    nnx, nny = -uy * g, ux * g
-    along = (frac - 0.5) * ulen
-    ax, ay = xn[:, 0] + frac * ux, xn[:, 1] + frac * uy
-    # The anchors' pixels and, one pixel-ish further inwards, the pixel direction of the inward normal.
-    step = 1.0 / camera.fx
-    pu, pv = _distort(camera, ax + _PROBE * (step * nnx), ay + _PROBE * (step * nny))
-    px, py = pu[0], pv[0]
-    dpx, dpy = pu[1] - px, pv[1] - py
-    inv = 1.0 / np.hypot(dpx, dpy)
-    nx, ny = (dpx * inv).astype(np.float32), (dpy * inv).astype(np.float32)
-    kappa = step * inv  # normalised distance across the side per pixel along the profile
-
-    # --- sample every profile of every marker with one remap -------------------------------------------
-    t = (reach * _GRID[:, None]).astype(np.float32)[:, None, :]  # (T, 1, S) pixels, positive inwards
-    mapx = (px.astype(np.float32) + t * nx).reshape(SAMPLES, -1)
-    mapy = (py.astype(np.float32) + t * ny).reshape(SAMPLES, -1)
-    lo_x, hi_x = np.minimum(mapx[0], mapx[-1]), np.maximum(mapx[0], mapx[-1])
-    lo_y, hi_y = np.minimum(mapy[0], mapy[-1]), np.maximum(mapy[0], mapy[-1])
-    inside = ((lo_x >= 0) & (hi_x <= width - 1) & (lo_y >= 0) & (hi_y <= height - 1)).reshape(PROFILES, n_sides)
-    prof = np.asarray(cv2.remap(gray, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), np.uint8)
+    ).reshape(-1, 2)
+    side = _Sides(*_profile_geometry(corners, xn, lens, modules, width, height))
+    prof = np.asarray(cv2.remap(gray, side.mapx, side.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
     prof = prof.reshape(SAMPLES, PROFILES, n_sides)
     # Samples off the image are not data. Clipped samples are: dropping them leaves a fit of the slope alone,
     # wild where only a pixel or two of it is below 255; kept, the clipped plateau is the bright level, and
     # the edge's shift that comes with it is the same on the mirrored inner edge, which measures it (_bloom).
-    w = np.empty(prof.shape, np.float32)
-    w[...] = inside
-    args = (t, prof.astype(np.float32), w, reach.astype(np.float32))
+    args: tuple[Any, Any, Any, Any] = (side.t, prof, side.inside[None], side.reach[None])
     inner = None
     if prof.max() == 255 or prof.min() == 0:
-        inner = _inner_profiles(gray, camera, xn, clockwise, modules, reach, prof, inside)
+        inner = _inner_profiles(gray, lens, xn, side.clockwise, modules, side.reach, prof, side.inside)
         if inner is not None:
             args = _with_inner(args, inner)
-    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-        e, s, contrast, rms = _fit_edges(*args)
+    e, s, contrast, rms = _fit_edges(*args)
     if inner is not None:
         fit = np.stack([e, s, contrast, rms])
         inner_fit = fit[:, :, n_sides:].reshape(4, -1)[:, : inner.mk.size]
         e, s, contrast, rms = fit[:, :, :n_sides]
 
-    # --- which profiles saw a clean edge -------------------------------------------------------------------
-    good = inside & (np.abs(e) < 0.8 * reach) & (s < reach) & (rms < 0.15 * contrast)
-    gf = good.astype(np.float64)
-    n_side = np.add.reduce(gf, 0) + 1e-9
-    # Much less contrast than the side's average: a shadow or an occluder across the profile.
-    good &= contrast > 0.5 * np.add.reduce(np.where(good, contrast, 0.0), 0) / n_side
-    # Blur rounds a corner off over a few sigmas: drop the profiles that close to a corner.
-    blur = np.add.reduce(np.where(good, s, 0.0), 0) / n_side
-    good &= np.minimum(frac, 1.0 - frac) * side_px > np.maximum(CORNER_SKIP_PX, CORNER_BLUR * blur)
+    # A line per side through its clean edge points, then corner k where side k-1 meets side k.
+    alpha, beta, n_good, contrast_sum, n_clean = _side_lines(
+        e, s, contrast, rms, side.inside, side.reach, side.frac, side.side_px, side.along, side.kappa, 0.03 / camera.fx
+    )
+    qx, qy = _intersect(alpha, beta, xn, side.nnx, side.nny)
+    if inner is not None:
+        contrast_out = contrast_sum.reshape(m, 4).sum(axis=1) / np.maximum(n_clean.reshape(m, 4).sum(axis=1), 1)
+        delta = _bloom(inner, inner_fit, contrast_out, qx.reshape(m, 4), qy.reshape(m, 4), modules)
+        qx, qy = _intersect(alpha - np.repeat(delta, 4) * side.kappa.mean(axis=0), beta, xn, side.nnx, side.nny)
+    return _to_pixels(lens, qx, qy, corners, side.border, n_good)
 
-    # --- a line per side through the edge points, then corner k where side k-1 meets side k ------------
-    # A side without good profiles gives a degenerate line: its NaN or infinite corners fail the checks below.
-    with np.errstate(all="ignore"):
-        across = np.where(good, e, 0.0) * kappa  # a failed fit may be NaN: it must not reach the sums, even weightless
-        alpha, beta, n_good = _robust_lines(along, across, good, 0.03 / camera.fx)
-        # Side k: X(a) = middle + a (u / |u|) + (alpha + beta a) n, as a line  lx X + ly Y = lc.
-        dx, dy = ux / ulen + beta * nnx, uy / ulen + beta * nny
-        lx, ly = -dy, dx
-        px_, py_ = lx[prv], ly[prv]
-        den = px_ * ly - lx * py_
 
-        def intersect(alpha: F64) -> tuple[F64, F64]:
-            lc = lx * (xn[:, 0] + 0.5 * ux + alpha * nnx) + ly * (xn[:, 1] + 0.5 * uy + alpha * nny)
-            pc = lc[prv]
-            return (pc * ly - lc * py_) / den, (px_ * lc - lx * pc) / den
+@dataclass(frozen=True)
+class _Sides:
+    """Where ``_refine`` samples the markers' sides (``_profile_geometry``); S sides, J profiles, T samples.
 
-        qx, qy = intersect(alpha)
-        if inner is not None:
-            contrast_out = np.add.reduce(np.where(good, contrast, 0.0), 0).reshape(m, 4).sum(axis=1)
-            contrast_out /= np.maximum(good.reshape(PROFILES, m, 4).sum(axis=(0, 2)), 1)
-            delta = _bloom(inner, inner_fit, contrast_out, qx.reshape(m, 4), qy.reshape(m, 4), modules)
-            qx, qy = intersect(alpha - delta[idx // 4] * (np.add.reduce(kappa, 0) / PROFILES))
-        ou, ov = _distort(camera, qx, qy)
-        shift = np.hypot(ou - cx, ov - cy)
-        limit = np.maximum(MAX_SHIFT * border.reshape(m, 4).min(axis=1), 1.5)[idx // 4]
-    ok = np.all(((n_good >= MIN_GOOD) & (shift < limit)).reshape(m, 4), axis=1)  # NaN fails too
-    out = np.stack([ou, ov], axis=1).reshape(m, 4, 2)
-    return np.where(ok[:, None, None], out, corners.reshape(m, 4, 2)), ok
+    Per side (S,): ``side_px`` its length and ``border`` the border's width across it (px), ``reach`` the
+    profiles' reach either side of the detected edge (px), ``nnx``, ``nny`` its inward unit normal
+    (normalised coordinates). Per profile (J, S): ``frac`` its place from corner k (0) to corner k + 1 (1),
+    ``along`` from the side's middle (normalised), ``kappa`` normalised distance across the side per pixel
+    along the profile, ``inside`` whether it lies in the image. ``t`` (T, 1, S) the samples' offsets (px,
+    inwards), ``mapx``, ``mapy`` (T, J S) their pixels, for ``cv2.remap``; ``clockwise`` (M,) whether each
+    marker's detected corners run clockwise on screen.
+    """
+
+    side_px: F64
+    border: F64
+    reach: F64
+    nnx: F64
+    nny: F64
+    frac: F64
+    along: F64
+    kappa: F64
+    inside: NDArray[np.bool_]
+    t: F32
+    mapx: F32
+    mapy: F32
+    clockwise: NDArray[np.bool_]
+
+
+@kernel
+def _profile_geometry(corners: F64, xn: F64, lens: F64, modules: int, width: int, height: int) -> tuple[Any, ...]:  # pragma: no cover - compiled
+    """The fields of ``_Sides``, in order, for the detected corners (4M, 2) and their normalised ``xn``.
+
+    Anchors evenly along each side, straight in normalised coordinates, away from the corners; each profile
+    runs along the pixel direction of the side's inward normal, found one pixel-ish further in.
+    """
+    n = corners.shape[0]
+    m = n // 4
+    side_px, ux, uy, ulen = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n):
+        nxt = k - k % 4 + (k + 1) % 4
+        side_px[k] = np.hypot(corners[nxt, 0] - corners[k, 0], corners[nxt, 1] - corners[k, 1])
+        ux[k], uy[k] = xn[nxt, 0] - xn[k, 0], xn[nxt, 1] - xn[k, 1]
+        ulen[k] = np.hypot(ux[k], uy[k])
+    # The inward normal: ArUco corners run clockwise on screen (a positive shoelace sum in pixels).
+    clockwise = np.empty(m, np.bool_)
+    for i in range(m):
+        area = 0.0
+        for k in range(4 * i, 4 * i + 4):
+            nxt = k - k % 4 + (k + 1) % 4
+            area += corners[k, 0] * corners[nxt, 1] - corners[nxt, 0] * corners[k, 1]
+        clockwise[i] = area >= 0
+    border, reach, nnx, nny = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    frac, along, kappa = np.empty((PROFILES, n)), np.empty((PROFILES, n)), np.empty((PROFILES, n))
+    inside = np.empty((PROFILES, n), np.bool_)
+    t = np.empty((SAMPLES, 1, n), np.float32)
+    mapx, mapy = np.empty((SAMPLES, PROFILES * n), np.float32), np.empty((SAMPLES, PROFILES * n), np.float32)
+    step = 1.0 / lens[0]
+    for k in range(n):
+        nxt, prv = k - k % 4 + (k + 1) % 4, k - k % 4 + (k + 3) % 4
+        border[k] = (side_px[prv] + side_px[nxt]) / (2.0 * modules)  # the border's width across side k
+        reach[k] = min(max(REACH * border[k], MIN_REACH_PX), MAX_REACH_PX)
+        for i in range(SAMPLES):
+            t[i, 0, k] = reach[k] * _GRID[i]
+        skip = min(CORNER_SKIP_PX / max(side_px[k], 1e-9), 0.25)
+        g = (1.0 if clockwise[k // 4] else -1.0) / ulen[k]
+        nnx[k], nny[k] = -uy[k] * g, ux[k] * g
+        for j in range(PROFILES):
+            f = skip + (1.0 - 2.0 * skip) * (j + 0.5) / PROFILES  # 0 at corner k, 1 at corner k + 1
+            frac[j, k] = f
+            along[j, k] = (f - 0.5) * ulen[k]
+            ax, ay = xn[k, 0] + f * ux[k], xn[k, 1] + f * uy[k]
+            pu, pv = _distort(lens, ax, ay)
+            qu, qv = _distort(lens, ax + step * nnx[k], ay + step * nny[k])
+            inv = 1.0 / np.hypot(qu - pu, qv - pv)
+            kappa[j, k] = step * inv
+            dx, dy = np.float32((qu - pu) * inv), np.float32((qv - pv) * inv)
+            col = j * n + k
+            for i in range(SAMPLES):
+                mapx[i, col] = np.float32(pu) + t[i, 0, k] * dx
+                mapy[i, col] = np.float32(pv) + t[i, 0, k] * dy
+            x0, x1, y0, y1 = mapx[0, col], mapx[SAMPLES - 1, col], mapy[0, col], mapy[SAMPLES - 1, col]
+            inside[j, k] = min(x0, x1) >= 0 and max(x0, x1) <= width - 1 and min(y0, y1) >= 0 and max(y0, y1) <= height - 1
+    return side_px, border, reach, nnx, nny, frac, along, kappa, inside, t, mapx, mapy, clockwise
+
+
+@kernel
+def _side_lines(
+    e: F32, s: F32, contrast: F32, rms: F32, inside: Any, reach: F64, frac: F64, side_px: F64, along: F64,
+    kappa: F64, floor: float,
+) -> tuple[F64, F64, NDArray[np.intp], F64, NDArray[np.intp]]:  # pragma: no cover - compiled
+    """Each side's line through its clean edge points (J, S), and what ``_bloom`` needs of them.
+
+    A profile is clean where the fit found an edge inside its reach with a sharp, well-fitting step; not much
+    less contrast than the side's average (else a shadow or an occluder crosses it); and further from a
+    corner than blur rounds it off. The line: across = alpha + beta along (normalised, side frame), Tukey-
+    reweighted least squares, twice: points further than 4.7 robust sigmas (median absolute residual, at
+    least ``floor``) from it get no weight. The points lie within a fraction of a pixel of the side's own
+    frame, so least squares in it is total least squares. A side without clean profiles gives a degenerate
+    line: its corners are NaN or infinite and fail ``_to_pixels``' checks.
+
+    Returns per side (S,): alpha, beta, the number of points that kept a weight over 1/2, and the sum and
+    number of the clean profiles' contrasts.
+    """
+    n_pts, n = e.shape
+    alpha, beta = np.empty(n), np.empty(n)
+    n_good, n_clean = np.empty(n, np.intp), np.empty(n, np.intp)
+    contrast_sum = np.empty(n)
+    good = np.empty(n_pts, np.bool_)
+    across, wt, absr = np.empty(n_pts), np.empty(n_pts), np.empty(n_pts)
+    for k in range(n):
+        count, csum = 0, 0.0
+        for j in range(n_pts):
+            ok = inside[j, k] and abs(e[j, k]) < 0.8 * reach[k] and s[j, k] < reach[k]
+            good[j] = ok and rms[j, k] < 0.15 * contrast[j, k]
+            if good[j]:
+                count += 1
+                csum += contrast[j, k]
+        n_side = count + 1e-9
+        blur = 0.0
+        for j in range(n_pts):
+            good[j] = good[j] and contrast[j, k] > 0.5 * csum / n_side
+            if good[j]:
+                blur += s[j, k]
+        blur /= n_side
+        edge_gap = max(CORNER_SKIP_PX, CORNER_BLUR * blur)
+        count, csum = 0, 0.0
+        for j in range(n_pts):
+            good[j] = good[j] and min(frac[j, k], 1.0 - frac[j, k]) * side_px[k] > edge_gap
+            across[j] = e[j, k] * kappa[j, k] if good[j] else 0.0
+            wt[j] = 1.0 if good[j] else 0.0
+            if good[j]:
+                count += 1
+                csum += contrast[j, k]
+        n_clean[k], contrast_sum[k] = count, csum
+        mid = min(count // 2, n_pts - 1)
+        for it in range(3):
+            sw = sa = saa = sc = sac = 0.0
+            for j in range(n_pts):
+                a = along[j, k]
+                sw += wt[j]
+                sa += wt[j] * a
+                saa += wt[j] * a * a
+                sc += wt[j] * across[j]
+                sac += wt[j] * a * across[j]
+            det = sw * saa - sa * sa + 1e-300
+            alpha[k] = (saa * sc - sa * sac) / det
+            beta[k] = (sw * sac - sa * sc) / det
+            if it == 2:
+                break
+            for j in range(n_pts):
+                absr[j] = abs(across[j] - alpha[k] - beta[k] * along[j, k]) if good[j] else np.inf
+            sigma = max(1.4826 * np.sort(absr)[mid], floor)
+            for j in range(n_pts):
+                u = (across[j] - alpha[k] - beta[k] * along[j, k]) / (4.685 * sigma)
+                wt[j] = max(1.0 - u * u, 0.0) ** 2 if good[j] else 0.0
+        n_good[k] = 0
+        for j in range(n_pts):
+            n_good[k] += wt[j] > 0.5
+    return alpha, beta, n_good, contrast_sum, n_clean
+
+
+@kernel
+def _intersect(alpha: F64, beta: F64, xn: F64, nnx: F64, nny: F64) -> tuple[F64, F64]:  # pragma: no cover - compiled
+    """Corner k (normalised) where the line of side k-1 meets the line of side k (``_side_lines``).
+
+    Side k: X(a) = middle + a u / |u| + (alpha + beta a) n, written as lx X + ly Y = lc, with u from corner k
+    to corner k + 1 and n = (``nnx``, ``nny``) its inward unit normal.
+    """
+    n = alpha.shape[0]
+    lx, ly, lc = np.empty(n), np.empty(n), np.empty(n)
+    for k in range(n):
+        nxt = k - k % 4 + (k + 1) % 4
+        ux, uy = xn[nxt, 0] - xn[k, 0], xn[nxt, 1] - xn[k, 1]
+        ulen = np.hypot(ux, uy)
+        dx, dy = ux / ulen + beta[k] * nnx[k], uy / ulen + beta[k] * nny[k]
+        lx[k], ly[k] = -dy, dx
+        lc[k] = lx[k] * (xn[k, 0] + 0.5 * ux + alpha[k] * nnx[k]) + ly[k] * (xn[k, 1] + 0.5 * uy + alpha[k] * nny[k])
+    qx, qy = np.empty(n), np.empty(n)
+    for k in range(n):
+        prv = k - k % 4 + (k + 3) % 4
+        den = lx[prv] * ly[k] - lx[k] * ly[prv]
+        qx[k] = (lc[prv] * ly[k] - lc[k] * ly[prv]) / den
+        qy[k] = (lx[prv] * lc[k] - lx[k] * lc[prv]) / den
+    return qx, qy
+
+
+@kernel
+def _to_pixels(
+    lens: F64, qx: F64, qy: F64, corners: F64, border: F64, n_good: NDArray[np.intp]
+) -> tuple[F64, NDArray[np.bool_]]:  # pragma: no cover - compiled
+    """The refined corners (M, 4, 2) in pixels and which markers keep them (M,); the others keep ``corners``.
+
+    A marker keeps them when each side had ``MIN_GOOD`` good points and no corner moved further than
+    ``MAX_SHIFT`` of its thinnest border width (at least 1.5 px) from OpenCV's; NaN fails both.
+    """
+    m = corners.shape[0] // 4
+    out = np.empty((m, 4, 2))
+    ok = np.empty(m, np.bool_)
+    for i in range(m):
+        limit = max(MAX_SHIFT * border[4 * i : 4 * i + 4].min(), 1.5)
+        ok[i] = True
+        for c in range(4):
+            k = 4 * i + c
+            u, v = _distort(lens, qx[k], qy[k])
+            out[i, c, 0], out[i, c, 1] = u, v
+            ok[i] = ok[i] and n_good[k] >= MIN_GOOD and np.hypot(u - corners[k, 0], v - corners[k, 1]) < limit
+        if not ok[i]:
+            out[i] = corners[4 * i : 4 * i + 4]
+    return out, ok
 
 
 @lru_cache(maxsize=4)
@@ -335,7 +495,7 @@ class _Inner:
 
 def _inner_profiles(
     gray: NDArray[np.uint8],
-    camera: CameraModel,
+    lens: F64,
     xn: F64,
     clockwise: NDArray[np.bool_],
     modules: int,
@@ -345,9 +505,9 @@ def _inner_profiles(
 ) -> _Inner | None:
     """The profiles across the border's inner edge of the markers with ``MIN_CLIPPED`` clipped samples, or None.
 
-    ``xn`` (4M, 2) are the detected corners (normalised), ``clockwise`` (M,) whether they run clockwise on
-    screen, ``reach`` (4M,) the sides' profile reach, ``prof`` (T, J, 4M) and ``inside`` (J, 4M) the outer
-    profiles. Built like the outer ones: a straight normal in normalised coordinates, its direction in pixels
+    ``lens`` the camera (``_lens``), ``xn`` (4M, 2) the detected corners (normalised), ``clockwise`` (M,)
+    whether they run clockwise on screen, ``reach`` (4M,) the sides' profile reach, ``prof`` (T, J, 4M) and
+    ``inside`` (J, 4M) the outer profiles. Built like the outer ones: a straight normal in normalised coordinates, its direction in pixels
     one pixel-ish out, the outer side's reach.
     """
     height, width = gray.shape
@@ -367,13 +527,14 @@ def _inner_profiles(
     # The outward normal, on the outer sides' outer side (see _refine).
     scale = np.where(clockwise[mk], -1.0, 1.0) / np.hypot(dx, dy)
     nx, ny = -dy * scale, dx * scale
-    step = 1.0 / camera.fx
-    pu, pv = _distort(camera, x[0] + _PROBE * (step * nx), y[0] + _PROBE * (step * ny))
-    dpx, dpy = pu[1] - pu[0], pv[1] - pv[0]
+    step = 1.0 / lens[0]
+    pu, pv = _distort(lens, x[0], y[0])
+    qu, qv = _distort(lens, x[0] + step * nx, y[0] + step * ny)
+    dpx, dpy = qu - pu, qv - pv
     inv = 1.0 / np.hypot(dpx, dpy)
     lim = reach.reshape(m, 4)[mk, side[cell]].astype(np.float32)
     t = lim * _GRID[:, None]  # (T, N), pixels, positive outward
-    mapx, mapy = (pu[0] + t * (dpx * inv)).astype(np.float32), (pv[0] + t * (dpy * inv)).astype(np.float32)
+    mapx, mapy = (pu + t * (dpx * inv)).astype(np.float32), (pv + t * (dpy * inv)).astype(np.float32)
     ok = (
         (np.minimum(mapx[0], mapx[-1]) >= 0)
         & (np.maximum(mapx[0], mapx[-1]) <= width - 1)
@@ -441,115 +602,98 @@ def _bloom(inner: _Inner, fit: F32, contrast_out: F64, qx: F64, qy: F64, modules
     return np.where(inner.clipped, delta, 0.0)
 
 
-def _fit_edges(t: F32, intensity: F32, w: F32, lim: F32) -> tuple[F32, F32, F32, F32]:
+@kernel
+def _fit_edges(t: Any, intensity: Any, w: Any, lim: Any) -> tuple[F32, F32, F32, F32]:  # pragma: no cover - compiled
     """Fit I(t) = B + (D - B) Phi((t - e) / s) to every profile: edge e, blur sigma s, contrast B - D, RMS.
 
-    ``t`` (samples, 1 or profiles, sides), ``intensity`` and weights ``w`` (samples, profiles, sides), ``lim``
-    (sides,) or (profiles, sides); the results are (profiles, sides). Variable projection: the levels B, D are the
-    weighted linear least-squares solution for the current e and s, and each Gauss-Newton step on (e, s)
-    uses the Jacobian projected off the levels (Kaufman), so it converges like a full four-parameter fit.
-    Starts from the centroid and spread of the intensity drop; e stays within +-lim.
+    ``intensity`` (samples, profiles, sides), any real dtype; ``t`` and the weights ``w`` (samples or 1,
+    profiles or 1, sides) and ``lim`` (profiles or 1, sides) broadcast against it; the results are
+    (profiles, sides). Variable projection: the levels B, D are the weighted linear least-squares solution for
+    the current e and s, and each Gauss-Newton step on (e, s) uses the Jacobian projected off the levels
+    (Kaufman), so it converges like a full four-parameter fit. Starts from the centroid and spread of the
+    intensity drop; e stays within +-lim. After the first step, the fit stops if the typical (median) edge
+    moved less than ``CONVERGED_PX``: the start was close.
     """
-    # Materialised: broadcasting (T, 1, S) against (J, S) runs numpy's inner loops over S only, ~2x slower.
-    t = np.ascontiguousarray(np.broadcast_to(t, intensity.shape))
-    wi = w * intensity
-    n = np.add.reduce(w, 0) + np.float32(1e-6)
-    y1 = np.add.reduce(wi, 0)
-    yy = np.add.reduce(wi * intensity, 0)
-    # Start: centroid and spread of the (positive) intensity drop going inwards.
-    mom = np.empty((3, *np.shape(intensity[1:])), np.float32)
-    np.multiply(np.maximum(intensity[:-1] - intensity[1:], 0.0), w[:-1] * w[1:], out=mom[0])
-    tm = 0.5 * (t[:-1] + t[1:])
-    np.multiply(mom[0], tm, out=mom[1])
-    np.multiply(mom[1], tm, out=mom[2])
-    mass, m1, m2 = np.add.reduce(mom, 1)
-    mass += np.float32(1e-6)
-    e = m1 / mass
-    s = np.minimum(np.maximum(np.sqrt(np.maximum(m2 / mass - e * e, 0.0)), np.float32(0.3)), lim)
-    # e and s stacked, so that the step below updates and clamps both at once.
-    es = np.stack([e, s])
-    lim = np.broadcast_to(lim, e.shape)
-    lo = np.stack([-lim, np.full_like(lim, 0.2)])
-    hi = np.stack([lim, lim])
-    buf = np.empty((12, *np.shape(intensity)), np.float32)
-    a = b = y2 = e
+    n_t, n_j, n_s = intensity.shape
+    e, s, rms = np.empty((n_j, n_s), np.float32), np.empty((n_j, n_s), np.float32), np.empty((n_j, n_s), np.float32)
+    a, b = np.empty((n_j, n_s)), np.empty((n_j, n_s))
+    n, y1, yy, y2 = np.empty((n_j, n_s)), np.empty((n_j, n_s)), np.empty((n_j, n_s)), np.empty((n_j, n_s))
+    moved = np.empty(n_j * n_s)
+    for j in range(n_j):
+        for k in range(n_s):
+            jt, jw, jl = min(j, t.shape[1] - 1), min(j, w.shape[1] - 1), min(j, lim.shape[0] - 1)
+            sw = s1 = s2 = mass = m1 = m2 = 0.0
+            for i in range(n_t):
+                wi = (w[min(i, w.shape[0] - 1), jw, k] * 1.0)
+                v = float(intensity[i, j, k])
+                sw += wi
+                s1 += wi * v
+                s2 += wi * v * v
+                if i + 1 < n_t:
+                    # The start: centroid and spread of the (positive) intensity drop going inwards.
+                    drop = max(v - float(intensity[i + 1, j, k]), 0.0) * wi * (w[min(i + 1, w.shape[0] - 1), jw, k] * 1.0)
+                    tm = 0.5 * (float(t[min(i, t.shape[0] - 1), jt, k]) + float(t[min(i + 1, t.shape[0] - 1), jt, k]))
+                    mass += drop
+                    m1 += drop * tm
+                    m2 += drop * tm * tm
+            n[j, k], y1[j, k], yy[j, k] = sw + 1e-6, s1, s2
+            mass += 1e-6
+            e0 = m1 / mass
+            spread = m2 / mass - e0 * e0
+            s0 = np.sqrt(spread) if spread > 0.0 else 0.0
+            e[j, k], s[j, k] = e0, min(max(s0, 0.3), float(lim[jl, k]))
     for step in range(MAX_STEPS):
-        e, s = es
-        z = (t - e) / s
-        z2 = z * z
-        ex = np.exp(z * (_C1N + _C3N * z2))
-        cdf = 1.0 / (1.0 + ex)
-        pdf = cdf * (1.0 - cdf) * (_C1 + _C3X3 * z2)  # not ex cdf^2: ex may overflow to inf
-        wc = np.multiply(w, cdf, out=buf[0])
-        np.multiply(wc, cdf, out=buf[1])
-        np.multiply(wc, intensity, out=buf[2])
-        wd = np.multiply(w, pdf, out=buf[3])
-        wdz = np.multiply(wd, z, out=buf[4])
-        np.multiply(wd, cdf, out=buf[5])
-        np.multiply(wdz, cdf, out=buf[6])
-        np.multiply(wd, intensity, out=buf[7])
-        np.multiply(wdz, intensity, out=buf[8])
-        np.multiply(wd, pdf, out=buf[9])
-        np.multiply(wdz, pdf, out=buf[11])
-        np.multiply(buf[11], z, out=buf[10])
-        sums = np.add.reduce(buf, 1)
-        s1, s2, y2 = sums[0], sums[1], sums[2]
-        cc, dd = sums[3:5], sums[5:7]  # [pdf, pdf z] against the basis [1, Phi]
-        # Levels: B = b, D - B = a (the basis is [1, Phi], its Gram matrix [[n, s1], [s1, s2]]).
-        ig = 1.0 / (n * s2 - s1 * s1)
-        a = (n * y2 - s1 * y1) * ig
-        b = (y1 - a * s1) / n
-        # Gradient against [pdf, pdf z] of the residual I - b - a Phi, and their normal matrix projected off
-        # the basis (Kaufman): A - C^T G^-1 C, with C the basis-derivative cross sums.
-        grad = sums[7:9] - b * cc - a * dd
-        p0 = (s2 * cc - s1 * dd) * ig
-        p1 = (n * dd - s1 * cc) * ig
-        diag = sums[9:11] * np.float32(1.001) - (cc * p0 + dd * p1)
-        off = sums[11] - (cc[0] * p0[1] + dd[0] * p1[1])
-        # The model's derivatives are -(a/s) [pdf, pdf z]: the step on (e, s) scales back by -s/a.
-        k = s / (a * (diag[0] * diag[1] - off * off))
-        move = k * (diag[::-1] * grad - off * grad[::-1])
-        es = np.minimum(np.maximum(es - move, lo), hi)
-        if step == 0 and abs(float(np.median(move[0]))) < CONVERGED_PX:
-            break  # the typical edge moved less than CONVERGED_PX: the start was close
-    e, s = es
-    # At the least-squares levels the residual is orthogonal to them: sum r^2 = sum r I.
-    rms = np.sqrt(np.maximum(yy - b * y1 - a * y2, 0.0) / n)
-    return e, s, -a, rms
-
-
-def _robust_lines(
-    along: F64, across: F64, good: NDArray[np.bool_], floor: float, steps: int = 2
-) -> tuple[F64, F64, NDArray[np.intp]]:
-    """Lines across = alpha + beta along through each side's points (J, S), Tukey-reweighted least squares.
-
-    The points lie within a fraction of a pixel of the side's own frame, so least squares in it is total
-    least squares. Points further than 4.7 robust sigmas (median absolute residual, at least ``floor``) from
-    a line get no weight. Returns alpha, beta per side and the number of points that kept a weight over 1/2.
-    """
-    n_pts, n_sides = along.shape
-    weight = good.astype(np.float64)
-    cols = np.arange(n_sides)
-    mid = np.minimum(np.add.reduce(weight, 0).astype(np.intp) // 2, n_pts - 1)
-    sq = along * along
-    mom = np.empty((5, n_pts, n_sides))
-    wt = weight
-    for it in range(steps + 1):
-        mom[0] = wt
-        np.multiply(wt, along, out=mom[1])
-        np.multiply(wt, sq, out=mom[2])
-        np.multiply(wt, across, out=mom[3])
-        np.multiply(mom[1], across, out=mom[4])
-        sw, sa, saa, sc, sac = np.add.reduce(mom, 1)
-        det = sw * saa - sa * sa + 1e-300
-        alpha = (saa * sc - sa * sac) / det
-        beta = (sw * sac - sa * sc) / det
-        if it == steps:
+        for j in range(n_j):
+            for k in range(n_s):
+                jt, jw, jl = min(j, t.shape[1] - 1), min(j, w.shape[1] - 1), min(j, lim.shape[0] - 1)
+                ej, sj = float(e[j, k]), float(s[j, k])
+                s1 = s2 = sy = cc0 = cc1 = dd0 = dd1 = g0 = g1 = h0 = h1 = h01 = 0.0
+                for i in range(n_t):
+                    wi = (w[min(i, w.shape[0] - 1), jw, k] * 1.0)
+                    v = float(intensity[i, j, k])
+                    z = (float(t[min(i, t.shape[0] - 1), jt, k]) - ej) / sj
+                    z2 = z * z
+                    # Logistic approximation of the normal CDF; its pdf not as ex cdf^2: ex may overflow to inf.
+                    cdf = 1.0 / (1.0 + np.exp(z * (_C1N + _C3N * z2)))
+                    pdf = cdf * (1.0 - cdf) * (_C1 + _C3X3 * z2)
+                    wc, wd = wi * cdf, wi * pdf
+                    s1 += wc
+                    s2 += wc * cdf
+                    sy += wc * v
+                    cc0 += wd
+                    cc1 += wd * z
+                    dd0 += wd * cdf
+                    dd1 += wd * z * cdf
+                    g0 += wd * v
+                    g1 += wd * z * v
+                    h0 += wd * pdf
+                    h01 += wd * z * pdf
+                    h1 += wd * z * z * pdf
+                # Levels: B = b, D - B = a (the basis is [1, Phi], its Gram matrix [[n, s1], [s1, s2]]).
+                nn = n[j, k]
+                ig = 1.0 / (nn * s2 - s1 * s1)
+                aa = (nn * sy - s1 * y1[j, k]) * ig
+                bb = (y1[j, k] - aa * s1) / nn
+                a[j, k], b[j, k], y2[j, k] = aa, bb, sy
+                # Gradient against [pdf, pdf z] of the residual I - b - a Phi, and their normal matrix projected
+                # off the basis (Kaufman): A - C^T G^-1 C, with C the basis-derivative cross sums.
+                gr0, gr1 = g0 - bb * cc0 - aa * dd0, g1 - bb * cc1 - aa * dd1
+                p00, p01 = (s2 * cc0 - s1 * dd0) * ig, (s2 * cc1 - s1 * dd1) * ig
+                p10, p11 = (nn * dd0 - s1 * cc0) * ig, (nn * dd1 - s1 * cc1) * ig
+                d0 = h0 * 1.001 - (cc0 * p00 + dd0 * p10)
+                d1 = h1 * 1.001 - (cc1 * p01 + dd1 * p11)
+                off = h01 - (cc0 * p01 + dd0 * p11)
+                # The model's derivatives are -(a/s) [pdf, pdf z]: the step on (e, s) scales back by -s/a.
+                kk = sj / (aa * (d0 * d1 - off * off))
+                move_e, move_s = kk * (d1 * gr0 - off * gr1), kk * (d0 * gr1 - off * gr0)
+                moved[j * n_s + k] = move_e
+                lj = float(lim[jl, k])
+                e[j, k] = min(max(ej - move_e, -lj), lj)
+                s[j, k] = min(max(sj - move_s, 0.2), lj)
+        if step == 0 and abs(np.median(moved)) < CONVERGED_PX:
             break
-        res = across - alpha - beta * along
-        absr = np.abs(res)
-        absr[~good] = np.inf
-        sigma = np.maximum(1.4826 * np.sort(absr, axis=0)[mid, cols], floor)
-        u = res / (4.685 * sigma)
-        wt = weight * np.square(np.maximum(1.0 - u * u, 0.0))
-    return alpha, beta, np.add.reduce(wt > 0.5, 0)
+    for j in range(n_j):
+        for k in range(n_s):
+            # At the least-squares levels the residual is orthogonal to them: sum r^2 = sum r I.
+            rms[j, k] = np.sqrt(max(yy[j, k] - b[j, k] * y1[j, k] - a[j, k] * y2[j, k], 0.0) / n[j, k])
+    return e, s, (-a).astype(np.float32), rms
