@@ -26,6 +26,7 @@ import functools
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -34,7 +35,9 @@ from numpy.typing import ArrayLike, NDArray
 from monodock import transforms
 from monodock.camera import CameraModel
 from monodock.errors import InputError
+from monodock.kernel import kernel
 from monodock.layout import ROLES, DockLayout
+from monodock.lens import lens_of, project
 from monodock.pose import DockPose, wrap_angle
 from monodock.robot import RobotConfig
 
@@ -459,74 +462,40 @@ def _solve(
     max_iterations: int,
     tolerance: float,
 ) -> PlanarFit:
-    """Levenberg–Marquardt in plain floats around one projection (with Jacobian) per iteration."""
-    info = prior.information().tolist() if prior is not None else None
-    mu = (prior.mean.x, prior.mean.y, prior.mean.yaw) if prior is not None else (0.0, 0.0, 0.0)
-    target = img.reshape(-1, 2)
-
-    def evaluate(
-        th: tuple[float, float, float],
-    ) -> tuple[float, list[list[float]], list[float], NDArray[np.float64], list[list[float]]] | None:
-        """Cost, H = JᵀWJ (+Λ), gradient JᵀWr (+Λe), the design [J | r] and [J | r]ᵀW[J | r] at a pose."""
-        X = model._design(th[0], th[1], th[2], parts, target)
-        if X is None:
-            return None
-        N = white.normal(X)
-        H = [N[0][:3], N[1][:3], N[2][:3]]
-        g = [N[0][3], N[1][3], N[2][3]]
-        cost = N[3][3]
-        if info is not None:
-            e = (th[0] - mu[0], th[1] - mu[1], wrap_angle(th[2] - mu[2]))
-            for k in range(3):
-                ie = info[k][0] * e[0] + info[k][1] * e[1] + info[k][2] * e[2]
-                g[k] += ie
-                cost += e[k] * ie
-                for m in range(3):
-                    H[k][m] += info[k][m]
-        if not math.isfinite(cost):
-            return None
-        return cost, H, g, X, N
-
-    th = (float(theta[0]), float(theta[1]), float(theta[2]))
-    current = evaluate(th)
-    iterations = 1
-    converged = False
-    lam = 1e-4
-    while current is not None and iterations < max_iterations:
-        cost, H, g, _, _ = current
-        damped = [[H[k][m] * (1.0 + lam) if k == m else H[k][m] for m in range(3)] for k in range(3)]
-        step = _solve3(damped, [-g[0], -g[1], -g[2]])
-        if step is None:
-            break
-        # The step's size in standard deviations of the estimate (δᵀHδ, the cost it would remove): once
-        # it is a thousandth of one, further steps change nothing that the noise lets anyone measure.
-        # With noise, Gauss–Newton converges linearly (rate ~ residual size), so this saves iterations.
-        decrease = sum(step[k] * (H[k][0] * step[0] + H[k][1] * step[1] + H[k][2] * step[2]) for k in range(3))
-        if decrease < _CHI2_TOLERANCE or max(abs(step[0]), abs(step[1]), abs(step[2])) < tolerance:
-            th = (th[0] + step[0], th[1] + step[1], th[2] + step[2])
-            converged = True
-            break
-        trial_th = (th[0] + step[0], th[1] + step[1], th[2] + step[2])
-        trial = evaluate(trial_th)
-        iterations += 1
-        if trial is not None and trial[0] <= cost:
-            current, th = trial, trial_th
-            lam = max(lam * 0.1, 1e-12)
-        else:
-            lam *= 10.0
-            if lam > 1e12:
-                break
-    if current is None:
+    """Levenberg–Marquardt (``_lm3``, compiled) and the fit's covariances from its last normal matrix."""
+    info = prior.information() if prior is not None else _ZERO33
+    mu = _theta(prior.mean) if prior is not None else _ZERO3
+    mode = 2 if white.blocks is not None else 1 if white.rows is not None else 0
+    rows = white.rows if white.rows is not None else _NO_ROWS
+    blocks = white.blocks if white.blocks is not None else _NO_BLOCKS
+    th_, ok, cost, normal, X, iterations, converged = _lm3(
+        parts.Z,
+        parts.T,
+        img.reshape(-1, 2),
+        mode,
+        white.scalar,
+        rows,
+        blocks,
+        lens_of(model.camera),
+        np.array(theta, dtype=np.float64),
+        prior is not None,
+        info,
+        mu,
+        max_iterations,
+        tolerance,
+    )
+    th = th_.tolist()
+    if not ok:
         inf = np.full((3, 3), np.inf)
         pose = DockPose(th[0], th[1], wrap_angle(th[2]))
         return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles)
-    cost, _, _, X, N = current
+    N = normal.tolist()
     n = len(parts.obj)
     fisher = [N[0][:3], N[1][:3], N[2][:3]]
     dof = 2 * n - 3
     chi2 = N[3][3]
     scale = math.sqrt(chi2 / dof) if dof > 0 else math.nan
-    lam_ = info if info is not None else [[0.0] * 3 for _ in range(3)]
+    lam_ = info.tolist()
     cov = _inverse3([[fisher[k][m] + lam_[k][m] for m in range(3)] for k in range(3)], 1.0)
     # (F/s² + Λ)⁻¹ written as s²(F + s²Λ)⁻¹, which stays finite for exact corners (s = 0).
     s2 = scale * scale
@@ -535,6 +504,163 @@ def _solve(
     rms = math.sqrt(float(r @ r) / n)
     pose = DockPose(th[0], th[1], wrap_angle(th[2]))
     return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles)
+
+
+_ZERO33 = np.zeros((3, 3))
+_NO_ROWS = np.zeros(0)
+_NO_BLOCKS = np.zeros((0, 2, 2))
+
+
+@kernel
+def _lm3(
+    Z: Any,
+    Tm: Any,
+    target: Any,
+    mode: int,
+    scale: float,
+    rows: Any,
+    blocks: Any,
+    lens: Any,
+    theta: Any,
+    use_prior: bool,
+    info: Any,
+    mu: Any,
+    max_iterations: int,
+    tolerance: float,
+) -> tuple[Any, bool, float, Any, Any, int, bool]:  # pragma: no cover - compiled
+    """Levenberg–Marquardt over (x, y, yaw) from ``theta``, one projection (with Jacobian) per iteration.
+
+    ``Z``, ``Tm``: the role set's ``_Parts``; ``target`` (N, 2) the corner pixels; whitening ``mode`` 0 by
+    ``scale``, 1 by ``rows`` (2N,), 2 by ``blocks`` (N, 2, 2); the prior's information and mean when
+    ``use_prior``. Stops when the next step is below a thousandth of the estimate's standard deviation
+    (δᵀHδ < ``_CHI2_TOLERANCE``) or below ``tolerance``. Returns the pose, whether any pose could be
+    evaluated, the cost (prior included), the normal matrix [J | r]ᵀW[J | r] (4, 4) and the design [J | r]
+    (N, 2, 4) of the last accepted evaluation, the projections evaluated and whether it converged.
+    """
+    n = Tm.shape[0]
+    X, Xt = np.empty((n, 2, 4)), np.empty((n, 2, 4))
+    N, Nt = np.empty((4, 4)), np.empty((4, 4))
+    H, Ht = np.empty((3, 3)), np.empty((3, 3))
+    g, gt = np.empty(3), np.empty(3)
+    th = theta.copy()
+    ok, cost = _evaluate(th, Z, Tm, target, mode, scale, rows, blocks, lens, use_prior, info, mu, X, N, H, g)
+    iterations, converged, lam = 1, False, 1e-4
+    damped, step, trial = np.empty((3, 3)), np.empty(3), np.empty(3)
+    while ok and iterations < max_iterations:
+        damped[:] = H
+        for k in range(3):
+            damped[k, k] *= 1.0 + lam
+        if not _solve3_into(damped, -g, step):
+            break
+        # The step's size in standard deviations of the estimate (δᵀHδ, the cost it would remove): once
+        # it is a thousandth of one, further steps change nothing that the noise lets anyone measure.
+        # With noise, Gauss–Newton converges linearly (rate ~ residual size), so this saves iterations.
+        decrease = 0.0
+        for k in range(3):
+            decrease += step[k] * (H[k, 0] * step[0] + H[k, 1] * step[1] + H[k, 2] * step[2])
+        if decrease < _CHI2_TOLERANCE or max(abs(step[0]), abs(step[1]), abs(step[2])) < tolerance:
+            th += step
+            converged = True
+            break
+        trial[:] = th + step
+        ok_t, cost_t = _evaluate(
+            trial, Z, Tm, target, mode, scale, rows, blocks, lens, use_prior, info, mu, Xt, Nt, Ht, gt
+        )
+        iterations += 1
+        if ok_t and cost_t <= cost:
+            th[:], X[:], N[:], H[:], g[:], cost = trial, Xt, Nt, Ht, gt, cost_t
+            lam = max(lam * 0.1, 1e-12)
+        else:
+            lam *= 10.0
+            if lam > 1e12:
+                break
+    return th, ok, cost, N, X, iterations, converged
+
+
+@kernel
+def _evaluate(
+    th: Any,
+    Z: Any,
+    Tm: Any,
+    target: Any,
+    mode: int,
+    scale: float,
+    rows: Any,
+    blocks: Any,
+    lens: Any,
+    use_prior: bool,
+    info: Any,
+    mu: Any,
+    X: Any,
+    N: Any,
+    H: Any,
+    g: Any,
+) -> tuple[bool, float]:  # pragma: no cover - compiled
+    """The design X = [J | r] (pixel − target), N = XᵀWX, H = JᵀWJ (+Λ), g = JᵀWr (+Λe) at pose ``th``,
+    filled in place, and the cost; False when a corner is not in front of the camera or the cost is not finite."""
+    c, s = np.cos(th[2]), np.sin(th[2])
+    x, y = th[0], th[1]
+    for i in range(Tm.shape[0]):
+        P, D = np.empty(3), np.empty(3)
+        for d in range(3):
+            row = 3 * i + d
+            P[d] = Z[row, 0] * c + Z[row, 1] * s + Z[row, 2] + Z[row, 3] * x + Z[row, 4] * y
+            D[d] = Z[row, 1] * c - Z[row, 0] * s  # dP/dyaw
+        if P[2] <= _MIN_DEPTH:
+            return False, np.inf
+        u, v, j00, j01, j02, j10, j11, j12 = project(lens, P[0], P[1], P[2])
+        for col in range(2):
+            X[i, 0, col] = j00 * Tm[i, 0, col] + j01 * Tm[i, 1, col] + j02 * Tm[i, 2, col]
+            X[i, 1, col] = j10 * Tm[i, 0, col] + j11 * Tm[i, 1, col] + j12 * Tm[i, 2, col]
+        X[i, 0, 2] = j00 * D[0] + j01 * D[1] + j02 * D[2]
+        X[i, 1, 2] = j10 * D[0] + j11 * D[1] + j12 * D[2]
+        X[i, 0, 3] = u - target[i, 0]
+        X[i, 1, 3] = v - target[i, 1]
+    N[:] = 0.0
+    w0, w1 = np.empty(4), np.empty(4)
+    for i in range(Tm.shape[0]):
+        for a in range(4):
+            if mode == 0:
+                w0[a], w1[a] = scale * X[i, 0, a], scale * X[i, 1, a]
+            elif mode == 1:
+                w0[a], w1[a] = rows[2 * i] * X[i, 0, a], rows[2 * i + 1] * X[i, 1, a]
+            else:
+                w0[a] = blocks[i, 0, 0] * X[i, 0, a] + blocks[i, 0, 1] * X[i, 1, a]
+                w1[a] = blocks[i, 1, 0] * X[i, 0, a] + blocks[i, 1, 1] * X[i, 1, a]
+        for a in range(4):
+            for b in range(4):
+                N[a, b] += w0[a] * w0[b] + w1[a] * w1[b]
+    cost = N[3, 3]
+    for k in range(3):
+        g[k] = N[k, 3]
+        for m in range(3):
+            H[k, m] = N[k, m]
+    if use_prior:
+        e = np.array([x - mu[0], y - mu[1], (th[2] - mu[2] + np.pi) % (2.0 * np.pi) - np.pi])
+        for k in range(3):
+            ie = info[k, 0] * e[0] + info[k, 1] * e[1] + info[k, 2] * e[2]
+            g[k] += ie
+            cost += e[k] * ie
+            for m in range(3):
+                H[k, m] += info[k, m]
+    return bool(np.isfinite(cost)), cost
+
+
+@kernel
+def _solve3_into(A: Any, b: Any, out: Any) -> bool:  # pragma: no cover - compiled
+    """out = x with A x = b for a 3x3 system, by cofactors; False when A is singular."""
+    a, b_, c = A[0, 0], A[0, 1], A[0, 2]
+    d, e, f = A[1, 0], A[1, 1], A[1, 2]
+    g, h, i = A[2, 0], A[2, 1], A[2, 2]
+    c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * c0 + b_ * c1 + c * c2
+    if det == 0.0 or not np.isfinite(det):
+        return False
+    r0, r1, r2 = b[0], b[1], b[2]
+    out[0] = (r0 * c0 + r1 * (c * h - b_ * i) + r2 * (b_ * f - c * e)) / det
+    out[1] = (r0 * c1 + r1 * (a * i - c * g) + r2 * (c * d - a * f)) / det
+    out[2] = (r0 * c2 + r1 * (b_ * g - a * h) + r2 * (a * e - b_ * d)) / det
+    return True
 
 
 def _inverse3(m: list[list[float]], factor: float) -> NDArray[np.float64]:

@@ -52,6 +52,7 @@ from monodock.camera import CameraModel
 from monodock.detect import Detection
 from monodock.errors import InputError
 from monodock.kernel import kernel
+from monodock.lens import distort, lens_of
 
 __all__ = ["refine_detection", "refine_marker"]
 
@@ -147,34 +148,6 @@ def _check_image(gray: NDArray[np.uint8], camera: CameraModel, modules: int) -> 
     return gray
 
 
-@lru_cache(maxsize=8)
-def _lens(camera: CameraModel) -> F64:
-    """The camera's numbers as ``_distort`` reads them: fx, skew, cx, fy, cy, k1, k2, p1, p2, k3, k4-k6, rational."""
-    d = np.zeros(8)
-    d[: len(camera.D)] = camera.D
-    K = camera.K
-    out = np.array([K[0], K[1], K[2], K[4], K[5], *d, 1.0 if len(camera.D) == 8 else 0.0])
-    out.flags.writeable = False
-    return out
-
-
-@kernel
-def _distort(lens: F64, x: Any, y: Any) -> tuple[Any, Any]:  # pragma: no cover - compiled
-    """Pixels (u, v) of undistorted normalised coordinates (scalars or arrays), through the lens (``_lens``).
-
-    OpenCV's plumb_bob and rational_polynomial models.
-    """
-    k1, k2, p1, p2, k3 = lens[5], lens[6], lens[7], lens[8], lens[9]
-    xx, yy, xy = x * x, y * y, x * y
-    r2 = xx + yy
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    if lens[13] != 0.0:
-        radial = radial / (1.0 + r2 * (lens[10] + r2 * (lens[11] + r2 * lens[12])))
-    xd = x * radial + (2.0 * p1) * xy + p2 * (r2 + 2.0 * xx)
-    yd = y * radial + p1 * (r2 + 2.0 * yy) + (2.0 * p2) * xy
-    return lens[0] * xd + lens[1] * yd + lens[2], lens[3] * yd + lens[4]
-
-
 def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules: int) -> tuple[F64, NDArray[np.bool_]]:
     """Refined corners (M, 4, 2) of M markers' detected corners (4M, 2), and which markers were refined.
 
@@ -186,7 +159,7 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     n_sides = corners.shape[0]
     m = n_sides // 4
     height, width = gray.shape
-    lens = _lens(camera)
+    lens = lens_of(camera)
     # Only where the anchors go depends on these, not where the edges are found: 20 iterations are plenty.
     xn = np.asarray(
         cv2.undistortPoints(corners[:, None, :], camera.matrix, camera.dist, criteria=_UNDISTORT), np.float64
@@ -250,7 +223,9 @@ class _Sides:
 
 
 @kernel
-def _profile_geometry(corners: F64, xn: F64, lens: F64, modules: int, width: int, height: int) -> tuple[Any, ...]:  # pragma: no cover - compiled
+def _profile_geometry(
+    corners: F64, xn: F64, lens: F64, modules: int, width: int, height: int
+) -> tuple[Any, ...]:  # pragma: no cover - compiled
     """The fields of ``_Sides``, in order, for the detected corners (4M, 2) and their normalised ``xn``.
 
     Anchors evenly along each side, straight in normalised coordinates, away from the corners; each profile
@@ -292,8 +267,8 @@ def _profile_geometry(corners: F64, xn: F64, lens: F64, modules: int, width: int
             frac[j, k] = f
             along[j, k] = (f - 0.5) * ulen[k]
             ax, ay = xn[k, 0] + f * ux[k], xn[k, 1] + f * uy[k]
-            pu, pv = _distort(lens, ax, ay)
-            qu, qv = _distort(lens, ax + step * nnx[k], ay + step * nny[k])
+            pu, pv = distort(lens, ax, ay)
+            qu, qv = distort(lens, ax + step * nnx[k], ay + step * nny[k])
             inv = 1.0 / np.hypot(qu - pu, qv - pv)
             kappa[j, k] = step * inv
             dx, dy = np.float32((qu - pu) * inv), np.float32((qv - pv) * inv)
@@ -302,14 +277,25 @@ def _profile_geometry(corners: F64, xn: F64, lens: F64, modules: int, width: int
                 mapx[i, col] = np.float32(pu) + t[i, 0, k] * dx
                 mapy[i, col] = np.float32(pv) + t[i, 0, k] * dy
             x0, x1, y0, y1 = mapx[0, col], mapx[SAMPLES - 1, col], mapy[0, col], mapy[SAMPLES - 1, col]
-            inside[j, k] = min(x0, x1) >= 0 and max(x0, x1) <= width - 1 and min(y0, y1) >= 0 and max(y0, y1) <= height - 1
+            inside[j, k] = (
+                min(x0, x1) >= 0 and max(x0, x1) <= width - 1 and min(y0, y1) >= 0 and max(y0, y1) <= height - 1
+            )
     return side_px, border, reach, nnx, nny, frac, along, kappa, inside, t, mapx, mapy, clockwise
 
 
 @kernel
 def _side_lines(
-    e: F32, s: F32, contrast: F32, rms: F32, inside: Any, reach: F64, frac: F64, side_px: F64, along: F64,
-    kappa: F64, floor: float,
+    e: F32,
+    s: F32,
+    contrast: F32,
+    rms: F32,
+    inside: Any,
+    reach: F64,
+    frac: F64,
+    side_px: F64,
+    along: F64,
+    kappa: F64,
+    floor: float,
 ) -> tuple[F64, F64, NDArray[np.intp], F64, NDArray[np.intp]]:  # pragma: no cover - compiled
     """Each side's line through its clean edge points (J, S), and what ``_bloom`` needs of them.
 
@@ -424,7 +410,7 @@ def _to_pixels(
         ok[i] = True
         for c in range(4):
             k = 4 * i + c
-            u, v = _distort(lens, qx[k], qy[k])
+            u, v = distort(lens, qx[k], qy[k])
             out[i, c, 0], out[i, c, 1] = u, v
             ok[i] = ok[i] and n_good[k] >= MIN_GOOD and np.hypot(u - corners[k, 0], v - corners[k, 1]) < limit
         if not ok[i]:
@@ -505,10 +491,10 @@ def _inner_profiles(
 ) -> _Inner | None:
     """The profiles across the border's inner edge of the markers with ``MIN_CLIPPED`` clipped samples, or None.
 
-    ``lens`` the camera (``_lens``), ``xn`` (4M, 2) the detected corners (normalised), ``clockwise`` (M,)
-    whether they run clockwise on screen, ``reach`` (4M,) the sides' profile reach, ``prof`` (T, J, 4M) and
-    ``inside`` (J, 4M) the outer profiles. Built like the outer ones: a straight normal in normalised coordinates, its direction in pixels
-    one pixel-ish out, the outer side's reach.
+    ``lens`` the camera (``lens.lens_of``), ``xn`` (4M, 2) the detected corners (normalised), ``clockwise``
+    (M,) whether they run clockwise on screen, ``reach`` (4M,) the sides' profile reach, ``prof`` (T, J, 4M)
+    and ``inside`` (J, 4M) the outer profiles. Built like the outer ones: a straight normal in normalised
+    coordinates, its direction in pixels one pixel-ish out, the outer side's reach.
     """
     height, width = gray.shape
     m = xn.shape[0] // 4
@@ -528,8 +514,8 @@ def _inner_profiles(
     scale = np.where(clockwise[mk], -1.0, 1.0) / np.hypot(dx, dy)
     nx, ny = -dy * scale, dx * scale
     step = 1.0 / lens[0]
-    pu, pv = _distort(lens, x[0], y[0])
-    qu, qv = _distort(lens, x[0] + step * nx, y[0] + step * ny)
+    pu, pv = distort(lens, x[0], y[0])
+    qu, qv = distort(lens, x[0] + step * nx, y[0] + step * ny)
     dpx, dpy = qu - pu, qv - pv
     inv = 1.0 / np.hypot(dpx, dpy)
     lim = reach.reshape(m, 4)[mk, side[cell]].astype(np.float32)
@@ -624,14 +610,16 @@ def _fit_edges(t: Any, intensity: Any, w: Any, lim: Any) -> tuple[F32, F32, F32,
             jt, jw, jl = min(j, t.shape[1] - 1), min(j, w.shape[1] - 1), min(j, lim.shape[0] - 1)
             sw = s1 = s2 = mass = m1 = m2 = 0.0
             for i in range(n_t):
-                wi = (w[min(i, w.shape[0] - 1), jw, k] * 1.0)
+                wi = w[min(i, w.shape[0] - 1), jw, k] * 1.0
                 v = float(intensity[i, j, k])
                 sw += wi
                 s1 += wi * v
                 s2 += wi * v * v
                 if i + 1 < n_t:
                     # The start: centroid and spread of the (positive) intensity drop going inwards.
-                    drop = max(v - float(intensity[i + 1, j, k]), 0.0) * wi * (w[min(i + 1, w.shape[0] - 1), jw, k] * 1.0)
+                    drop = (
+                        max(v - float(intensity[i + 1, j, k]), 0.0) * wi * (w[min(i + 1, w.shape[0] - 1), jw, k] * 1.0)
+                    )
                     tm = 0.5 * (float(t[min(i, t.shape[0] - 1), jt, k]) + float(t[min(i + 1, t.shape[0] - 1), jt, k]))
                     mass += drop
                     m1 += drop * tm
@@ -649,7 +637,7 @@ def _fit_edges(t: Any, intensity: Any, w: Any, lim: Any) -> tuple[F32, F32, F32,
                 ej, sj = float(e[j, k]), float(s[j, k])
                 s1 = s2 = sy = cc0 = cc1 = dd0 = dd1 = g0 = g1 = h0 = h1 = h01 = 0.0
                 for i in range(n_t):
-                    wi = (w[min(i, w.shape[0] - 1), jw, k] * 1.0)
+                    wi = w[min(i, w.shape[0] - 1), jw, k] * 1.0
                     v = float(intensity[i, j, k])
                     z = (float(t[min(i, t.shape[0] - 1), jt, k]) - ej) / sj
                     z2 = z * z
