@@ -165,7 +165,9 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
         cv2.undistortPoints(corners[:, None, :], camera.matrix, camera.dist, criteria=_UNDISTORT), np.float64
     ).reshape(-1, 2)
     side = _Sides(*_profile_geometry(corners, xn, lens, modules, width, height))
-    prof = np.asarray(cv2.remap(gray, side.mapx, side.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+    prof = np.asarray(
+        cv2.remap(gray, side.mapx, side.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), np.uint8
+    )
     prof = prof.reshape(SAMPLES, PROFILES, n_sides)
     # Samples off the image are not data. Clipped samples are: dropping them leaves a fit of the slope alone,
     # wild where only a pixel or two of it is below 255; kept, the clipped plateau is the bright level, and
