@@ -272,6 +272,26 @@ def test_refine_detection_keeps_everything_else() -> None:
     assert refine_detection(image, empty, sim.camera) == empty
 
 
+def test_a_marker_with_non_finite_corners_is_left_alone() -> None:
+    """A NaN corner (a broken upstream detector) leaves that marker unrefined; the others still are."""
+    sim = Simulator(nuisances=Nuisances.clean(), seed=4)
+    pose = DockPose(CAMERA_X + 1.0, 0.05, math.radians(8.0))
+    image = sim.render(pose)
+    truth = sim.true_corners(pose)
+    det = MarkerDetector(sim.layout).detect(image)
+    broken = det.observations["center"].corners.copy()
+    broken[2, 0] = np.nan
+    observations = {**det.observations, "center": MarkerObservation("center", 2, broken)}
+    ref = refine_detection(image, Detection(observations, (), det.image_size), sim.camera)
+    assert ref.unrefined == ("center",)
+    np.testing.assert_array_equal(ref.observations["center"].corners, broken)
+    for role in ("left", "right"):
+        refined = np.linalg.norm(ref.observations[role].corners - truth[role], axis=1)
+        opencv = np.linalg.norm(det.observations[role].corners - truth[role], axis=1)
+        assert refined.max() < 0.15
+        assert refined.mean() < opencv.mean()
+
+
 def test_bad_input_is_one_clear_error() -> None:
     camera = CameraModel.default()
     gray = np.zeros((camera.height, camera.width), np.uint8)

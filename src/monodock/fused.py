@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 from monodock.camera import CameraModel
 from monodock.detect import Detection
 from monodock.errors import InputError
+from monodock.kernel import kernel
 from monodock.layout import ROLE_NUMBER, ROLES, DockLayout
 from monodock.pnp import PoseEstimate
 from monodock.pose import DockPose, wrap_angle
@@ -95,10 +96,16 @@ def _psd_floor(cov: NDArray[np.float64], floor_sd: NDArray[np.float64] = _FLOOR_
     sym = 0.5 * (cov + cov.T)
     c = sym / ss
     if _above_identity(c.tolist()):
-        return sym  # nothing below the floor (the usual case)
+        return sym  # nothing below the floor
+    return np.asarray(_clip_eigenvalues(c) * ss, dtype=np.float64)
+
+
+@kernel
+def _clip_eigenvalues(c: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
+    """The symmetric matrix c with its eigenvalues raised to at least 1 (compiled: it runs on most frames)."""
     w, v = np.linalg.eigh(c)
-    c = (v * np.maximum(w, 1.0)) @ v.T
-    return np.asarray(c * ss, dtype=np.float64)
+    out: NDArray[np.float64] = (v * np.maximum(w, 1.0)) @ v.T
+    return out
 
 
 def _above_identity(c: list[list[float]]) -> bool:
@@ -512,7 +519,13 @@ REGRESSION_GAIN = 0.25
 
 def _gain(g_cov: NDArray[np.float64], reg_cov: NDArray[np.float64]) -> float:
     """tr(R⁻¹ G): a bound on how much of the geometry's variance the regression could take away."""
-    return float(np.trace(np.linalg.solve(reg_cov, g_cov)))
+    return _trace_solve(reg_cov, g_cov)
+
+
+@kernel
+def _trace_solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:  # pragma: no cover - compiled
+    """tr(a⁻¹ b)."""
+    return float(np.trace(np.linalg.solve(a, b)))
 
 
 # An unrefined marker keeps OpenCV's corners: inset by ~0.2-0.4 px, so they count as this much noisier.
@@ -672,16 +685,13 @@ class FusedEstimator:
     def _board_fit(self, detection: Detection, refined: Detection | None) -> PlanarFit | None:
         """The planar fit of two or more markers from the board's IPPE solution, if it is clean (converged, its
         residuals within 3x the corner noise); None for a lone marker (its yaw sign needs the regression)."""
-        from monodock.planar import board_start, solve_planar
+        from monodock.planar import board_fit
 
         roles, corners, sig, _ = self._corners(detection, refined)
         if len(roles) < 2:
             return None
-        start = board_start(corners, self.camera, self.layout, self.geometry_robot)
-        if start is None:
-            return None
-        fit = solve_planar(corners, self.camera, self.layout, self.geometry_robot, start=start, corner_sigma=sig)
-        return fit if fit.converged and math.isfinite(fit.cost) and fit.noise_scale < 3.0 else None
+        fit = board_fit(corners, self.camera, self.layout, self.geometry_robot, corner_sigma=sig)
+        return fit if fit is not None and fit.converged and math.isfinite(fit.cost) and fit.noise_scale < 3.0 else None
 
     def _regression_helps(self, roles: Sequence[str], g: NDArray[np.float64], g_cov: NDArray[np.float64]) -> bool:
         """Whether the regression's learned covariance for these markers and band could make some component of

@@ -46,6 +46,7 @@ __all__ = [
     "PlanarFit",
     "PlanarModel",
     "PosePrior",
+    "board_fit",
     "board_start",
     "planar_candidates",
     "planar_model",
@@ -65,6 +66,9 @@ _MIN_DEPTH = 1e-3
 _ZERO3 = np.zeros(3)
 # Converged when the next step would lower the cost (χ²) by less than this: a step of 1e-3 standard deviations.
 _CHI2_TOLERANCE = 1e-6
+# Default cap on the projections a fit evaluates, and the step (m, rad) below which it has converged in any case.
+_MAX_ITERATIONS = 20
+_TOLERANCE = 1e-9
 # Two starts closer than this (metres and radians) are one.
 _SAME_START = 0.01
 # Two converged minima closer than this (metres and radians) are the same one.
@@ -373,8 +377,8 @@ def solve_planar(
     start: DockPose,
     corner_sigma: float | ArrayLike = DEFAULT_CORNER_SIGMA_PX,
     prior: PosePrior | None = None,
-    max_iterations: int = 20,
-    tolerance: float = 1e-9,
+    max_iterations: int = _MAX_ITERATIONS,
+    tolerance: float = _TOLERANCE,
     pitch_sd: float | None = None,
     roll_sd: float | None = None,
 ) -> PlanarFit:
@@ -880,17 +884,42 @@ def board_start(
     far marker's do: use ``planar_candidates`` there). None for fewer than two markers or when IPPE fails.
     """
     roles, img = _stack_corners(corners)
+    th = _board_theta(planar_model(camera, layout, robot), roles, img)
+    return DockPose(float(th[0]), float(th[1]), float(th[2])) if th is not None else None
+
+
+def board_fit(
+    corners: Mapping[str, ArrayLike],
+    camera: CameraModel,
+    layout: DockLayout,
+    robot: RobotConfig,
+    *,
+    corner_sigma: float | ArrayLike = DEFAULT_CORNER_SIGMA_PX,
+) -> PlanarFit | None:
+    """``solve_planar`` from ``board_start`` (the same fit, with the corners checked and stacked once); None
+    where ``board_start`` is."""
+    roles, img = _stack_corners(corners)
+    model = planar_model(camera, layout, robot)
+    th = _board_theta(model, roles, img)
+    if th is None:
+        return None
+    parts = model.parts(roles)
+    white = _whitening(corner_sigma, len(parts.obj))
+    return _solve(model, roles, parts, img, white, th, None, _MAX_ITERATIONS, _TOLERANCE)
+
+
+def _board_theta(model: PlanarModel, roles: tuple[str, ...], img: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """``board_start`` as (x, y, yaw), from the stacked corners."""
     if len(roles) < 2:
         return None
-    model = planar_model(camera, layout, robot)
+    camera = model.camera
     try:
         n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
             model.parts(roles).obj, img.reshape(-1, 2), camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE
         )
     except cv2.error:
         return None
-    th = _planar_start(rvecs[0], tvecs[0], model.base_T_optical, _EYE4) if n else None
-    return DockPose(float(th[0]), float(th[1]), float(th[2])) if th is not None else None
+    return _planar_start(rvecs[0], tvecs[0], model.base_T_optical, _EYE4) if n else None
 
 
 _EYE4 = np.eye(4)
@@ -945,7 +974,7 @@ def planar_candidates(
     prior: PosePrior | None = None,
     starts: Sequence[DockPose] = (),
     max_iterations: int = 50,
-    tolerance: float = 1e-9,
+    tolerance: float = _TOLERANCE,
     pitch_sd: float | None = None,
     roll_sd: float | None = None,
 ) -> list[PlanarFit]:

@@ -118,11 +118,16 @@ def refine_detection(
     All the markers are refined together (one image sampling, one fit), which costs little more than one.
     """
     img = _check_image(gray, camera, modules)
-    roles = [r for r, o in detection.observations.items() if np.shape(o.corners) == (4, 2)]
-    roles = [r for r in roles if np.all(np.isfinite(detection.observations[r].corners))]
+    quads = {r: o.corners for r, o in detection.observations.items() if np.shape(o.corners) == (4, 2)}
+    if not quads:
+        return replace(detection, unrefined=tuple(detection.observations))
+    stack = np.concatenate(list(quads.values()), dtype=np.float64)
+    finite = np.asarray(np.isfinite(stack).reshape(-1, 8).all(axis=1))
+    roles = [r for r, f in zip(quads, finite.tolist(), strict=True) if f]
     if not roles:
         return replace(detection, unrefined=tuple(detection.observations))
-    stack = np.concatenate([np.asarray(detection.observations[r].corners, dtype=np.float64) for r in roles])
+    if len(roles) < len(quads):
+        stack = stack[np.repeat(finite, 4)]
     out, ok = _refine(img, stack, camera, modules)
     observations = dict(detection.observations)
     refined = set()
