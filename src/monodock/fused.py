@@ -93,26 +93,25 @@ def _difference(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.fl
 def _psd_floor(cov: NDArray[np.float64], floor_sd: NDArray[np.float64] = _FLOOR_SD) -> NDArray[np.float64]:
     """The nearest symmetric matrix whose eigenvalues are at least the floor (scaled per component)."""
     ss = _FLOOR_OUTER if floor_sd is _FLOOR_SD else np.outer(floor_sd, floor_sd)
-    sym = 0.5 * (cov + cov.T)
-    c = sym / ss
-    if _above_identity(c.tolist()):
-        return sym  # nothing below the floor
-    return np.asarray(_clip_eigenvalues(c) * ss, dtype=np.float64)
+    return _floored(np.asarray(cov, dtype=np.float64), ss)
 
 
 @kernel
-def _clip_eigenvalues(c: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover - compiled
-    """The symmetric matrix c with its eigenvalues raised to at least 1 (compiled: it runs on most frames)."""
+def _floored(cov: NDArray[np.float64], ss: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover
+    """``_psd_floor`` in the floor's units ss: c = sym(cov) / ss with its eigenvalues raised to at least 1.
+
+    Compiled: it runs on every frame, and the floor is usually reached (on the fused lateral).
+    """
+    sym = 0.5 * (cov + cov.T)
+    c = sym / ss
+    # c − I positive definite (Sylvester: its leading minors are positive): nothing below the floor.
+    a, b, d = c[0, 0] - 1.0, c[0, 1], c[0, 2]
+    e, f, i = c[1, 1] - 1.0, c[1, 2], c[2, 2] - 1.0
+    if a > 0 and a * e - b * b > 0 and a * (e * i - f * f) - b * (b * i - f * d) + d * (b * f - e * d) > 0:
+        return sym
     w, v = np.linalg.eigh(c)
-    out: NDArray[np.float64] = (v * np.maximum(w, 1.0)) @ v.T
+    out: NDArray[np.float64] = ((v * np.maximum(w, 1.0)) @ v.T) * ss
     return out
-
-
-def _above_identity(c: list[list[float]]) -> bool:
-    """Whether the symmetric 3x3 c − I is positive definite (Sylvester: its leading minors are positive)."""
-    a, b, d = c[0][0] - 1.0, c[0][1], c[0][2]
-    e, f, i = c[1][1] - 1.0, c[1][2], c[2][2] - 1.0
-    return a > 0 and a * e - b * b > 0 and a * (e * i - f * f) - b * (b * i - f * d) + d * (b * f - e * d) > 0
 
 
 def fuse_gaussians(
@@ -375,12 +374,13 @@ class FusionTables:
 
 def side_lengths(corners: Mapping[str, NDArray[np.float64]]) -> NDArray[np.float64]:
     """Each marker's mean side in pixels, for the roles in ``corners`` in ROLES order."""
-    quads = [corners[r] for r in ROLES if r in corners]
-    if not quads:
-        return np.zeros(0)
-    c = np.asarray(quads, dtype=np.float64)
-    d = c - c[:, [1, 2, 3, 0]]
-    return np.asarray(np.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2).mean(axis=1), dtype=np.float64)
+    out = []
+    for role in ROLES:
+        if role in corners:
+            (x0, y0), (x1, y1), (x2, y2), (x3, y3) = np.asarray(corners[role], dtype=np.float64).tolist()
+            sides = math.hypot(x1 - x0, y1 - y0) + math.hypot(x2 - x1, y2 - y1) + math.hypot(x3 - x2, y3 - y2)
+            out.append(0.25 * (sides + math.hypot(x0 - x3, y0 - y3)))
+    return np.array(out, dtype=np.float64)
 
 
 def corner_sigmas(

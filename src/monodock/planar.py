@@ -466,13 +466,13 @@ def _solve(
     max_iterations: int,
     tolerance: float,
 ) -> PlanarFit:
-    """Levenberg–Marquardt (``_lm3``, compiled) and the fit's covariances from its last normal matrix."""
+    """Levenberg–Marquardt (``_lm3``, compiled) from ``theta``."""
     info = prior.information() if prior is not None else _ZERO33
     mu = _theta(prior.mean) if prior is not None else _ZERO3
     mode = 2 if white.blocks is not None else 1 if white.rows is not None else 0
     rows = white.rows if white.rows is not None else _NO_ROWS
     blocks = white.blocks if white.blocks is not None else _NO_BLOCKS
-    th_, ok, cost, normal, X, iterations, converged = _lm3(
+    th_, ok, cost, cov, cov_res, scale, rms, iterations, converged = _lm3(
         parts.Z,
         parts.T,
         img.reshape(-1, 2),
@@ -489,24 +489,10 @@ def _solve(
         tolerance,
     )
     th = th_.tolist()
+    pose = DockPose(th[0], th[1], wrap_angle(th[2]))
     if not ok:
         inf = np.full((3, 3), np.inf)
-        pose = DockPose(th[0], th[1], wrap_angle(th[2]))
         return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles)
-    N = normal.tolist()
-    n = len(parts.obj)
-    fisher = [N[0][:3], N[1][:3], N[2][:3]]
-    dof = 2 * n - 3
-    chi2 = N[3][3]
-    scale = math.sqrt(chi2 / dof) if dof > 0 else math.nan
-    lam_ = info.tolist()
-    cov = _inverse3([[fisher[k][m] + lam_[k][m] for m in range(3)] for k in range(3)], 1.0)
-    # (F/s² + Λ)⁻¹ written as s²(F + s²Λ)⁻¹, which stays finite for exact corners (s = 0).
-    s2 = scale * scale
-    cov_res = _inverse3([[fisher[k][m] + s2 * lam_[k][m] for m in range(3)] for k in range(3)], s2)
-    r = X[:, :, 3].ravel()
-    rms = math.sqrt(float(r @ r) / n)
-    pose = DockPose(th[0], th[1], wrap_angle(th[2]))
     return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles)
 
 
@@ -531,15 +517,16 @@ def _lm3(
     mu: Any,
     max_iterations: int,
     tolerance: float,
-) -> tuple[Any, bool, float, Any, Any, int, bool]:  # pragma: no cover - compiled
+) -> tuple[Any, bool, float, Any, Any, float, float, int, bool]:  # pragma: no cover - compiled
     """Levenberg–Marquardt over (x, y, yaw) from ``theta``, one projection (with Jacobian) per iteration.
 
     ``Z``, ``Tm``: the role set's ``_Parts``; ``target`` (N, 2) the corner pixels; whitening ``mode`` 0 by
     ``scale``, 1 by ``rows`` (2N,), 2 by ``blocks`` (N, 2, 2); the prior's information and mean when
     ``use_prior``. Stops when the next step is below a thousandth of the estimate's standard deviation
     (δᵀHδ < ``_CHI2_TOLERANCE``) or below ``tolerance``. Returns the pose, whether any pose could be
-    evaluated, the cost (prior included), the normal matrix [J | r]ᵀW[J | r] (4, 4) and the design [J | r]
-    (N, 2, 4) of the last accepted evaluation, the projections evaluated and whether it converged.
+    evaluated, and, from the last accepted evaluation, the cost (prior included), the covariance (F + Λ)⁻¹
+    and the residual-scaled one s²(F + s²Λ)⁻¹ (F the Fisher information at unit corner sigma, s the noise
+    scale √(χ²/dof)), s and the RMS residual (px); then the projections evaluated and whether it converged.
     """
     n = Tm.shape[0]
     X, Xt = np.empty((n, 2, 4)), np.empty((n, 2, 4))
@@ -578,7 +565,16 @@ def _lm3(
             lam *= 10.0
             if lam > 1e12:
                 break
-    return th, ok, cost, N, X, iterations, converged
+    if not ok:
+        return th, ok, np.inf, N, N, np.nan, np.inf, iterations, False
+    n_dof = 2 * n - 3
+    scale = np.sqrt(N[3, 3] / n_dof) if n_dof > 0 else np.nan
+    lam_ = info if use_prior else np.zeros((3, 3))
+    cov = _inverse3(N[:3, :3] + lam_, 1.0)
+    # (F/s² + Λ)⁻¹ written as s²(F + s²Λ)⁻¹, which stays finite for exact corners (s = 0).
+    cov_res = _inverse3(N[:3, :3] + scale * scale * lam_, scale * scale)
+    rms = np.sqrt(np.sum(X[:, :, 3] ** 2) / n)
+    return th, ok, cost, cov, cov_res, scale, rms, iterations, converged
 
 
 @kernel
@@ -667,21 +663,23 @@ def _solve3_into(A: Any, b: Any, out: Any) -> bool:  # pragma: no cover - compil
     return True
 
 
-def _inverse3(m: list[list[float]], factor: float) -> NDArray[np.float64]:
+@kernel
+def _inverse3(m: NDArray[np.float64], factor: float) -> NDArray[np.float64]:  # pragma: no cover - compiled
     """factor · m⁻¹ for a 3x3 information matrix; infinite where it is singular (the pose is unobservable)."""
-    (a, b, c), (d, e, f), (g, h, i) = m
+    out = np.empty((3, 3))
+    a, b, c = m[0, 0], m[0, 1], m[0, 2]
+    d, e, f = m[1, 0], m[1, 1], m[1, 2]
+    g, h, i = m[2, 0], m[2, 1], m[2, 2]
     c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * c0 + b * c1 + c * c2
-    if not det or not math.isfinite(det) or not math.isfinite(factor):
-        return np.full((3, 3), np.inf if math.isfinite(factor) else np.nan)
+    if det == 0.0 or not np.isfinite(det) or not np.isfinite(factor):
+        out[:] = np.inf if np.isfinite(factor) else np.nan
+        return out
     k = factor / det
-    return np.array(
-        [
-            [c0 * k, (c * h - b * i) * k, (b * f - c * e) * k],
-            [c1 * k, (a * i - c * g) * k, (c * d - a * f) * k],
-            [c2 * k, (b * g - a * h) * k, (a * e - b * d) * k],
-        ]
-    )
+    out[0, 0], out[0, 1], out[0, 2] = c0 * k, (c * h - b * i) * k, (b * f - c * e) * k
+    out[1, 0], out[1, 1], out[1, 2] = c1 * k, (a * i - c * g) * k, (c * d - a * f) * k
+    out[2, 0], out[2, 1], out[2, 2] = c2 * k, (b * g - a * h) * k, (a * e - b * d) * k
+    return out
 
 
 # --- the solver with the camera's pitch offset ------------------------------------------------------------
@@ -817,7 +815,7 @@ def _marginal3(information: list[list[float]], factor: float) -> NDArray[np.floa
     reduced = _schur(information)
     if reduced is None:
         return np.full((3, 3), np.inf if math.isfinite(factor) else np.nan)
-    return _inverse3(reduced[0], factor)
+    return _inverse3(np.array(reduced[0]), factor)
 
 
 def pose_information(
@@ -857,7 +855,7 @@ def pose_information(
         raise InputError("a marker corner is behind the camera at this pose")
     F = [row[:4] for row in white.normal(X)[:4]]
     if pitch_info is None:
-        return _inverse3([row[:3] for row in F[:3]], 1.0)
+        return _inverse3(np.array([row[:3] for row in F[:3]]), 1.0)
     F[3][3] += pitch_info
     return _marginal3(F, 1.0)
 
@@ -869,10 +867,28 @@ def _planar_start(
     rvec: ArrayLike, tvec: ArrayLike, base_T_optical: NDArray[np.float64], obj_T_dock: NDArray[np.float64]
 ) -> NDArray[np.float64] | None:
     """The planar pose (x, y, yaw) of one solvePnP solution (z, roll and pitch dropped), None if not finite."""
-    R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))
-    optical_T_obj = transforms.transform(R, np.asarray(tvec, dtype=np.float64).ravel())
-    base_T_dock = base_T_optical @ optical_T_obj @ obj_T_dock
-    return _theta(DockPose.from_matrix(base_T_dock)) if np.all(np.isfinite(base_T_dock)) else None
+    th = _start_theta(
+        np.asarray(rvec, dtype=np.float64).reshape(3),
+        np.asarray(tvec, dtype=np.float64).reshape(3),
+        base_T_optical,
+        obj_T_dock,
+    )
+    return th if bool(np.isfinite(th).all()) else None
+
+
+@kernel
+def _start_theta(rvec: Any, tvec: Any, base_T_optical: Any, obj_T_dock: Any) -> Any:  # pragma: no cover - compiled
+    """(x, y, yaw) of base_T_dock = base_T_optical · [R(rvec) | tvec] · obj_T_dock, R by Rodrigues' formula."""
+    angle = np.sqrt(rvec[0] ** 2 + rvec[1] ** 2 + rvec[2] ** 2)
+    optical_T_obj = np.eye(4)
+    if angle > 0.0:
+        k = rvec / angle
+        c, s = np.cos(angle), np.sin(angle)
+        cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        optical_T_obj[:3, :3] = c * np.eye(3) + (1.0 - c) * np.outer(k, k) + s * cross
+    optical_T_obj[:3, 3] = tvec
+    m = base_T_optical @ optical_T_obj @ obj_T_dock
+    return np.array([m[0, 3], m[1, 3], np.arctan2(m[1, 0], m[0, 0])])
 
 
 def board_start(
