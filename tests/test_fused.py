@@ -11,6 +11,7 @@ import pytest
 from monodock.errors import InputError
 from monodock.fused import (
     Correction,
+    FusedEstimator,
     FusionTables,
     band_index,
     fuse_gaussians,
@@ -354,3 +355,33 @@ def test_the_geometry_excess_ignores_label_and_regression_sharing_an_error() -> 
         geo = rng.normal(0, [math.sqrt(true_var), 1.0, math.sqrt(true_var)], (n, 3))
         got = _excess(geo - label, reg - label)
         assert lo <= got <= hi
+
+
+def test_the_warm_up_runs_both_refiner_paths_on_valid_views() -> None:
+    """Before a live stream, ``Estimator.warm_up`` runs the fused method on a normal and an over-exposed view of the
+    dock (the clipped-marker path of the refiner has kernels of its own); the board method needs none."""
+    from monodock.camera import CameraModel
+    from monodock.estimate import Estimator
+    from monodock.layout import DockLayout
+    from monodock.robot import RobotConfig
+
+    camera, layout, robot = CameraModel.default(), DockLayout.default(), RobotConfig.default()
+    fused = FusedEstimator(camera, layout, robot, FusionTables(0.22))
+    seen: list[tuple[float, Any]] = []
+    for methods in (("board",), ("fused",)):
+        est = Estimator(camera, layout, robot, methods, fused=fused)
+        run = est.estimate
+
+        def spy(name: str, stamp: float, image: Any, run: Any = run) -> Any:
+            result = run(name, stamp, image)
+            seen.append((float(np.mean(image == 255)), result.estimates["fused"].pose))
+            return result
+
+        est.estimate = spy  # type: ignore[method-assign]
+        est.warm_up()
+    assert len(seen) == 2  # none for the board method
+    (normal, pose_a), (bright, pose_b) = seen
+    assert normal < 0.01 < 0.2 < bright  # the charger's white face clips in the second view only
+    for pose in (pose_a, pose_b):
+        assert pose is not None
+        assert abs(pose.x - (robot.camera_mount.x + 1.0)) < 0.01 and abs(pose.y) < 0.01 and abs(pose.yaw) < 0.01

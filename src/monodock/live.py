@@ -404,6 +404,7 @@ def run_live(
     if method not in estimator.methods:
         raise InputError(f"method '{method}' is not one of the estimator's ({', '.join(estimator.methods)})")
     say = on_message or (lambda text: print(f"monodock run: {text}", file=sys.stderr))
+    estimator.warm_up()
     writer = _RowWriter(sink, output_format) if sink is not None else None
     video = _OverlayVideo(overlay_video, source.fps, force=force) if overlay_video else None
     if show and not _has_display():

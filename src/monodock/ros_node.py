@@ -69,6 +69,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         _check_options(args)
         if args.model or args.camera:
             self.estimator, self.method = _estimator(args)
+            self.estimator.warm_up()
         else:  # the camera comes from camera_info; the layout and mounts from the files
             self.create_subscription(CameraInfo, args.camera_info_topic, self._on_camera_info, 1)
         compressed = args.compressed or args.image_topic.rstrip("/").endswith("/compressed")
@@ -90,6 +91,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             self._warn_once("camera_info without a calibration (K is zero); waiting for a calibrated one")
             return
         self.estimator, self.method = _estimator(self.args, camera)
+        self.estimator.warm_up()
         self.get_logger().info(f"camera {camera.width}x{camera.height} from camera_info; estimating with {self.method}")
 
     def _on_image(self, msg: Any) -> None:
