@@ -17,7 +17,8 @@ thread, times per frame with time.perf_counter, each call repeated ``--repeat`` 
     the geometry alone with default tables;
 (e1), (f1) the refined corners, and the planar fit plus fusion (FusedEstimator.estimate), each timed right
     after an untimed detection of the same image: as they run in (f), with the detection's memory traffic
-    between calls, which makes every small numpy call dearer than in (e)'s loop of repeats.
+    between calls, which makes every call (numpy, OpenCV, the interpreter's own) dearer than in (e)'s loop of
+    repeats.
 
 Reports median and p90 milliseconds per frame, and ratios of medians measured in the same run.
 
