@@ -195,8 +195,10 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     )
     qx, qy = _intersect(alpha, beta, xn, side.nnx, side.nny)
     if inner is not None:
-        contrast_out = contrast_sum.reshape(m, 4).sum(axis=1) / np.maximum(n_clean.reshape(m, 4).sum(axis=1), 1)
-        delta = _bloom(inner, inner_fit, contrast_out, qx.reshape(m, 4), qy.reshape(m, 4), modules)
+        # A side without clean profiles has NaN or infinite corners (they fail _to_pixels' checks): no warnings.
+        with np.errstate(all="ignore"):
+            contrast_out = contrast_sum.reshape(m, 4).sum(axis=1) / np.maximum(n_clean.reshape(m, 4).sum(axis=1), 1)
+            delta = _bloom(inner, inner_fit, contrast_out, qx.reshape(m, 4), qy.reshape(m, 4), modules)
         qx, qy = _intersect(alpha - np.repeat(delta, 4) * side.kappa.mean(axis=0), beta, xn, side.nnx, side.nny)
     return _to_pixels(lens, qx, qy, corners, side.border, n_good)
 
