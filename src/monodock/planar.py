@@ -442,16 +442,11 @@ def _pitch_information(pitch_sd: float) -> float:
 
 
 def _solve3(A: list[list[float]], b: list[float]) -> tuple[float, float, float] | None:
-    """x with A x = b for a 3x3 system, by cofactors in plain floats (numpy's solve costs more here)."""
-    (a, b_, c), (d, e, f), (g, h, i) = A
-    c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * c0 + b_ * c1 + c * c2
-    if not det or not math.isfinite(det):
+    """x with A x = b for a 3x3 system (``_solve3_into``), None when A is singular."""
+    out = np.empty(3)
+    if not _solve3_into(np.array(A, dtype=np.float64), np.array(b, dtype=np.float64), out):
         return None
-    r0, r1, r2 = b
-    x0 = (r0 * c0 + r1 * (c * h - b_ * i) + r2 * (b_ * f - c * e)) / det
-    x1 = (r0 * c1 + r1 * (a * i - c * g) + r2 * (c * d - a * f)) / det
-    x2 = (r0 * c2 + r1 * (b_ * g - a * h) + r2 * (a * e - b_ * d)) / det
+    x0, x1, x2 = out.tolist()
     return x0, x1, x2
 
 
@@ -472,21 +467,22 @@ def _solve(
     mode = 2 if white.blocks is not None else 1 if white.rows is not None else 0
     rows = white.rows if white.rows is not None else _NO_ROWS
     blocks = white.blocks if white.blocks is not None else _NO_BLOCKS
-    th_, ok, cost, cov, cov_res, scale, rms, iterations, converged = _lm3(
+    # The fit's fixed inputs, as one tuple for the kernels (``_evaluate`` unpacks it).
+    problem = (
         parts.Z,
         parts.T,
         img.reshape(-1, 2),
         mode,
-        white.scalar,
+        float(white.scalar),
         rows,
         blocks,
         lens_of(model.camera),
-        np.array(theta, dtype=np.float64),
         prior is not None,
         info,
         mu,
-        max_iterations,
-        tolerance,
+    )
+    th_, ok, cost, cov, cov_res, scale, rms, iterations, converged = _lm3(
+        problem, np.array(theta, dtype=np.float64), max_iterations, tolerance
     )
     th = th_.tolist()
     pose = DockPose(th[0], th[1], wrap_angle(th[2]))
@@ -503,38 +499,24 @@ _NO_BLOCKS = np.zeros((0, 2, 2))
 
 @kernel
 def _lm3(
-    Z: Any,
-    Tm: Any,
-    target: Any,
-    mode: int,
-    scale: float,
-    rows: Any,
-    blocks: Any,
-    lens: Any,
-    theta: Any,
-    use_prior: bool,
-    info: Any,
-    mu: Any,
-    max_iterations: int,
-    tolerance: float,
+    problem: tuple[Any, ...], theta: Any, max_iterations: int, tolerance: float
 ) -> tuple[Any, bool, float, Any, Any, float, float, int, bool]:  # pragma: no cover - compiled
     """Levenberg–Marquardt over (x, y, yaw) from ``theta``, one projection (with Jacobian) per iteration.
 
-    ``Z``, ``Tm``: the role set's ``_Parts``; ``target`` (N, 2) the corner pixels; whitening ``mode`` 0 by
-    ``scale``, 1 by ``rows`` (2N,), 2 by ``blocks`` (N, 2, 2); the prior's information and mean when
-    ``use_prior``. Stops when the next step is below a thousandth of the estimate's standard deviation
-    (δᵀHδ < ``_CHI2_TOLERANCE``) or below ``tolerance``. Returns the pose, whether any pose could be
-    evaluated, and, from the last accepted evaluation, the cost (prior included), the covariance (F + Λ)⁻¹
-    and the residual-scaled one s²(F + s²Λ)⁻¹ (F the Fisher information at unit corner sigma, s the noise
-    scale √(χ²/dof)), s and the RMS residual (px); then the projections evaluated and whether it converged.
+    ``problem``: the fit's fixed inputs, as ``_evaluate`` reads them. Stops when the next step is below a
+    thousandth of the estimate's standard deviation (δᵀHδ < ``_CHI2_TOLERANCE``) or below ``tolerance``.
+    Returns the pose, whether any pose could be evaluated, and, from the last accepted evaluation, the cost
+    (prior included), the covariance (F + Λ)⁻¹ and the residual-scaled one s²(F + s²Λ)⁻¹ (F the Fisher
+    information at unit corner sigma, s the noise scale √(χ²/dof)), s and the RMS residual (px); then the
+    projections evaluated and whether it converged.
     """
-    n = Tm.shape[0]
+    n = problem[1].shape[0]
     X, Xt = np.empty((n, 2, 4)), np.empty((n, 2, 4))
     N, Nt = np.empty((4, 4)), np.empty((4, 4))
     H, Ht = np.empty((3, 3)), np.empty((3, 3))
     g, gt = np.empty(3), np.empty(3)
     th = theta.copy()
-    ok, cost = _evaluate(th, Z, Tm, target, mode, scale, rows, blocks, lens, use_prior, info, mu, X, N, H, g)
+    ok, cost = _evaluate(th, problem, X, N, H, g)
     iterations, converged, lam = 1, False, 1e-4
     damped, step, trial = np.empty((3, 3)), np.empty(3), np.empty(3)
     while ok and iterations < max_iterations:
@@ -554,9 +536,7 @@ def _lm3(
             converged = True
             break
         trial[:] = th + step
-        ok_t, cost_t = _evaluate(
-            trial, Z, Tm, target, mode, scale, rows, blocks, lens, use_prior, info, mu, Xt, Nt, Ht, gt
-        )
+        ok_t, cost_t = _evaluate(trial, problem, Xt, Nt, Ht, gt)
         iterations += 1
         if ok_t and cost_t <= cost:
             th[:], X[:], N[:], H[:], g[:], cost = trial, Xt, Nt, Ht, gt, cost_t
@@ -569,7 +549,7 @@ def _lm3(
         return th, ok, np.inf, N, N, np.nan, np.inf, iterations, False
     n_dof = 2 * n - 3
     scale = np.sqrt(N[3, 3] / n_dof) if n_dof > 0 else np.nan
-    lam_ = info if use_prior else np.zeros((3, 3))
+    lam_ = problem[9] if problem[8] else np.zeros((3, 3))
     cov = _inverse3(N[:3, :3] + lam_, 1.0)
     # (F/s² + Λ)⁻¹ written as s²(F + s²Λ)⁻¹, which stays finite for exact corners (s = 0).
     cov_res = _inverse3(N[:3, :3] + scale * scale * lam_, scale * scale)
@@ -579,25 +559,16 @@ def _lm3(
 
 @kernel
 def _evaluate(
-    th: Any,
-    Z: Any,
-    Tm: Any,
-    target: Any,
-    mode: int,
-    scale: float,
-    rows: Any,
-    blocks: Any,
-    lens: Any,
-    use_prior: bool,
-    info: Any,
-    mu: Any,
-    X: Any,
-    N: Any,
-    H: Any,
-    g: Any,
+    th: Any, problem: tuple[Any, ...], X: Any, N: Any, H: Any, g: Any
 ) -> tuple[bool, float]:  # pragma: no cover - compiled
     """The design X = [J | r] (pixel − target), N = XᵀWX, H = JᵀWJ (+Λ), g = JᵀWr (+Λe) at pose ``th``,
-    filled in place, and the cost; False when a corner is not in front of the camera or the cost is not finite."""
+    filled in place, and the cost; False when a corner is not in front of the camera or the cost is not finite.
+
+    ``problem``: ``Z``, ``Tm`` the role set's ``_Parts``; ``target`` (N, 2) the corner pixels; the whitening,
+    ``mode`` 0 by ``scale``, 1 by ``rows`` (2N,), 2 by ``blocks`` (N, 2, 2); the lens (``lens_of``); and the
+    prior's information and mean when ``use_prior``.
+    """
+    Z, Tm, target, mode, scale, rows, blocks, lens, use_prior, info, mu = problem
     c, s = np.cos(th[2]), np.sin(th[2])
     x, y = th[0], th[1]
     for i in range(Tm.shape[0]):
@@ -867,28 +838,10 @@ def _planar_start(
     rvec: ArrayLike, tvec: ArrayLike, base_T_optical: NDArray[np.float64], obj_T_dock: NDArray[np.float64]
 ) -> NDArray[np.float64] | None:
     """The planar pose (x, y, yaw) of one solvePnP solution (z, roll and pitch dropped), None if not finite."""
-    th = _start_theta(
-        np.asarray(rvec, dtype=np.float64).reshape(3),
-        np.asarray(tvec, dtype=np.float64).reshape(3),
-        base_T_optical,
-        obj_T_dock,
-    )
-    return th if bool(np.isfinite(th).all()) else None
-
-
-@kernel
-def _start_theta(rvec: Any, tvec: Any, base_T_optical: Any, obj_T_dock: Any) -> Any:  # pragma: no cover - compiled
-    """(x, y, yaw) of base_T_dock = base_T_optical · [R(rvec) | tvec] · obj_T_dock, R by Rodrigues' formula."""
-    angle = np.sqrt(rvec[0] ** 2 + rvec[1] ** 2 + rvec[2] ** 2)
-    optical_T_obj = np.eye(4)
-    if angle > 0.0:
-        k = rvec / angle
-        c, s = np.cos(angle), np.sin(angle)
-        cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-        optical_T_obj[:3, :3] = c * np.eye(3) + (1.0 - c) * np.outer(k, k) + s * cross
-    optical_T_obj[:3, 3] = tvec
-    m = base_T_optical @ optical_T_obj @ obj_T_dock
-    return np.array([m[0, 3], m[1, 3], np.arctan2(m[1, 0], m[0, 0])])
+    R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))
+    optical_T_obj = transforms.transform(R, np.asarray(tvec, dtype=np.float64).ravel())
+    base_T_dock = base_T_optical @ optical_T_obj @ obj_T_dock
+    return _theta(DockPose.from_matrix(base_T_dock)) if np.all(np.isfinite(base_T_dock)) else None
 
 
 def board_start(
