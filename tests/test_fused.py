@@ -128,6 +128,11 @@ def test_tables_round_trip_and_refuse_malformed_input() -> None:
     bad["regression_cov"]["m2"][0] = [[1, 0], [0, 1]]
     with pytest.raises(InputError, match="malformed"):
         FusionTables.from_dict(bad, "b")
+    for singular in ([[1e-5, 0, 0], [0, 0, 0], [0, 0, 1e-4]], [[1e-5, 2e-5, 0], [2e-5, 1e-5, 0], [0, 0, 1e-4]]):
+        bad = t.to_dict()
+        bad["label_cov"][3] = singular
+        with pytest.raises(InputError, match="positive definite"):
+            FusionTables.from_dict(bad, "b")
 
 
 def test_bands_and_holdout() -> None:

@@ -345,6 +345,9 @@ class FusionTables:
                 a = np.asarray(c, dtype=np.float64)
                 if a.shape != (3, 3) or not np.all(np.isfinite(a)):
                     raise ValueError("a covariance is not a finite 3x3 matrix")
+                # Every frame inverts it: a singular or indefinite one must fail here, not on the robot.
+                if not np.allclose(a, a.T, rtol=1e-9, atol=0.0) or np.any(np.linalg.eigvalsh(a) <= 0.0):
+                    raise ValueError("a covariance is not symmetric positive definite")
                 return a
 
             nb = len(BAND_EDGES_M) - 1
