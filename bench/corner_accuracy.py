@@ -6,8 +6,8 @@ Renders ``--frames`` random poses (Simulator.sample_pose() over the default Pose
 with more blur (``--defocus PX``, ``--motion-blur PX``) or another exposure (``--exposure GAIN``: 1.0 puts
 white paper at ~85 % of full scale, above ~1.2 it clips at 255; ``--exposure-jitter SIGMA``: the per-frame
 log-normal spread, 0.15 in Nuisances(), 0 for a fixed exposure), and detects the dock markers in the *same* images with
-each corner refinement 'none', 'subpix' and 'contour' of monodock.detect.MarkerDetector, plus 'monodock':
-monodock.refine.refine_detection applied to the 'subpix' detection (a marker it cannot refine keeps
+each corner refinement 'none', 'subpix' and 'contour' of monodock.perception.detect.MarkerDetector, plus 'monodock':
+monodock.perception.refine.refine_detection applied to the 'subpix' detection (a marker it cannot refine keeps
 OpenCV's corners and counts as "kept"). For every corner of a detected dock marker that lies fully in the
 image:
 
@@ -56,10 +56,10 @@ from _common import (
     markdown_table,
     parallel_map,
 )
-from monodock.detect import Detection, MarkerDetector
-from monodock.features import marker_features
-from monodock.layout import ROLES
-from monodock.refine import refine_detection
+from monodock.core.layout import ROLES
+from monodock.perception.detect import Detection, MarkerDetector
+from monodock.perception.features import marker_features
+from monodock.perception.refine import refine_detection
 from monodock.sim import Nuisances, Simulator
 
 OPENCV_METHODS: tuple[str, ...] = ("none", "subpix", "contour")

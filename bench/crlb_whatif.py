@@ -1,6 +1,6 @@
 """What the Cramér–Rao bound says each set-up change buys: marker size, spacing, camera resolution.
 
-For the default layout, camera and robot, monodock.crlb.what_if bounds the DockPose error of any unbiased
+For the default layout, camera and robot, monodock.estimation.crlb.what_if bounds the DockPose error of any unbiased
 estimator from the markers' corners, by 25 cm depth band (25-250 cm from the camera), on a grid of poses per
 band (5 depths x 9 lateral offsets in +-40 cm x 7 yaws in +-30 deg; a pose counts when the current set-up
 sees marker 2 fully, 3 px from the border, as the simulator's default PoseDistribution requires), for:
@@ -8,7 +8,7 @@ the current set-up; markers x1.5 and x2; side-marker spacing x1.5; camera resolu
 x2, same lens); and a combination that fits the default 60 cm charger face (markers x1.5, side markers out
 to the face's edges, the x2 camera). Each variant uses the markers it sees fully at each pose.
 
-Corner noise (the model documented in monodock.crlb): sigma = c * sqrt((1/L1 + 1/L2) / 2) px for a corner
+Corner noise (the model documented in monodock.estimation.crlb): sigma = c * sqrt((1/L1 + 1/L2) / 2) px for a corner
 whose two edges are L1 and L2 px long (c/sqrt(L) on a square marker), and at least ``--small-sigma`` px when
 the edges (harmonic mean) are under ``--small-side`` px, where OpenCV's SUBPIX corners stop following the
 edge-fit law. ``--measure-c`` measures c and the small-marker sigma first: it renders ``--frames``
@@ -19,7 +19,7 @@ markers, corners > 3 px off left out). The overall figures are also given for th
 
 Figures are the root-mean-square over each band's poses of the bound's standard deviation (x and y in cm,
 yaw in degrees) and their ratios to the current set-up (below 1 is better). ``--timing`` also times
-monodock.planar.solve_planar on one pinned core: noisy (sigma 0.3 px) true corners of 3-marker frames from
+monodock.estimation.planar.solve_planar on one pinned core: noisy (sigma 0.3 px) true corners of 3-marker frames from
 a start 1 cm / 1 deg off, best of ``--repeat`` calls per frame.
 
 Run from the repo root:
@@ -48,8 +48,11 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks  # noqa: E402
-from monodock.camera import CameraModel  # noqa: E402
-from monodock.crlb import (  # noqa: E402
+from monodock.core.camera import CameraModel  # noqa: E402
+from monodock.core.layout import ROLES, DockLayout  # noqa: E402
+from monodock.core.pose import DockPose  # noqa: E402
+from monodock.core.robot import RobotConfig  # noqa: E402
+from monodock.estimation.crlb import (  # noqa: E402
     DEFAULT_CORNER_C,
     DEFAULT_SMALL_SIDE_PX,
     DEFAULT_SMALL_SIGMA_PX,
@@ -58,11 +61,8 @@ from monodock.crlb import (  # noqa: E402
     corner_sides_px,
     what_if,
 )
-from monodock.detect import MarkerDetector  # noqa: E402
-from monodock.layout import ROLES, DockLayout  # noqa: E402
-from monodock.planar import planar_candidates, solve_planar  # noqa: E402
-from monodock.pose import DockPose  # noqa: E402
-from monodock.robot import RobotConfig  # noqa: E402
+from monodock.estimation.planar import planar_candidates, solve_planar  # noqa: E402
+from monodock.perception.detect import MarkerDetector  # noqa: E402
 from monodock.sim import PoseDistribution, Simulator  # noqa: E402
 
 CHUNK = 10

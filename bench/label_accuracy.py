@@ -3,7 +3,7 @@
 A held-out set of ``--frames`` simulated frames (default nuisances and the default LiDAR: 1 cm range noise,
 0.5 degree beams, 1 % dropouts) at poses drawn from the default PoseDistribution (depth 25-250 cm from the
 camera, lateral +-40 cm, yaw +-30 deg, marker 2 in view). Marker 2 is detected with MarkerDetector(layout)
-(sub-pixel corners) and each frame is labelled by monodock.label.label_frame from those corners and the
+(sub-pixel corners) and each frame is labelled by monodock.learning.label.label_frame from those corners and the
 paired scan, as ``monodock label`` does. Label against truth, per 25 cm band of the papers' depth (true
 DockPose.x - camera_mount.x) and overall:
 
@@ -38,8 +38,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks
-from monodock.detect import MarkerDetector
-from monodock.label import label_frame
+from monodock.learning.label import label_frame
+from monodock.perception.detect import MarkerDetector
 from monodock.sim import Simulator
 
 CHUNK = 20

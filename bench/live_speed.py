@@ -1,7 +1,7 @@
 """Live estimation speed: sustained frames per second and per-frame latency of ``monodock run``'s loop.
 
 Renders ``--frames`` default-nuisance 640x480 frames at random poses (in ``--workers`` processes, outside any
-timing) into an MJPG .avi, then runs monodock.live.run_live on it with the board PnP (and with the regression
+timing) into an MJPG .avi, then runs monodock.io.live.run_live on it with the board PnP (and with the regression
 when ``--model BUNDLE`` is given), writing CSV rows to a file as ``monodock run --out`` does. Reports what the
 run itself measured: sustained fps (rows / wall time, including decoding the video and writing the rows) and
 the latency from each frame's arrival to its row, median and p95.
@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks
-from monodock.estimate import Estimator
-from monodock.live import LiveStats, open_source, run_live
+from monodock.estimation.estimator import Estimator
+from monodock.io.live import LiveStats, open_source, run_live
 from monodock.sim import Simulator
 
 CHUNK = 20
@@ -68,8 +68,8 @@ def main() -> None:
         measure(video, board, "board", Path(tmp) / "warmup.csv")  # first calls load OpenCV's code paths
         runs["board"] = measure(video, board, "board", Path(tmp) / "board.csv")
         if args.model:
-            from monodock.cli import _load_bundle
-            from monodock.regression import RegressionEstimator
+            from monodock.cli.main import _load_bundle
+            from monodock.estimation.regression import RegressionEstimator
 
             bundle = _load_bundle(args.model)
             regression = RegressionEstimator(bundle, sim.camera, sim.robot).estimate

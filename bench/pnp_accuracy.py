@@ -5,8 +5,8 @@ vignetting, clutter) at poses drawn from the default PoseDistribution (depth 25-
 lateral +-40 cm, yaw +-30 deg, marker 2 in view). Markers are detected with MarkerDetector(layout)
 (sub-pixel corners), and the DockPose is estimated by
 
-- ``pnp``: monodock.pnp.estimate_single_marker (marker 2, SOLVEPNP_IPPE_SQUARE), the papers' baseline;
-- ``board``: monodock.pnp.estimate_board (every visible dock marker jointly).
+- ``pnp``: monodock.estimation.pnp.estimate_single_marker (marker 2, SOLVEPNP_IPPE_SQUARE), the papers' baseline;
+- ``board``: monodock.estimation.pnp.estimate_board (every visible dock marker jointly).
 
 Errors are against the simulator's true DockPose: depth = x, lateral = y (cm), yaw (deg, wrapped into
 [-180, 180)). Rows are 25 cm bands of the papers' depth (true DockPose.x - camera_mount.x) plus 'all';
@@ -18,7 +18,7 @@ Run from the repo root:
     python bench/pnp_accuracy.py [--frames 1000] [--seed 1] [--out FILE.md] [--plot FILE.png]
 
 --plot writes |depth|, |lateral| and |yaw| error against depth for both methods (the demo report's plot:
-scatter, per-band medians, log y axis). Errors and bands come from monodock.metrics, as in the demo.
+scatter, per-band medians, log y axis). Errors and bands come from monodock.evaluation.metrics, as in the demo.
 Rendering dominates the run time and runs in 2
 processes; each chunk of frames has its own Simulator seeded from (seed, chunk index), so the numbers do
 not depend on the number of workers.
@@ -34,11 +34,11 @@ from typing import Any
 import numpy as np
 
 from _common import bench_parser, chunk_seed, emit, environment, simulate_chunks
-from monodock.detect import MarkerDetector
-from monodock.metrics import markdown_table, pose_errors
-from monodock.pnp import PoseEstimate, estimate_board, estimate_single_marker
-from monodock.pose import DockPose
-from monodock.report import error_plot, method_tables
+from monodock.core.pose import DockPose
+from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
+from monodock.evaluation.metrics import markdown_table, pose_errors
+from monodock.perception.detect import MarkerDetector
+from monodock.report.html import error_plot, method_tables
 from monodock.sim import Simulator
 
 METHODS: tuple[str, ...] = ("pnp", "board")

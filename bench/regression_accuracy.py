@@ -27,8 +27,8 @@ import sys
 import time
 from pathlib import Path
 
-from monodock.cli import main as monodock
-from monodock.layout import DockLayout
+from monodock.cli.main import main as monodock
+from monodock.core.layout import DockLayout
 
 
 def _run(args: list[str]) -> float:

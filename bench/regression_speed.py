@@ -32,15 +32,15 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from _common import emit, environment, markdown_table
-from monodock.bundle import Bundle, save_bundle
-from monodock.dataset import label_recording, read_dataset
-from monodock.detect import MarkerDetector
-from monodock.features import DEFAULT_MARKER_SETS, MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
+from monodock.estimation.bundle import Bundle, save_bundle
+from monodock.estimation.regression import RegressionEstimator, bundle_metadata, training_sets
+from monodock.learning.dataset import label_recording, read_dataset
+from monodock.learning.train import SegmentTable, TrainConfig, TrainingResult, train
+from monodock.perception.detect import MarkerDetector
+from monodock.perception.features import DEFAULT_MARKER_SETS, MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
 from monodock.recording import write_recording
-from monodock.regression import RegressionEstimator, bundle_metadata, training_sets
 from monodock.sim import Nuisances, PoseDistribution, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
-from monodock.train import SegmentTable, TrainConfig, TrainingResult, train
 
 
 class SklearnModels:
@@ -123,7 +123,7 @@ def main() -> int:
         t_onnx = _median_us(onnx.estimate, detections, args.repeat)
         t_skl = _median_us(skl.estimate, detections, max(1, args.repeat // 5))
         # The model calls alone, on the rows the estimator would feed them.
-        from monodock.features import feature_vector, model_features
+        from monodock.perception.features import feature_vector, model_features
 
         rows = [model_features(feature_vector(d, sim.camera), sim.camera, "m2") for d in detections if d.seen("center")]
         t_model_onnx = _median_us(lambda x: bundle.predict_depth("m2", x), rows, args.repeat)

@@ -45,14 +45,14 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks  # noqa: E402
-from monodock.detect import Detection, MarkerDetector  # noqa: E402
-from monodock.estimate import Estimator  # noqa: E402
-from monodock.features import feature_vector  # noqa: E402
-from monodock.fused import FusedEstimator, FusionTables, fusion_tables_of  # noqa: E402
-from monodock.pnp import estimate_board, estimate_single_marker  # noqa: E402
-from monodock.refine import refine_detection  # noqa: E402
-from monodock.regression import RegressionEstimator  # noqa: E402
-from monodock.selftrain import load_bundle  # noqa: E402
+from monodock.estimation.estimator import Estimator  # noqa: E402
+from monodock.estimation.fused import FusedEstimator, FusionTables, fusion_tables_of  # noqa: E402
+from monodock.estimation.pnp import estimate_board, estimate_single_marker  # noqa: E402
+from monodock.estimation.regression import RegressionEstimator  # noqa: E402
+from monodock.evaluation.selftrain import load_bundle  # noqa: E402
+from monodock.perception.detect import Detection, MarkerDetector  # noqa: E402
+from monodock.perception.features import feature_vector  # noqa: E402
+from monodock.perception.refine import refine_detection  # noqa: E402
 from monodock.sim import Simulator  # noqa: E402
 
 CHUNK = 20

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from monodock.camera import CameraModel
+from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout, MarkerSpec
+from monodock.core.pose import DockPose
+from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import ConfigError, InputError, MonodockError
-from monodock.layout import DockLayout, MarkerSpec
-from monodock.pose import DockPose
-from monodock.robot import Mount, RobotConfig
 
 __all__ = [
     "CameraModel",

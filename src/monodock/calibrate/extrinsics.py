@@ -30,16 +30,16 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from monodock import transforms
+from monodock.core import transforms
+from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
-from monodock.robot import Mount, RobotConfig
 
 if TYPE_CHECKING:
     from monodock.calibrate.target import DiamondTarget, TargetView
-    from monodock.camera import CameraModel
-    from monodock.layout import DockLayout
-    from monodock.pose import DockPose
-    from monodock.scan import LaserScan
+    from monodock.core.camera import CameraModel
+    from monodock.core.layout import DockLayout
+    from monodock.core.pose import DockPose
+    from monodock.core.scan import LaserScan
     from monodock.sim.simulator import Simulator
 
 __all__ = [
@@ -555,8 +555,8 @@ def dock_views_from_recording(
     Views whose board PnP fails, sees fewer than ``min_markers`` markers or fits its corners worse than
     ``max_reprojection_px`` are rejected (counted by reason).
     """
-    from monodock.detect import MarkerDetector
-    from monodock.pnp import estimate_board
+    from monodock.estimation.pnp import estimate_board
+    from monodock.perception.detect import MarkerDetector
     from monodock.recording import open_recording, pair_nearest
 
     rejected: dict[str, int] = {}
@@ -678,7 +678,7 @@ def write_pairs_csv(
     force: bool = False,
 ) -> None:
     """Write pairs as the CSV that read_pairs_csv reads (x, y metres in the laser frame; u, v pixels)."""
-    from monodock.atomic import write_text_atomic
+    from monodock.core.atomic import write_text_atomic
 
     lines = ["x,y,u,v"] + [
         f"{p[0]:.6f},{p[1]:.6f},{q[0]:.4f},{q[1]:.4f}" for p, q in zip(points_laser, pixels, strict=True)
@@ -701,7 +701,7 @@ def simulated_pairs(
     frame, paired with the projection of the true hit point through the true camera, plus ``pixel_noise_px``
     of Gaussian noise (a careful click). Up to ``per_view`` evenly spread returns per pose.
     """
-    from monodock.label import project_to_image
+    from monodock.learning.label import project_to_image
 
     rng = np.random.default_rng(seed)
     face = sim.world.surfaces[sim.world.surface_index("charger_face")]
@@ -788,7 +788,7 @@ def result_yaml(result: ExtrinsicsResult) -> str:
 
 def write_result_yaml(path: str | os.PathLike[str], result: ExtrinsicsResult, *, force: bool = False) -> None:
     """Write result_yaml atomically (an existing file only with ``force``)."""
-    from monodock.atomic import write_text_atomic
+    from monodock.core.atomic import write_text_atomic
 
     write_text_atomic(path, result_yaml(result), force=force)
 
@@ -805,9 +805,9 @@ def overlay_png(
     """PNG bytes of LiDAR points (pixels, e.g. from label.project_to_image) drawn on a camera frame (Fig. 8c)."""
     import cv2
 
-    from monodock.detect import Detection
-    from monodock.layout import DockLayout
-    from monodock.overlay import draw_overlay
+    from monodock.core.layout import DockLayout
+    from monodock.perception.detect import Detection
+    from monodock.report.overlay import draw_overlay
 
     det = detection if detection is not None else Detection({}, (), (image.shape[1], image.shape[0]))
     pic = draw_overlay(
@@ -862,9 +862,9 @@ def add_parser(calibrate_subparsers: Any) -> None:
 
 
 def _cmd_extrinsics(args: argparse.Namespace) -> int:
-    from monodock.atomic import check_writable, write_bytes_atomic, write_text_atomic
-    from monodock.camera import CameraModel
-    from monodock.layout import DockLayout
+    from monodock.core.atomic import check_writable, write_bytes_atomic, write_text_atomic
+    from monodock.core.camera import CameraModel
+    from monodock.core.layout import DockLayout
 
     outputs = [o for o in (args.out, args.tf, args.robot_out, args.overlay) if o]
     if len({os.path.abspath(o) for o in outputs}) < len(outputs):
@@ -886,8 +886,8 @@ def _cmd_extrinsics(args: argparse.Namespace) -> int:
         points, pixels = read_pairs_csv(args.pairs)
         result = extrinsics_from_pairs(points, pixels, camera, robot.base_T_optical(), prior=robot.laser_mount)
         if args.overlay:
-            from monodock.inputs import read_image
-            from monodock.label import project_to_image
+            from monodock.io.frames import read_image
+            from monodock.learning.label import project_to_image
 
             image = read_image(args.image)
             calibrated = result.robot(robot)
@@ -915,7 +915,7 @@ def _cmd_extrinsics(args: argparse.Namespace) -> int:
             calibrated = result.robot(robot)
             view = DockView("", rv.views[0].base_T_dock, scan.points())
             sel = face_points(view, calibrated.base_T_laser(), face_half_width(layout), FACE_GATE_M[-1])
-            from monodock.label import project_to_image, scan_in_base
+            from monodock.learning.label import project_to_image, scan_in_base
 
             px = project_to_image(scan_in_base(scan, calibrated), rv.camera, calibrated)
             png = overlay_png(image, px, sel, rv.camera, calibrated, layout, det)
@@ -962,7 +962,7 @@ def _target_board_pose(
     """optical_T_target from the target's markers in an image (two markers at least), or None."""
     import cv2
 
-    from monodock.detect import as_gray
+    from monodock.perception.detect import as_gray
 
     corners, ids, _ = detector.detectMarkers(as_gray(image))
     if ids is None:
@@ -1257,8 +1257,8 @@ def target_views_from_recording(
 def _target_form(args: argparse.Namespace, robot: RobotConfig) -> tuple[ExtrinsicsResult, bytes | None]:
     """``--target-views``: the diamond target in a recording or a folder of views; the result and its overlay."""
     from monodock.calibrate.target import DiamondTarget, read_target_views
-    from monodock.camera import CameraModel
-    from monodock.inputs import is_recording
+    from monodock.core.camera import CameraModel
+    from monodock.io.frames import is_recording
 
     target = DiamondTarget.load(args.target) if args.target else DiamondTarget()
     recorded_camera = None
@@ -1278,7 +1278,7 @@ def _target_form(args: argparse.Namespace, robot: RobotConfig) -> tuple[Extrinsi
     png = None
     if args.overlay:
         # The papers' Fig. 8c on the first view: the scan through the calibrated mount must run across the target.
-        from monodock.label import project_to_image, scan_in_base
+        from monodock.learning.label import project_to_image, scan_in_base
 
         calibrated = result.robot(robot)
         pixels = project_to_image(scan_in_base(views[0].scan, calibrated), camera, calibrated)

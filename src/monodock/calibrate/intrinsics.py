@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.camera import CameraModel
+from monodock.core.camera import CameraModel
 from monodock.errors import InputError
 
 __all__ = [
@@ -473,7 +473,7 @@ def add_parser(calibrate_subparsers: Any) -> None:
 
 def _input_views(args: argparse.Namespace, board: tuple[int, int]) -> Iterable[tuple[str, NDArray[np.generic]]]:
     """(name, image) of every still image, and of the frames picked from each video or recording."""
-    from monodock.inputs import VIDEO_SUFFIXES, is_recording, iter_frames
+    from monodock.io.frames import VIDEO_SUFFIXES, is_recording, iter_frames
 
     for item in args.images:
         p = Path(item)
@@ -487,7 +487,7 @@ def _input_views(args: argparse.Namespace, board: tuple[int, int]) -> Iterable[t
 
 def run_intrinsics(args: argparse.Namespace) -> int:
     """Run ``monodock calibrate intrinsics``: calibrate, print a summary, write the YAML and coverage PNG."""
-    from monodock.atomic import check_writable, write_bytes_atomic
+    from monodock.core.atomic import check_writable, write_bytes_atomic
 
     board = parse_board(args.board)
     if not (math.isfinite(args.square) and args.square > 0):

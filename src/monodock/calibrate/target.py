@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core.scan import LaserScan
 from monodock.errors import InputError
-from monodock.scan import LaserScan
 
 __all__ = ["S_AXIS", "T_AXIS", "DiamondTarget", "TargetView", "read_target_views", "write_target_views"]
 
@@ -155,7 +155,7 @@ def write_target_views(folder: str | os.PathLike[str], views: Sequence[TargetVie
 
 def read_target_views(folder: str | os.PathLike[str]) -> list[TargetView]:
     """Read views written by write_target_views: image ``k`` (sorted PNGs) pairs with scan row ``k``."""
-    from monodock.inputs import read_image
+    from monodock.io.frames import read_image
 
     p = Path(folder)
     if not p.is_dir():

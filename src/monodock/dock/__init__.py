@@ -1,10 +1,10 @@
 """Docking: the eight cases and Point A (planner), the mission's state machine (controller), the dock's
 pose tracked in odometry (track), the robot interface, and the closed-loop simulation (closed_loop)."""
 
+from monodock.core.pose2d import Pose2D
 from monodock.dock.controller import DockingMission, MissionConfig, MissionResult, Observation, State, run_mission
 from monodock.dock.interface import CameraFrame, Odometry, RobotInterface
 from monodock.dock.planner import CASES, CaseSpec, Manoeuvre, PlannerConfig, classify, plan, point_a
-from monodock.dock.pose2d import Pose2D
 
 __all__ = [
     "CASES",

@@ -25,17 +25,17 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock import transforms
-from monodock.camera import CameraModel
+from monodock.core import transforms
+from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout
+from monodock.core.pose import DockPose, wrap_angle
+from monodock.core.pose2d import Pose2D
+from monodock.core.robot import RobotConfig
 from monodock.dock.interface import Odometry, RobotInterface
 from monodock.dock.planner import Manoeuvre, PlannerConfig, plan, point_a
-from monodock.dock.pose2d import Pose2D
-from monodock.dock.track import DockFilter, FilterConfig, MeasurementNoise
+from monodock.dock.pose_filter import DockFilter, FilterConfig, MeasurementNoise
 from monodock.errors import ConfigError
-from monodock.estimate import Estimator
-from monodock.layout import DockLayout
-from monodock.pose import DockPose, wrap_angle
-from monodock.robot import RobotConfig
+from monodock.estimation.estimator import Estimator
 
 __all__ = [
     "DockingMission",

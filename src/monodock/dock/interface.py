@@ -1,6 +1,6 @@
 """What the docking controller needs from a robot: velocity commands out, odometry and camera frames in.
 
-The simulator (``monodock.sim.diffdrive``) and the ROS 2 adapter (``monodock.dock.ros2``) implement it; the
+The simulator (``monodock.sim.diffdrive``) and the ROS 2 adapter (``monodock.ros.dock_node``) implement it; the
 controller never learns which one it drives, and never sees the simulator's truth.
 """
 
@@ -12,7 +12,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.dock.pose2d import Pose2D
+from monodock.core.pose2d import Pose2D
 
 __all__ = ["CameraFrame", "Odometry", "RobotInterface"]
 

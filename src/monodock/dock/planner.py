@@ -24,9 +24,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from monodock.dock.pose2d import Pose2D
+from monodock.core.pose import wrap_angle
+from monodock.core.pose2d import Pose2D
 from monodock.errors import ConfigError
-from monodock.pose import wrap_angle
 
 __all__ = ["CASES", "CaseSpec", "Manoeuvre", "PlannerConfig", "classify", "plan", "point_a"]
 

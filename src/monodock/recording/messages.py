@@ -17,12 +17,12 @@ from numpy.typing import ArrayLike, NDArray
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from monodock import transforms
-from monodock.camera import CameraModel
+from monodock.core import transforms
+from monodock.core.camera import CameraModel
+from monodock.core.pose import DockPose
+from monodock.core.robot import RobotConfig
+from monodock.core.scan import LaserScan
 from monodock.errors import ConfigError
-from monodock.pose import DockPose
-from monodock.robot import RobotConfig
-from monodock.scan import LaserScan
 
 __all__ = [
     "CAMERA_INFO",

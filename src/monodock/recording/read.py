@@ -20,15 +20,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from rosbags.highlevel import AnyReader
 
-from monodock import transforms
-from monodock.camera import CameraModel
+from monodock.core import transforms
+from monodock.core.camera import CameraModel
+from monodock.core.pose import DockPose
+from monodock.core.robot import Mount, RobotConfig
+from monodock.core.scan import LaserScan
 from monodock.errors import InputError
-from monodock.inputs import RECORDING_SUFFIXES, Frame, is_recording
-from monodock.pose import DockPose
+from monodock.io.frames import RECORDING_SUFFIXES, Frame, is_recording
 from monodock.recording import messages as m
 from monodock.recording.salvage import Salvage, SalvageError, sniff
-from monodock.robot import Mount, RobotConfig
-from monodock.scan import LaserScan
 
 __all__ = ["RECORDING_SUFFIXES", "Recording", "is_recording", "open_recording", "pair_nearest"]
 

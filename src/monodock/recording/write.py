@@ -27,11 +27,11 @@ from rosbags.interfaces import Connection, Qos, QosDurability, QosHistory, QosLi
 from rosbags.rosbag2 import StoragePlugin, Writer
 from tqdm import tqdm
 
-from monodock.atomic import atomic_directory, check_writable
+from monodock.core.atomic import atomic_directory, check_writable
+from monodock.core.parallel import map_with_state
+from monodock.core.scan import LaserScan
 from monodock.errors import ConfigError
-from monodock.parallel import map_with_state
 from monodock.recording import messages as m
-from monodock.scan import LaserScan
 from monodock.sim.drive import Stop
 from monodock.sim.simulator import SimFrame, Simulator
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from monodock.scan import LaserScan
+from monodock.core.scan import LaserScan
 from monodock.sim.lidar import LidarModel, simulate_scan
 from monodock.sim.nuisance import Nuisances, apply_nuisances
 from monodock.sim.render import render_radiance

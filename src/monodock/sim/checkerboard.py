@@ -15,11 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.camera import CameraModel
+from monodock.core.camera import CameraModel
+from monodock.core.transforms import invert, rotation_from_rpy, transform
 from monodock.sim.nuisance import Nuisances, apply_nuisances
 from monodock.sim.render import render_radiance
 from monodock.sim.world import INK_BLACK, PAPER_WHITE, Patch, World, rectangle
-from monodock.transforms import invert, rotation_from_rpy, transform
 
 __all__ = ["BoardView", "board_points", "checkerboard_world", "draw_board_pose", "render_board_views"]
 

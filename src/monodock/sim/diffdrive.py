@@ -24,11 +24,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core.layout import ROLES
+from monodock.core.pose import DockPose, wrap_angle
+from monodock.core.pose2d import Pose2D
 from monodock.dock.interface import CameraFrame, Odometry
-from monodock.dock.pose2d import Pose2D
 from monodock.errors import ConfigError
-from monodock.layout import ROLES
-from monodock.pose import DockPose, wrap_angle
 from monodock.sim.simulator import Simulator
 
 __all__ = ["DiffDriveConfig", "SimulatedRobot", "TruthSample"]

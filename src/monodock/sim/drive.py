@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core.pose import DockPose
 from monodock.errors import ConfigError
-from monodock.pose import DockPose
 from monodock.sim.simulator import PoseDistribution, Simulator
 
 __all__ = [

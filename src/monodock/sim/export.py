@@ -22,11 +22,11 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from monodock.atomic import atomic_directory
-from monodock.layout import ROLE_NUMBER, ROLES
-from monodock.parallel import map_with_state
-from monodock.pose import DockPose
-from monodock.scan import LaserScan
+from monodock.core.atomic import atomic_directory
+from monodock.core.layout import ROLE_NUMBER, ROLES
+from monodock.core.parallel import map_with_state
+from monodock.core.pose import DockPose
+from monodock.core.scan import LaserScan
 from monodock.sim.simulator import FrameTruth, SimFrame, Simulator
 
 __all__ = ["GROUND_TRUTH_COLUMNS", "FrameInfo", "FrameRecord", "render_frames", "write_frame_folder"]

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from monodock.scan import LaserScan
+from monodock.core.scan import LaserScan
 from monodock.sim.world import World
 
 __all__ = ["LaserScan", "LidarModel", "simulate_scan"]

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from monodock.camera import CameraModel
+from monodock.core.camera import CameraModel
 from monodock.sim.world import World
 
 __all__ = ["render_radiance"]

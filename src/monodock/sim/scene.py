@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from monodock.layout import DockLayout
+from monodock.core.layout import DockLayout
 from monodock.sim.world import INK_BLACK, PAPER_WHITE, Patch, Surface, World, rectangle
 
 __all__ = ["add_clutter", "occluder_for"]

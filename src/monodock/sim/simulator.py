@@ -8,12 +8,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock import transforms
-from monodock.camera import CameraModel
-from monodock.layout import ROLES, DockLayout
-from monodock.pose import DockPose
-from monodock.robot import RobotConfig
-from monodock.scan import LaserScan
+from monodock.core import transforms
+from monodock.core.camera import CameraModel
+from monodock.core.layout import ROLES, DockLayout
+from monodock.core.pose import DockPose
+from monodock.core.robot import RobotConfig
+from monodock.core.scan import LaserScan
 from monodock.sim.lidar import LidarModel, simulate_scan
 from monodock.sim.nuisance import Nuisances, apply_nuisances
 from monodock.sim.render import render_radiance

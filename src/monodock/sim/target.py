@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock import transforms
 from monodock.calibrate.target import S_AXIS, T_AXIS, DiamondTarget, TargetView
-from monodock.pose import DockPose
+from monodock.core import transforms
+from monodock.core.pose import DockPose
 from monodock.sim.world import INK_BLACK, PAPER_WHITE, Patch, Surface, World, rectangle
 
 __all__ = ["render_target_views", "target_surface", "target_world"]

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from monodock.core.layout import DockLayout
 from monodock.errors import ConfigError
-from monodock.layout import DockLayout
 
 __all__ = ["ChargerGeometry", "Patch", "Surface", "World", "build_dock_world"]
 

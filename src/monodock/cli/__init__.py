@@ -1,0 +1,1 @@
+"""The ``monodock`` command line: one module per command; argparse lives only here."""

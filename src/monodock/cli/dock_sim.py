@@ -1,0 +1,192 @@
+"""The ``monodock dock-sim`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from monodock.errors import InputError
+
+__all__ = ["add_parser"]
+
+
+def _cases(value: str) -> tuple[int, ...]:
+    from monodock.dock.planner import CASES
+
+    if value == "all":
+        return tuple(CASES)
+    try:
+        cases = tuple(int(v) for v in value.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"cases must be 'all' or numbers 1-8 separated by commas, got '{value}'"
+        ) from None
+    bad = [c for c in cases if c not in CASES]
+    if bad or not cases:
+        raise argparse.ArgumentTypeError(f"there are eight cases, 1-8; got {value}")
+    return tuple(dict.fromkeys(cases))
+
+
+def _methods(value: str) -> tuple[str, ...]:
+    from monodock.evaluation.dock_sim import ALL_METHODS
+
+    methods = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
+    bad = [m for m in methods if m not in ALL_METHODS]
+    if bad or not methods:
+        raise argparse.ArgumentTypeError(
+            f"unknown method '{bad[0] if bad else value}' (available: {', '.join(ALL_METHODS)})"
+        )
+    return methods
+
+
+def _positive_int(value: str) -> int:
+    try:
+        n = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{value}'") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
+    return n
+
+
+def add_parser(subparsers: Any) -> None:
+    """Add ``dock-sim`` to the ``monodock`` sub-command parsers."""
+    d = subparsers.add_parser(
+        "dock-sim",
+        help="closed-loop docking in the simulator, camera in the loop: every case, many starts, every method",
+    )
+    d.add_argument("--cases", type=_cases, default=_cases("all"), help="'all' (default) or e.g. 1,3,5")
+    d.add_argument("--trials", type=_positive_int, default=25, help="random starts per case (25)")
+    d.add_argument(
+        "--method",
+        type=_methods,
+        default=("regression",),
+        help="regression (default), board, pnp, fused, or several separated by commas (e.g. regression,fused): "
+        "the first is summary.json's overall/cases, all are under 'methods'",
+    )
+    d.add_argument(
+        "--model",
+        help="the bundle of the regression and fused methods; without it, one trained on the simulator's own "
+        "robot and kept in the cache",
+    )
+    d.add_argument("--out", help="write summary.json, runs.csv, plots and report.html into this folder")
+    d.add_argument("--force", action="store_true", help="replace an existing --out folder")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--jobs", type=int, help="worker processes (default: the cores, at most 4)")
+    d.add_argument("--standoff", type=float, default=1.0, help="Point A: floor between front edge and face, m (1.0)")
+    d.add_argument(
+        "--distance",
+        type=float,
+        nargs=2,
+        default=(1.0, 2.5),
+        metavar=("MIN", "MAX"),
+        help="starts: base_link's distance from the face, m (1.0 2.5)",
+    )
+    d.add_argument("--max-heading", type=float, default=30.0, help="starts: heading within ± this, degrees (30)")
+    d.add_argument("--max-retries", type=int, default=2, help="back off to Point A and try again up to N times (2)")
+    d.add_argument(
+        "--contact-sensor",
+        action="store_true",
+        help="the charger reports contact and the robot stops on it (default: it stops on its own estimate)",
+    )
+    d.add_argument("--camera-rate", type=float, default=15.0, help="camera frames per second (15)")
+    d.add_argument(
+        "--supersample",
+        type=int,
+        default=8,
+        help="renderer's edge samples per pixel side (8; 16 is the default of simulate)",
+    )
+    d.add_argument(
+        "--cache", help="cache folder for the self-trained bundle (default $MONODOCK_CACHE or ~/.cache/monodock)"
+    )
+    d.add_argument("--train-stops", type=int, default=3000, help="stops of the self-trained bundle's drive (3000)")
+    d.add_argument("--camera", help="simulate this camera (ROS camera_info YAML); default: the built-in webcam")
+    d.add_argument("--layout", help="simulate this dock layout; default: the papers'")
+    d.add_argument("--robot", help="simulate this robot (mounts, front_offset); default: the papers'")
+    d.set_defaults(func=_cmd_dock_sim)
+
+
+def _cmd_dock_sim(args: argparse.Namespace) -> int:
+    from monodock.core.atomic import atomic_directory, check_writable
+    from monodock.core.camera import CameraModel
+    from monodock.core.layout import DockLayout
+    from monodock.core.robot import RobotConfig
+    from monodock.dock.controller import MissionConfig
+    from monodock.dock.planner import PlannerConfig
+    from monodock.evaluation.dock_sim import BUNDLE_METHODS, DockSimConfig, case_distances, run_dock_sim, summarize
+    from monodock.report.dock_report import console_table, write_dock_report
+    from monodock.sim.diffdrive import DiffDriveConfig
+
+    if args.out:
+        check_writable(args.out, force=args.force)
+    if args.max_retries < 0:
+        raise InputError(f"--max-retries must not be negative, got {args.max_retries}")
+    if not 0 < args.distance[0] < args.distance[1]:
+        raise InputError(f"--distance needs 0 < MIN < MAX, got {args.distance[0]:g} {args.distance[1]:g}")
+    if not 1 <= args.supersample <= 32:
+        raise InputError(f"--supersample must be 1-32, got {args.supersample}")
+    if not 0 < args.max_heading <= 60:
+        raise InputError(f"--max-heading must be in (0, 60] degrees, got {args.max_heading:g}")
+    if not args.camera_rate > 0:
+        raise InputError(f"--camera-rate must be positive, got {args.camera_rate}")
+    jobs = args.jobs if args.jobs and args.jobs > 0 else max(1, min(4, os.cpu_count() or 1))
+    config = DockSimConfig(
+        cases=args.cases,
+        trials=args.trials,
+        methods=args.method,
+        seed=args.seed,
+        distance=(args.distance[0], args.distance[1]),
+        max_heading_deg=args.max_heading,
+        supersample=args.supersample,
+        jobs=jobs,
+        mission=MissionConfig(planner=PlannerConfig(standoff=args.standoff), max_retries=args.max_retries),
+        drive=DiffDriveConfig(contact_sensor=args.contact_sensor, camera_rate=args.camera_rate),
+        layout=DockLayout.load(args.layout) if args.layout else DockLayout.default(),
+        camera=CameraModel.load(args.camera) if args.camera else CameraModel.default(),
+        robot=RobotConfig.load(args.robot) if args.robot else RobotConfig.default(),
+    )
+    for case in config.cases:
+        case_distances(case, config)  # before any training: a start region may be empty
+    if any(m in BUNDLE_METHODS for m in config.methods):
+        config = dataclasses.replace(config, bundle=_regression_bundle(args, config, jobs))
+    t0 = time.perf_counter()
+    results = run_dock_sim(config)
+    wall = time.perf_counter() - t0
+    if args.out:
+        with atomic_directory(args.out, force=args.force) as tmp:
+            summary = write_dock_report(tmp, results, config)
+    else:
+        summary = summarize(results, config)
+    print(console_table(summary))
+    n = max(1, len(results))
+    per_run = sum(r.wall_s for r in results) / n
+    render = sum(r.render_s for r in results) / n
+    perceive = sum(r.perceive_s for r in results) / n
+    print(
+        f"{len(results)} runs in {wall:.0f} s: {per_run:.1f} s of one core per run, of which rendering {render:.1f} s "
+        f"and estimation {perceive:.1f} s"
+    )
+    if args.out:
+        print(f"report: {Path(args.out) / 'report.html'}")
+    return 0
+
+
+def _regression_bundle(args: argparse.Namespace, config: Any, jobs: int) -> Path:
+    """The --model bundle (checked against the simulated layout), or the cached self-trained one."""
+    from monodock.core.layout import DockLayout
+    from monodock.evaluation.selftrain import SelfTrainConfig, cached_bundle, load_bundle
+
+    if args.model:
+        bundle = load_bundle(Path(args.model))
+        layout = DockLayout.from_dict(bundle.manifest["metadata"]["layout"], f"{args.model}: layout")
+        if layout != config.layout:
+            raise InputError(f"{args.model} was trained for another dock layout than the one simulated")
+        return Path(args.model)
+    if args.train_stops < 100:
+        raise InputError(f"--train-stops must be at least 100, got {args.train_stops}")
+    cache = Path(args.cache) if args.cache else None
+    return cached_bundle(config.simulator(), SelfTrainConfig(stops=args.train_stops), jobs=jobs, cache=cache)

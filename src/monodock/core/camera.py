@@ -1,0 +1,300 @@
+"""The camera model: pinhole intrinsics, plumb_bob lens distortion and image size.
+
+Reads and writes the ROS camera_info YAML of camera_calibration_parsers, and reads OpenCV FileStorage
+calibration files. Pixel coordinates follow OpenCV: the centre of the top-left pixel is (0, 0).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+from numpy.typing import ArrayLike, NDArray
+
+from monodock.core.config import Fields, load_yaml, write_text_atomic
+from monodock.errors import ConfigError
+
+__all__ = ["CameraModel"]
+
+_DISTORTION_COUNTS = {"plumb_bob": (5,), "rational_polynomial": (8,)}
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics of one camera: ``K`` row-major (9 values), distortion ``D`` and the image size."""
+
+    width: int
+    height: int
+    K: tuple[float, ...]
+    D: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    distortion_model: str = "plumb_bob"
+    name: str = "camera"
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ConfigError(f"image size must be positive, got {self.width}x{self.height}")
+        if len(self.K) != 9:
+            raise ConfigError(f"camera_matrix needs 9 values, got {len(self.K)}")
+        if not (self.fx > 0 and self.fy > 0):
+            raise ConfigError(f"camera_matrix: focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        counts = _DISTORTION_COUNTS.get(self.distortion_model)
+        if counts is None:
+            raise ConfigError(
+                f"distortion_model '{self.distortion_model}' is not supported (plumb_bob, rational_polynomial)"
+            )
+        if len(self.D) not in counts:
+            raise ConfigError(f"{self.distortion_model} needs {counts[0]} distortion coefficients, got {len(self.D)}")
+
+    # --- construction ---------------------------------------------------------------------------
+
+    @classmethod
+    def from_intrinsics(
+        cls,
+        width: int,
+        height: int,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        dist: ArrayLike = (0.0, 0.0, 0.0, 0.0, 0.0),
+        name: str = "camera",
+    ) -> CameraModel:
+        """A plumb_bob camera from its numbers."""
+        d = tuple(float(v) for v in np.asarray(dist, dtype=np.float64).ravel())
+        model = "rational_polynomial" if len(d) == 8 else "plumb_bob"
+        K = (float(fx), 0.0, float(cx), 0.0, float(fy), float(cy), 0.0, 0.0, 1.0)
+        return cls(int(width), int(height), K, d, model, name)
+
+    @classmethod
+    def default(cls) -> CameraModel:
+        """The simulator's camera: a 640x480 webcam (~55 degrees across) with mild barrel distortion.
+
+        The principal point is off centre on purpose, so that code which assumes the image centre fails.
+        """
+        return cls.from_intrinsics(
+            640, 480, 615.0, 613.0, 322.4, 237.1, (-0.12, 0.08, 0.0006, -0.0004, -0.02), name="sim_camera"
+        )
+
+    # --- numbers --------------------------------------------------------------------------------
+
+    @property
+    def fx(self) -> float:
+        return self.K[0]
+
+    @property
+    def fy(self) -> float:
+        return self.K[4]
+
+    @property
+    def cx(self) -> float:
+        return self.K[2]
+
+    @property
+    def cy(self) -> float:
+        return self.K[5]
+
+    @property
+    def matrix(self) -> NDArray[np.float64]:
+        """The 3x3 camera matrix."""
+        return np.array(self.K, dtype=np.float64).reshape(3, 3)
+
+    @property
+    def dist(self) -> NDArray[np.float64]:
+        """The distortion coefficients in OpenCV's order."""
+        return np.array(self.D, dtype=np.float64)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) in pixels."""
+        return self.width, self.height
+
+    # --- geometry -------------------------------------------------------------------------------
+
+    def project(self, points_optical: ArrayLike) -> NDArray[np.float64]:
+        """Pixels, shape (N, 2), of points in the camera's optical frame, shape (N, 3), through the lens."""
+        p = np.asarray(points_optical, dtype=np.float64).reshape(-1, 3)
+        px, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), self.matrix, self.dist)
+        return np.asarray(px, dtype=np.float64).reshape(-1, 2)
+
+    def normalize(self, pixels: ArrayLike) -> NDArray[np.float64]:
+        """Undistorted normalised image coordinates (x/z, y/z), shape (N, 2), of distorted pixels.
+
+        Iterates to 1e-14, so that re-projecting the result lands on the pixel to ~1e-12 px.
+        """
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+        out = cv2.undistortPoints(px, self.matrix, self.dist, criteria=_UNDISTORT_CRITERIA)
+        return np.asarray(out, dtype=np.float64).reshape(-1, 2)
+
+    def in_view_field(self, points_optical: ArrayLike, margin: float = 0.05) -> NDArray[np.bool_]:
+        """Which points (N, 3) are in front of the camera and inside the field the lens maps onto the image.
+
+        A polynomial lens model folds directions far outside the field of view back into the picture (barrel
+        distortion turns over past the image's corners), so ``project`` alone can put a point that the camera
+        cannot see on a pixel. ``margin`` widens the field by that fraction of its extent.
+        """
+        p = np.asarray(points_optical, dtype=np.float64).reshape(-1, 3)
+        lo, hi = _field_bounds(self)
+        pad = (hi - lo) * margin
+        with np.errstate(divide="ignore", invalid="ignore"):
+            n = p[:, :2] / p[:, 2:3]
+        return np.asarray((p[:, 2] > 1e-9) & np.all((n >= lo - pad) & (n <= hi + pad), axis=1))
+
+    def vertex_rays(self) -> NDArray[np.float64]:
+        """Normalised coordinates of every pixel corner, shape (height+1, width+1, 2); cached per camera."""
+        return _vertex_rays(self)
+
+    # --- files ----------------------------------------------------------------------------------
+
+    def to_ros_dict(self) -> dict[str, Any]:
+        """The mapping of a ROS camera_info YAML file (camera_calibration_parsers)."""
+        P = np.zeros((3, 4))
+        P[:, :3] = self.matrix
+
+        def mat(rows: int, cols: int, data: ArrayLike) -> dict[str, Any]:
+            return {"rows": rows, "cols": cols, "data": [float(v) for v in np.asarray(data).ravel()]}
+
+        return {
+            "image_width": self.width,
+            "image_height": self.height,
+            "camera_name": self.name,
+            "camera_matrix": mat(3, 3, self.matrix),
+            "distortion_model": self.distortion_model,
+            "distortion_coefficients": mat(1, len(self.D), self.dist),
+            "rectification_matrix": mat(3, 3, np.eye(3)),
+            "projection_matrix": mat(3, 4, P),
+        }
+
+    def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
+        """Write the camera as ROS camera_info YAML, atomically."""
+        text = yaml.safe_dump(self.to_ros_dict(), sort_keys=False, default_flow_style=None)
+        write_text_atomic(Path(path), text, force=force)
+
+    @classmethod
+    def from_ros_dict(cls, data: dict[str, Any], source: str = "camera") -> CameraModel:
+        """Build from a camera_info YAML mapping; also accepts ROS 1 / ROS 2 message spellings (K, D, k, d)."""
+        f = Fields(data, source)
+        width = f.integer("image_width" if f.has("image_width") else "width", minimum=1)
+        height = f.integer("image_height" if f.has("image_height") else "height", minimum=1)
+
+        def matrix_field(names: tuple[str, ...], counts: tuple[int, ...]) -> list[float]:
+            for name in names:
+                if f.has(name):
+                    value = f.raw(name)
+                    if isinstance(value, dict):
+                        return f.child(name).numbers("data", counts)
+                    return f.numbers(name, counts)
+            raise ConfigError(f"{source}: missing field '{names[0]}'")
+
+        K = matrix_field(("camera_matrix", "K", "k"), (9,))
+        model = f.string("distortion_model", "plumb_bob")
+        counts = _DISTORTION_COUNTS.get(model)
+        if counts is None:
+            raise f.error("distortion_model", f"'{model}' is not supported (plumb_bob, rational_polynomial)")
+        D = matrix_field(("distortion_coefficients", "D", "d"), (4, *counts) if model == "plumb_bob" else counts)
+        if len(D) == 4:  # k1 k2 p1 p2 without k3, as some calibrators write it
+            D.append(0.0)
+        name = f.string("camera_name", "camera")
+        try:
+            return cls(width, height, tuple(K), tuple(D), model, name)
+        except ConfigError as exc:
+            raise ConfigError(f"{source}: {exc}") from None
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> CameraModel:
+        """Read a ROS camera_info YAML or an OpenCV FileStorage calibration file (YAML, XML or JSON)."""
+        p = Path(path)
+        if not p.is_file():
+            raise ConfigError(f"camera file not found: {p}")
+        data = p.read_bytes()
+        # OpenCV writes "%YAML:1.0" (3.x/4.x) or "%YAML 1.2" (5.x) and tags matrices !!opencv-matrix.
+        if (
+            data.lstrip().startswith((b"%YAML", b"<?xml"))
+            or b"opencv-matrix" in data
+            or p.suffix.lower() in (".xml", ".json")
+        ):
+            return _load_opencv_storage(p)
+        return cls.from_ros_dict(load_yaml(p, "camera"), str(p))
+
+
+@functools.lru_cache(maxsize=8)
+def _field_bounds(camera: CameraModel) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The box in normalised coordinates that the image's border pixels see (through the lens)."""
+    border = camera.vertex_rays()
+    edge = np.concatenate([border[0], border[-1], border[:, 0], border[:, -1]])
+    return edge.min(axis=0), edge.max(axis=0)
+
+
+@functools.lru_cache(maxsize=8)
+def _vertex_rays(camera: CameraModel) -> NDArray[np.float64]:
+    u, v = np.meshgrid(
+        np.arange(camera.width + 1, dtype=np.float64) - 0.5,
+        np.arange(camera.height + 1, dtype=np.float64) - 0.5,
+    )
+    pts = np.stack([u.ravel(), v.ravel()], axis=1)
+    rays = camera.normalize(pts)
+    check = camera.project(np.c_[rays, np.ones(len(rays))])
+    worst = float(np.max(np.abs(check - pts)))
+    if not worst < 1e-6:
+        raise ConfigError(
+            f"camera '{camera.name}': lens distortion cannot be inverted over the image "
+            f"(re-projection off by {worst:.2g} px); check distortion_coefficients"
+        )
+    out = rays.reshape(camera.height + 1, camera.width + 1, 2)
+    out.setflags(write=False)
+    return out
+
+
+def _load_opencv_storage(path: Path) -> CameraModel:
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    if not fs.isOpened():
+        raise ConfigError(f"{path}: cannot be read as an OpenCV FileStorage file")
+    try:
+
+        def node(*names: str) -> Any:
+            for n in names:
+                nd = fs.getNode(n)
+                if not nd.empty():
+                    return nd
+            return None
+
+        km = node("camera_matrix", "cameraMatrix", "K", "intrinsic_matrix")
+        if km is None:
+            raise ConfigError(f"{path}: missing field 'camera_matrix'")
+        K = np.asarray(km.mat(), dtype=np.float64)
+        if K.size != 9:
+            raise ConfigError(f"{path}: camera_matrix: expected a 3x3 matrix")
+        dn = node("distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
+        if dn is None:
+            raise ConfigError(f"{path}: missing field 'distortion_coefficients'")
+        D = np.asarray(dn.mat(), dtype=np.float64).ravel()
+        wn, hn = node("image_width", "width"), node("image_height", "height")
+        if wn is None or hn is None:
+            sn = node("image_size", "imageSize")
+            if sn is None:
+                raise ConfigError(f"{path}: missing field 'image_width'")
+            if sn.isSeq() and sn.size() == 2:
+                size = np.array([sn.at(0).real(), sn.at(1).real()])
+            else:
+                m = sn.mat() if not sn.isSeq() and not sn.isMap() else None
+                size = np.asarray(m).ravel() if m is not None else np.zeros(0)
+            if size.size != 2:
+                raise ConfigError(f"{path}: image_size: expected [width, height]")
+            width, height = int(size[0]), int(size[1])
+        else:
+            width, height = int(wn.real()), int(hn.real())
+        if D.size == 4:
+            D = np.r_[D, 0.0]
+        model = "rational_polynomial" if D.size == 8 else "plumb_bob"
+        try:
+            return CameraModel(width, height, tuple(K.ravel().tolist()), tuple(D.tolist()), model, path.stem)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+    finally:
+        fs.release()

@@ -1,0 +1,132 @@
+"""The robot description: where the camera and the LiDAR sit on the base, and how big the robot is."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from monodock.core import transforms
+from monodock.core.config import Fields, load_yaml, write_text_atomic
+from monodock.errors import ConfigError
+
+__all__ = ["Mount", "RobotConfig"]
+
+
+@dataclass(frozen=True)
+class Mount:
+    """A sensor body's pose in base_link: metres and URDF roll/pitch/yaw radians (pitch > 0 looks down)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+
+    def matrix(self) -> NDArray[np.float64]:
+        """base_T_sensor as a 4x4 transform."""
+        return transforms.transform(
+            transforms.rotation_from_rpy(self.roll, self.pitch, self.yaw), (self.x, self.y, self.z)
+        )
+
+    @classmethod
+    def from_matrix(cls, T: NDArray[np.float64]) -> Mount:
+        """The mount of a base_T_sensor 4x4 transform."""
+        r, p, y = transforms.rpy_from_rotation(T[:3, :3])
+        return cls(float(T[0, 3]), float(T[1, 3]), float(T[2, 3]), r, p, y)
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> Mount:
+        return cls(*(f.number(k, 0.0 if k in ("roll", "pitch", "yaw") else None) for k in _MOUNT_KEYS))
+
+    def to_dict(self) -> dict[str, float]:
+        return {k: float(getattr(self, k)) for k in _MOUNT_KEYS}
+
+
+_MOUNT_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """Sensor mounts in base_link, the distance from base_link to the front edge, and speed limits.
+
+    Attributes:
+        camera_mount: pose of ``camera_link`` (x forward, y left, z up); the optical frame follows by
+            the fixed REP 103 rotation.
+        laser_mount: pose of the 2D LiDAR's ``laser`` frame.
+        front_offset: base_link to the robot's front edge, metres; docked means DockPose (front_offset, 0, 0).
+        max_linear_speed: m/s.
+        max_angular_speed: rad/s.
+    """
+
+    camera_mount: Mount = Mount(0.17, 0.0, 0.25)
+    laser_mount: Mount = Mount(0.17, 0.0, 0.20)
+    front_offset: float = 0.34
+    max_linear_speed: float = 0.3
+    max_angular_speed: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.front_offset < 0:
+            raise ConfigError(f"front_offset must not be negative, got {self.front_offset}")
+
+    @classmethod
+    def default(cls) -> RobotConfig:
+        """The papers' robot: camera 17 cm behind the front edge (DESIGN.md's example)."""
+        return cls()
+
+    def base_T_camera_link(self) -> NDArray[np.float64]:
+        """Pose of camera_link in base_link."""
+        return self.camera_mount.matrix()
+
+    def base_T_optical(self) -> NDArray[np.float64]:
+        """Pose of the camera's optical frame (z forward, x right, y down) in base_link."""
+        T = self.camera_mount.matrix()
+        T[:3, :3] = T[:3, :3] @ transforms.LINK_R_OPTICAL
+        return T
+
+    def base_T_laser(self) -> NDArray[np.float64]:
+        """Pose of the laser frame in base_link."""
+        return self.laser_mount.matrix()
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], source: str = "robot") -> RobotConfig:
+        """Build from the YAML mapping of DESIGN.md; errors name the field."""
+        f = Fields(data, source)
+        d = cls()
+        try:
+            return cls(
+                camera_mount=Mount.from_fields(f.child("camera_mount")),
+                laser_mount=Mount.from_fields(f.child("laser_mount")),
+                front_offset=f.number("front_offset"),
+                max_linear_speed=f.number("max_linear_speed", d.max_linear_speed, positive=True),
+                max_angular_speed=f.number("max_angular_speed", d.max_angular_speed, positive=True),
+            )
+        except ConfigError as exc:
+            if str(exc).startswith(source):
+                raise
+            raise ConfigError(f"{source}: {exc}") from None
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> RobotConfig:
+        """Read a robot YAML file."""
+        return cls.from_dict(load_yaml(path, "robot"), str(path))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "camera_mount": self.camera_mount.to_dict(),
+            "laser_mount": self.laser_mount.to_dict(),
+            "front_offset": self.front_offset,
+            "max_linear_speed": self.max_linear_speed,
+            "max_angular_speed": self.max_angular_speed,
+        }
+
+    def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
+        """Write the robot YAML atomically."""
+        text = yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None)
+        write_text_atomic(Path(path), text, force=force)

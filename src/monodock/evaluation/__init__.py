@@ -1,0 +1,1 @@
+"""Judging the methods: metrics, held-out evaluation, the physical limit, the robustness sweep, closed-loop dock-sim."""

@@ -1,0 +1,429 @@
+"""The training dataset: one row per camera frame of a recording, with its features, LiDAR label and truth.
+
+A Parquet file (DESIGN.md "Dataset"). Columns, in order (``dataset_columns()``):
+
+- ``frame`` (int): the image's index in the recording; ``image_stamp`` (s); ``scan_stamp`` (s, NaN when no scan
+  was within the pairing tolerance); ``paired`` (bool); ``markers_seen`` ("m1 m2 m3").
+- every raw feature of ``features.FEATURE_NAMES`` (pixels; NaN for a marker not seen).
+- the bias-free corners of ``monodock.perception.refine`` (``features.REFINED_CORNER_NAMES``, pixels; NaN for a
+  marker not seen or not refined). Datasets of schema 1 have none; they read with these columns NaN.
+- the label columns of ``label.LABEL_COLUMNS`` (metres, degrees; ``label_valid`` false with ``label_reason``).
+- ``truth_x_m``, ``truth_y_m``, ``truth_yaw_deg``: the simulator's DockPose when the recording has it, else NaN.
+
+The file's metadata (key ``monodock``) holds the camera, robot mounts and layout the features were measured
+with, the source recording, the pairing tolerance and the counts of the labelling run, so that training
+needs nothing but this file.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from numpy.typing import NDArray
+
+from monodock import __version__
+from monodock.core.atomic import write_bytes_atomic
+from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout
+from monodock.core.robot import RobotConfig
+from monodock.errors import InputError
+from monodock.learning.label import LABEL_COLUMNS, LidarLabel, label_frame
+from monodock.perception.features import FEATURE_NAMES, REFINED_CORNER_NAMES, feature_vector, refined_vector
+
+__all__ = [
+    "DATASET_SCHEMA",
+    "Dataset",
+    "LabelError",
+    "LabelRun",
+    "dataset_columns",
+    "label_error_table",
+    "label_errors",
+    "label_frames",
+    "label_recording",
+    "read_dataset",
+    "write_dataset",
+]
+
+DATASET_SCHEMA = "monodock.learning.dataset/2"
+# Schema 1 lacked the refined corners and the whole-face line (its label_yaw_deg is the marker-2 line's); it
+# reads with those columns NaN.
+_READABLE_SCHEMAS = ("monodock.learning.dataset/1", DATASET_SCHEMA)
+# The label columns from the marker-2 line's onwards are the face line's additions.
+_NEW_IN_SCHEMA_2 = (*REFINED_CORNER_NAMES, *LABEL_COLUMNS[LABEL_COLUMNS.index("label_yaw_marker_deg") :])
+TRUTH_COLUMNS = ("truth_x_m", "truth_y_m", "truth_yaw_deg")
+_FRAME_COLUMNS = ("frame", "image_stamp", "scan_stamp", "paired", "markers_seen")
+
+
+def dataset_columns() -> tuple[str, ...]:
+    """Every column of a dataset file, in order."""
+    return _FRAME_COLUMNS + FEATURE_NAMES + REFINED_CORNER_NAMES + LABEL_COLUMNS + TRUTH_COLUMNS
+
+
+_BOOL = {"paired", "label_valid"}
+_INT = {"frame", "label_points", "label_face_points", "label_face_rejected"}
+_STR = {"markers_seen", "label_reason"}
+
+
+def _arrow_type(name: str) -> pa.DataType:
+    if name in _BOOL:
+        return pa.bool_()
+    if name in _INT:
+        return pa.int64()
+    if name in _STR:
+        return pa.string()
+    return pa.float64()
+
+
+@dataclass
+class Dataset:
+    """A dataset in memory: columns by name (numpy arrays) and the metadata of its labelling run."""
+
+    columns: dict[str, NDArray[Any]]
+    metadata: dict[str, Any]
+
+    def __len__(self) -> int:
+        return len(self.columns["frame"])
+
+    def __getitem__(self, name: str) -> NDArray[Any]:
+        return self.columns[name]
+
+    def raw_features(self) -> NDArray[np.float64]:
+        """The raw features of every row, shape (rows, len(FEATURE_NAMES))."""
+        return np.column_stack([self.columns[n] for n in FEATURE_NAMES]).astype(np.float64)
+
+    def refined_corners(self) -> NDArray[np.float64]:
+        """The refined corners of every row, shape (rows, len(REFINED_CORNER_NAMES)); NaN where none."""
+        return np.column_stack([self.columns[n] for n in REFINED_CORNER_NAMES]).astype(np.float64)
+
+    def subset(self, rows: NDArray[Any]) -> Dataset:
+        """The dataset of some rows (a boolean mask or indices), with the same metadata."""
+        return Dataset({n: np.asarray(v)[rows] for n, v in self.columns.items()}, dict(self.metadata))
+
+    def camera(self) -> CameraModel:
+        return CameraModel.from_ros_dict(self.metadata["camera"], "dataset camera")
+
+    def robot(self) -> RobotConfig:
+        return RobotConfig.from_dict(self.metadata["robot"], "dataset robot")
+
+    def layout(self) -> DockLayout:
+        return DockLayout.from_dict(self.metadata["layout"], "dataset layout")
+
+
+def write_dataset(path: str | os.PathLike[str], dataset: Dataset, *, force: bool = False) -> None:
+    """Write the Parquet file atomically; the metadata travels in the file's schema."""
+    names = dataset_columns()
+    missing = [n for n in names if n not in dataset.columns]
+    if missing:
+        raise ValueError(f"dataset lacks columns {missing}")
+    arrays = [pa.array(np.asarray(dataset.columns[n]).tolist(), type=_arrow_type(n)) for n in names]
+    meta = {**dataset.metadata, "schema": DATASET_SCHEMA}
+    schema = pa.schema([pa.field(n, _arrow_type(n)) for n in names], metadata={"monodock": json.dumps(meta)})
+    table = pa.Table.from_arrays(arrays, schema=schema)
+    buf = io.BytesIO()
+    pq.write_table(table, buf, compression="zstd")
+    write_bytes_atomic(path, buf.getvalue(), force=force)
+
+
+def read_dataset(path: str | os.PathLike[str]) -> Dataset:
+    """Read a dataset written by ``monodock label``; InputError when it is not one."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"dataset not found: {p}")
+    try:
+        table = pq.read_table(p)
+    except (pa.ArrowException, OSError) as exc:
+        raise InputError(f"{p}: not a Parquet file ({str(exc).splitlines()[0]})") from None
+    raw_meta = (table.schema.metadata or {}).get(b"monodock")
+    if raw_meta is None:
+        raise InputError(f"{p}: not a monodock dataset (no 'monodock' metadata; write it with monodock label)")
+    meta = json.loads(raw_meta)
+    if meta.get("schema") not in _READABLE_SCHEMAS:
+        raise InputError(f"{p}: dataset schema {meta.get('schema')!r}, this monodock reads {DATASET_SCHEMA!r}")
+    optional = _NEW_IN_SCHEMA_2 if meta.get("schema") != DATASET_SCHEMA else ()
+    missing = [n for n in dataset_columns() if n not in table.column_names and n not in optional]
+    if missing:
+        raise InputError(f"{p}: dataset lacks columns {', '.join(missing[:5])}{' …' if len(missing) > 5 else ''}")
+    cols: dict[str, NDArray[Any]] = {}
+    for n in dataset_columns():
+        if n not in table.column_names:
+            cols[n] = np.full(table.num_rows, -1 if n in _INT else np.nan, dtype=np.int64 if n in _INT else np.float64)
+            continue
+        col = table.column(n)
+        if n in _STR:
+            cols[n] = np.array(col.to_pylist(), dtype=object)
+        elif n in _BOOL:
+            cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=bool)
+        elif n in _INT:
+            cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
+        else:
+            cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+    return Dataset(cols, meta)
+
+
+@dataclass
+class LabelRun:
+    """Counts of a labelling run, for the summary line and the dataset's metadata."""
+
+    images: int = 0
+    unreadable: int = 0
+    paired: int = 0
+    unpaired: int = 0
+    no_marker2: int = 0
+    labelled: int = 0
+    invalid_labels: Counter[str] = field(default_factory=Counter)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "images": self.images,
+            "unreadable": self.unreadable,
+            "paired": self.paired,
+            "unpaired": self.unpaired,
+            "no_marker2": self.no_marker2,
+            "labelled": self.labelled,
+            "invalid_labels": dict(self.invalid_labels),
+        }
+
+
+def _reason_kind(reason: str) -> str:
+    """A reason without its particulars in brackets, so that counts group."""
+    return reason.split(" (", maxsplit=1)[0]
+
+
+def label_frames(
+    frames: list[tuple[int, float, NDArray[np.float64] | None, str]],
+    scans: list[Any],
+    pairing: NDArray[np.int64],
+    truth: list[tuple[float, float, float] | None],
+    camera: CameraModel,
+    robot: RobotConfig,
+    run: LabelRun,
+    *,
+    refined: list[NDArray[np.float64] | None] | None = None,
+    on_row: Callable[[int], None] | None = None,
+) -> dict[str, list[Any]]:
+    """Dataset columns for detected frames.
+
+    Args:
+        frames: per image (index, stamp, raw feature vector or None when unreadable, error).
+        scans: the recording's LaserScans.
+        pairing: per image the index of its scan, -1 when none was within tolerance.
+        truth: per image the true (x, y, yaw_deg), or None.
+        camera, robot: the calibration the labels are made with.
+        run: counts, updated in place.
+        refined: per image its refined corners (REFINED_CORNER_NAMES order), or None.
+        on_row: called with each row's index (progress).
+    """
+    cols: dict[str, list[Any]] = {n: [] for n in dataset_columns()}
+    roles = ("m1", "m2", "m3")
+    for k, (index, stamp, features, error) in enumerate(frames):
+        pair = int(pairing[k])
+        run.images += 1
+        raw = features if features is not None else np.full(len(FEATURE_NAMES), np.nan)
+        if features is None:
+            run.unreadable += 1
+            seen = ""
+        else:
+            seen = " ".join(m for m in roles if raw[FEATURE_NAMES.index(f"{m}_seen")] == 1.0)
+        scan = scans[pair] if pair >= 0 else None
+        if pair >= 0:
+            run.paired += 1
+        else:
+            run.unpaired += 1
+        if error:
+            lab = LidarLabel(reason=f"image unreadable: {error}")
+        elif "m2" not in seen.split():
+            run.no_marker2 += 1
+            lab = LidarLabel(reason="marker 2 not detected")
+        elif scan is None:
+            lab = LidarLabel(reason="no scan within the pairing tolerance")
+        else:
+            corners = {
+                m: raw[[FEATURE_NAMES.index(f"{m}_{c}_{a}") for c in ("tl", "tr", "br", "bl") for a in ("u", "v")]]
+                for m in seen.split()
+            }
+            # The side markers' returns seed the face line too (they help when an occluder hides marker 2's).
+            others = [c.reshape(4, 2) for m, c in corners.items() if m != "m2"]
+            lab = label_frame(corners["m2"].reshape(4, 2), scan, camera, robot, other_corners=others)
+        if lab.valid:
+            run.labelled += 1
+        else:
+            run.invalid_labels[_reason_kind(lab.reason)] += 1
+        cols["frame"].append(index)
+        cols["image_stamp"].append(stamp)
+        cols["scan_stamp"].append(float(scan.stamp) if scan is not None else math.nan)
+        cols["paired"].append(pair >= 0)
+        cols["markers_seen"].append(seen)
+        for name, value in zip(FEATURE_NAMES, raw, strict=True):
+            cols[name].append(float(value))
+        ref = refined[k] if refined is not None else None
+        ref = ref if ref is not None else np.full(len(REFINED_CORNER_NAMES), np.nan)
+        for name, value in zip(REFINED_CORNER_NAMES, ref, strict=True):
+            cols[name].append(float(value))
+        for name, value in lab.row().items():
+            cols[name].append(value)
+        t = truth[k]
+        for name, value in zip(TRUTH_COLUMNS, t if t is not None else (math.nan,) * 3, strict=True):
+            cols[name].append(value)
+        if on_row is not None:
+            on_row(k)
+    return cols
+
+
+def label_recording(
+    path: str | os.PathLike[str],
+    layout: DockLayout,
+    *,
+    camera: CameraModel | None = None,
+    robot: RobotConfig | None = None,
+    image_topic: str | None = None,
+    camera_info_topic: str | None = None,
+    scan_topic: str | None = None,
+    tolerance_s: float = 0.05,
+    refinement: str = "subpix",
+    progress: bool = True,
+) -> tuple[Dataset, LabelRun, list[str]]:
+    """Detect, pair and label every image of a recording (``monodock label``).
+
+    The camera comes from the recording's CameraInfo and the mounts from its /tf_static, unless given; a
+    recording without them needs them given. Returns the dataset, the counts and the reader's warnings.
+    """
+    from tqdm import tqdm
+
+    from monodock.perception.detect import MarkerDetector, as_gray
+    from monodock.perception.refine import refine_detection
+    from monodock.recording import open_recording, pair_nearest
+
+    if not (tolerance_s > 0 and math.isfinite(tolerance_s)):
+        raise InputError(f"pairing tolerance must be a positive number of seconds, got {tolerance_s}")
+    with open_recording(
+        path, image_topic=image_topic, camera_info_topic=camera_info_topic, scan_topic=scan_topic
+    ) as rec:
+        if rec.scan_topic is None:
+            raise InputError(f"{path}: no sensor_msgs/LaserScan topic; labels need the LiDAR")
+        cam = camera or rec.camera()
+        if cam is None:
+            raise InputError(f"{path}: no sensor_msgs/CameraInfo topic; give the calibration with --camera")
+        if robot is None:
+            if not rec.has_mounts():
+                raise InputError(f"{path}: no /tf_static from base_link to the camera and the laser; give --robot")
+            robot = rec.robot(RobotConfig.default())
+        detector = MarkerDetector(layout, refinement=refinement)
+        scans = rec.scans()
+        truth_poses = rec.ground_truth()
+        frames: list[tuple[int, float, NDArray[np.float64] | None, str]] = []
+        refined: list[NDArray[np.float64] | None] = []
+        bar = tqdm(desc="detect", unit="frame", leave=False, disable=None if progress else True)
+        for f in rec.images():
+            bar.update()
+            if len(refined) < len(frames):
+                refined.append(None)  # the previous image was unreadable
+            if f.image is None:
+                frames.append((int(f.name), f.stamp, None, f.error or "cannot decode"))
+                continue
+            if (f.image.shape[1], f.image.shape[0]) != cam.size:
+                frames.append(
+                    (
+                        int(f.name),
+                        f.stamp,
+                        None,
+                        f"image is {f.image.shape[1]}x{f.image.shape[0]}, camera "
+                        f"calibration is {cam.width}x{cam.height}",
+                    )
+                )
+                continue
+            gray = as_gray(f.image)
+            det = detector.detect(gray)
+            frames.append((int(f.name), f.stamp, feature_vector(det, cam), ""))
+            refined.append(refined_vector(refine_detection(gray, det, cam, modules=layout.modules)))
+        bar.close()
+        refined += [None] * (len(frames) - len(refined))
+        warnings = list(rec.warnings)
+        source = {"path": str(path), "image_topic": rec.image_topic, "scan_topic": rec.scan_topic}
+    stamps = np.array([f[1] for f in frames], dtype=np.float64)
+    pairing = pair_nearest(stamps, np.array([s.stamp for s in scans], dtype=np.float64), tolerance_s)
+    truth: list[tuple[float, float, float] | None] = [None] * len(frames)
+    if truth_poses:
+        t_stamps = np.array([t for t, _ in truth_poses])
+        match = pair_nearest(stamps, t_stamps, 1e-3)
+        for k, j in enumerate(match):
+            if j >= 0:
+                pose = truth_poses[int(j)][1]
+                truth[k] = (pose.x, pose.y, pose.yaw_deg)
+    run = LabelRun()
+    cols = label_frames(frames, scans, pairing, truth, cam, robot, run, refined=refined)
+    metadata = {
+        "monodock_version": __version__,
+        "camera": cam.to_ros_dict(),
+        "robot": robot.to_dict(),
+        "layout": layout.to_dict(),
+        "source": source,
+        "pairing_tolerance_s": tolerance_s,
+        "corner_refinement": refinement,
+        "counts": run.to_dict(),
+        "warnings": warnings,
+        "has_truth": bool(truth_poses),
+    }
+    arrays = {n: np.asarray(v) for n, v in cols.items()}
+    return Dataset(arrays, metadata), run, warnings
+
+
+@dataclass(frozen=True)
+class LabelError:
+    """How far one label is from the simulator's truth: mean, MAE and p95 of the signed error."""
+
+    label: str
+    unit: str
+    rows: int
+    bias: float
+    mae: float
+    p95: float
+
+
+def label_errors(dataset: Dataset) -> list[LabelError]:
+    """Every label against truth (rows with a valid label and truth); empty without truth."""
+    ok = np.asarray(dataset["label_valid"], dtype=bool) & np.isfinite(np.asarray(dataset["truth_x_m"], dtype=float))
+    if not ok.any():
+        return []
+    out = []
+    # The face line is the default label; the lines over marker 2 alone are what it replaced.
+    pairs = (
+        ("depth, nearest point (papers)", "cm", "label_x_m", "truth_x_m", 100.0),
+        ("depth, marker-2 line at marker 2's centre", "cm", "label_x_line_marker_m", "truth_x_m", 100.0),
+        ("depth, face line at marker 2's centre", "cm", "label_x_line_m", "truth_x_m", 100.0),
+        ("lateral, marker-2 line at marker 2's centre", "cm", "label_y_marker_m", "truth_y_m", 100.0),
+        ("lateral, face line at marker 2's centre", "cm", "label_y_m", "truth_y_m", 100.0),
+        ("angle, endpoints (papers)", "deg", "label_yaw_endpoints_deg", "truth_yaw_deg", 1.0),
+        ("angle, marker-2 line", "deg", "label_yaw_marker_deg", "truth_yaw_deg", 1.0),
+        ("angle, face line", "deg", "label_yaw_deg", "truth_yaw_deg", 1.0),
+    )
+    for name, unit, col, ref, scale in pairs:
+        e = (np.asarray(dataset[col], dtype=float) - np.asarray(dataset[ref], dtype=float))[ok] * scale
+        if unit == "deg":
+            e = (e + 180.0) % 360.0 - 180.0
+        e = e[np.isfinite(e)]
+        if e.size:
+            a = np.abs(e)
+            out.append(
+                LabelError(name, unit, int(e.size), float(e.mean()), float(a.mean()), float(np.percentile(a, 95)))
+            )
+    return out
+
+
+def label_error_table(errors: list[LabelError]) -> str:
+    """Label errors as a markdown table."""
+    head = "| label | rows | bias | MAE | p95 |\n|---|---:|---:|---:|---:|\n"
+    return head + "".join(
+        f"| {e.label} | {e.rows} | {e.bias:+.2f} {e.unit} | {e.mae:.2f} {e.unit} | {e.p95:.2f} {e.unit} |\n"
+        for e in errors
+    )

@@ -1,0 +1,1 @@
+"""ROS 2 nodes: the detector, the docking mission and the simulated robot (they need rclpy)."""

@@ -1,0 +1,200 @@
+"""A ROS 2 node (``monodock-ros``): camera images in, ``detected_dock_pose`` for Nav2's docking server out.
+
+Subscribes to a sensor_msgs/Image or CompressedImage topic (and camera_info when no camera file is given),
+runs the estimator of ``monodock run`` (a bundle's regression, or PnP on calibration files) on each image, and
+publishes a geometry_msgs/PoseStamped in base_link with the image's stamp for every valid estimate, and, when
+the method gives the estimate's covariance, the same pose as geometry_msgs/PoseWithCovarianceStamped on
+``detected_dock_pose_with_covariance`` (the 6x6 convention of monodock.recording.nav2: x, y, yaw at rows and
+columns 0, 1, 5; z, roll and pitch zero). Images are decoded with numpy and OpenCV
+(monodock.recording.messages), without cv_bridge.
+
+This is the only monodock module that needs rclpy (a sourced ROS 2 installation); nothing else imports it.
+"""
+
+from __future__ import annotations
+
+try:
+    import rclpy  # type: ignore[import-not-found, unused-ignore]
+    from rclpy.node import Node  # type: ignore[import-not-found, unused-ignore]
+except ImportError as _exc:  # the message should say what to do, not only what is missing
+    raise ModuleNotFoundError(
+        "monodock.ros.detector needs ROS 2's rclpy: source your ROS 2 setup (e.g. /opt/ros/humble/setup.bash) "
+        "first; the rest of monodock works without it",
+        name="rclpy",
+    ) from _exc
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from monodock.cli.main import add_estimator_options
+from monodock.errors import InputError, MonodockError
+from monodock.estimation.estimator import Estimator
+from monodock.recording import messages as m
+from monodock.recording.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
+
+__all__ = ["main"]
+
+
+class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
+    """Estimates the dock's pose in each image and publishes the valid ones on ``detected_dock_pose``."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        super().__init__("monodock")
+        from geometry_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            Point,
+            Pose,
+            PoseStamped,
+            PoseWithCovariance,
+            PoseWithCovarianceStamped,
+            Quaternion,
+        )
+        from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # type: ignore[import-not-found, unused-ignore]
+
+        self._msg = {
+            "PoseStamped": PoseStamped,
+            "Pose": Pose,
+            "Point": Point,
+            "Quaternion": Quaternion,
+            "PoseWithCovarianceStamped": PoseWithCovarianceStamped,
+            "PoseWithCovariance": PoseWithCovariance,
+        }
+        self.args = args
+        self.frame_id: str = args.frame_id
+        self.estimator: Estimator | None = None
+        self.method = ""
+        self._warned: set[str] = set()
+        _check_options(args)
+        if args.model or args.camera:
+            self.estimator, self.method = _estimator(args)
+            self.estimator.warm_up()
+        else:  # the camera comes from camera_info; the layout and mounts from the files
+            self.create_subscription(CameraInfo, args.camera_info_topic, self._on_camera_info, 1)
+        compressed = args.compressed or args.image_topic.rstrip("/").endswith("/compressed")
+        self.msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
+        self.create_subscription(CompressedImage if compressed else Image, args.image_topic, self._on_image, 1)
+        self.publisher = self.create_publisher(PoseStamped, args.pose_topic, 10)
+        self.covariance_publisher = self.create_publisher(PoseWithCovarianceStamped, args.pose_covariance_topic, 10)
+
+    def _warn_once(self, text: str) -> None:
+        if text not in self._warned:
+            self._warned.add(text)
+            self.get_logger().warning(text)
+
+    def _on_camera_info(self, msg: Any) -> None:
+        if self.estimator is not None:
+            return
+        camera = m.camera_from_msg(msg)
+        if camera is None:
+            self._warn_once("camera_info without a calibration (K is zero); waiting for a calibrated one")
+            return
+        self.estimator, self.method = _estimator(self.args, camera)
+        self.estimator.warm_up()
+        self.get_logger().info(f"camera {camera.width}x{camera.height} from camera_info; estimating with {self.method}")
+
+    def _on_image(self, msg: Any) -> None:
+        if self.estimator is None:
+            self._warn_once("no camera calibration yet (waiting for camera_info)")
+            return
+        stamp = m.header_stamp(msg)
+        try:
+            image = m.decode_image(msg, self.msgtype)
+            result = self.estimator.estimate(str(stamp), stamp, image)
+        except (m.DecodeError, MonodockError) as exc:
+            self._warn_once(f"image skipped: {exc}")
+            return
+        est = result.estimates[self.method]
+        if est.pose is None:
+            return
+        half = 0.5 * est.pose.yaw
+        pose = self._msg["Pose"](
+            position=self._msg["Point"](x=float(est.pose.x), y=float(est.pose.y), z=0.0),
+            orientation=self._msg["Quaternion"](x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
+        )
+        out = self._msg["PoseStamped"]()
+        out.header.stamp = msg.header.stamp  # the image's stamp, as opennav_docking expects
+        out.header.frame_id = self.frame_id
+        out.pose = pose
+        self.publisher.publish(out)
+        if est.covariance is None:
+            return
+        try:
+            covariance = pose_covariance_6x6(est.covariance)
+        except ValueError as exc:
+            self._warn_once(f"covariance not published: {exc}")
+            return
+        with_cov = self._msg["PoseWithCovarianceStamped"]()
+        with_cov.header.stamp = msg.header.stamp
+        with_cov.header.frame_id = self.frame_id
+        with_cov.pose = self._msg["PoseWithCovariance"](pose=pose, covariance=covariance)
+        self.covariance_publisher.publish(with_cov)
+
+
+def _estimator(args: argparse.Namespace, camera: Any = None) -> tuple[Estimator, str]:
+    """The Estimator of the options (as ``monodock run``), or of camera_info's camera with the layout and robot."""
+    if camera is None:
+        from monodock.cli.main import build_estimator
+
+        return build_estimator(args)
+    from monodock.core.layout import DockLayout
+    from monodock.core.robot import RobotConfig
+
+    method = args.method or "board"
+    layout, robot = DockLayout.load(args.layout), RobotConfig.load(args.robot)
+    return Estimator(camera, layout, robot, (method,), refinement=args.refinement), method
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """InputError for options that cannot work, before anything is subscribed."""
+    if args.model or args.camera:
+        return
+    if args.method == "regression":
+        raise InputError("the regression needs --model BUNDLE")
+    missing = [f"--{k}" for k in ("layout", "robot") if not getattr(args, k)]
+    if missing:
+        raise InputError(f"without --model, give {' '.join(missing)} (and --camera, or a camera_info topic)")
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="monodock-ros", description=__doc__.split("\n", 1)[0] if __doc__ else None)
+    add_estimator_options(
+        p, camera_help="camera file (default: from camera_info)", robot_help="robot YAML (camera mount)"
+    )
+    p.add_argument("--camera-info-topic", default="/camera/camera_info")
+    p.add_argument("--pose-topic", default=DOCK_POSE_TOPIC)
+    p.add_argument(
+        "--pose-covariance-topic",
+        default=DOCK_POSE_COVARIANCE_TOPIC,
+        help="PoseWithCovarianceStamped of the estimates that have a covariance",
+    )
+    p.add_argument("--frame-id", default="base_link")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the node until shut down (Ctrl-C); user errors print one line and return 2."""
+    from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]
+
+    raw = list(sys.argv if argv is None else ["monodock-ros", *argv])
+    args = _parser().parse_args(remove_ros_args(raw)[1:])
+    rclpy.init(args=raw)
+    try:
+        node = DockPoseNode(args)
+    except MonodockError as exc:
+        print(f"monodock-ros: error: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

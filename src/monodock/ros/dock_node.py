@@ -1,0 +1,144 @@
+"""The docking mission on a real robot through ROS 2 (``monodock-dock-ros``): cmd_vel out, odom and image in.
+
+``Ros2Robot`` implements the controller's robot interface on top of an rclpy node: geometry_msgs/Twist on
+``cmd_vel``, nav_msgs/Odometry from ``odom``, sensor_msgs/Image or CompressedImage from the camera, and an
+optional std_msgs/Bool contact topic (the charger's "charging" or a bumper). Images are decoded with numpy and
+OpenCV (monodock.recording.messages), without cv_bridge.
+
+Like monodock.ros.detector, this module needs a sourced ROS 2 (rclpy) and nothing else in monodock imports it.
+"""
+
+from __future__ import annotations
+
+try:
+    import rclpy  # type: ignore[import-not-found, unused-ignore]
+    from rclpy.node import Node  # type: ignore[import-not-found, unused-ignore]
+except ImportError as _exc:  # the message should say what to do, not only what is missing
+    raise ModuleNotFoundError(
+        "monodock.ros.dock_node needs ROS 2's rclpy: source your ROS 2 setup (e.g. /opt/ros/humble/setup.bash) "
+        "first; the rest of monodock works without it",
+        name="rclpy",
+    ) from _exc
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from monodock.cli.main import add_estimator_options
+from monodock.core.pose2d import Pose2D
+from monodock.dock.controller import DockingMission, MissionConfig, blind_gap, make_perceive, run_mission
+from monodock.dock.interface import CameraFrame, Odometry
+from monodock.dock.planner import PlannerConfig
+from monodock.dock.pose_filter import MeasurementNoise
+from monodock.errors import MonodockError
+from monodock.recording import messages as m
+
+__all__ = ["Ros2Robot", "main"]
+
+
+class Ros2Robot:
+    """The robot interface over ROS 2 topics; ``sleep`` spins the node so callbacks run while it waits."""
+
+    def __init__(self, node: Node, args: argparse.Namespace) -> None:
+        from geometry_msgs.msg import Twist  # type: ignore[import-not-found, unused-ignore]
+        from nav_msgs.msg import Odometry as OdometryMsg  # type: ignore[import-not-found, unused-ignore]
+        from sensor_msgs.msg import CompressedImage, Image  # type: ignore[import-not-found, unused-ignore]
+        from std_msgs.msg import Bool  # type: ignore[import-not-found, unused-ignore]
+
+        self.node = node
+        self._twist = Twist
+        self._odom: Odometry | None = None
+        self._frame: CameraFrame | None = None
+        self._contact: bool | None = None
+        compressed = args.compressed or args.image_topic.rstrip("/").endswith("/compressed")
+        self._msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
+        self._cmd = node.create_publisher(Twist, args.cmd_vel_topic, 10)
+        node.create_subscription(OdometryMsg, args.odom_topic, self._on_odom, 10)
+        node.create_subscription(CompressedImage if compressed else Image, args.image_topic, self._on_image, 1)
+        if args.contact_topic:
+            node.create_subscription(Bool, args.contact_topic, self._on_contact, 10)
+
+    def _on_odom(self, msg: Any) -> None:
+        p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        self._odom = Odometry(m.header_stamp(msg), Pose2D(p.x, p.y, yaw), t.linear.x, t.angular.z)
+
+    def _on_image(self, msg: Any) -> None:
+        try:
+            self._frame = CameraFrame(m.header_stamp(msg), m.decode_image(msg, self._msgtype))
+        except m.DecodeError as exc:
+            self.node.get_logger().warning(f"image skipped: {exc}")
+
+    def _on_contact(self, msg: Any) -> None:
+        self._contact = bool(msg.data)
+
+    def now(self) -> float:
+        return float(self.node.get_clock().now().nanoseconds) * 1e-9
+
+    def send_velocity(self, linear: float, angular: float) -> None:
+        msg = self._twist()
+        msg.linear.x, msg.angular.z = float(linear), float(angular)
+        self._cmd.publish(msg)
+
+    def odometry(self) -> Odometry:
+        while self._odom is None:  # nothing to steer on before the first odometry message
+            rclpy.spin_once(self.node, timeout_sec=0.1)
+        return self._odom
+
+    def latest_frame(self) -> CameraFrame | None:
+        return self._frame
+
+    def contact(self) -> bool | None:
+        return self._contact
+
+    def sleep(self, seconds: float) -> None:
+        end = self.now() + seconds
+        while (left := end - self.now()) > 0:
+            rclpy.spin_once(self.node, timeout_sec=left)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="monodock-dock-ros", description=__doc__.split("\n", 1)[0] if __doc__ else None)
+    add_estimator_options(
+        p, camera_help="camera file (needed without --model)", robot_help="robot YAML (mounts, front_offset, limits)"
+    )
+    p.add_argument("--odom-topic", default="/odom")
+    p.add_argument("--cmd-vel-topic", default="/cmd_vel")
+    p.add_argument("--contact-topic", help="std_msgs/Bool that is true on contact with the charger (optional)")
+    p.add_argument("--standoff", type=float, default=1.0, help="Point A: floor between front edge and face, m")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Dock once and exit: 0 when docked, 1 when the mission failed, 2 on bad options."""
+    from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]
+
+    from monodock.cli.main import build_estimator
+
+    raw = list(sys.argv if argv is None else ["monodock-dock-ros", *argv])
+    args = _parser().parse_args(remove_ros_args(raw)[1:])
+    rclpy.init(args=raw)
+    node = Node("monodock_dock")
+    robot: Ros2Robot | None = None
+    try:
+        estimator, method = build_estimator(args)
+        robot = Ros2Robot(node, args)
+        config = MissionConfig(planner=PlannerConfig(args.standoff), measurement=MeasurementNoise.for_method(method))
+        blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
+        result = run_mission(robot, make_perceive(estimator, method), DockingMission(config, estimator.robot, blind))
+    except MonodockError as exc:
+        print(f"monodock-dock-ros: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        if robot is not None:
+            robot.send_velocity(0.0, 0.0)  # whatever happened, the base stops
+        node.destroy_node()
+        rclpy.try_shutdown()
+    for t, entry in result.log:
+        print(f"{t:8.2f} {entry}")
+    print(f"monodock-dock-ros: {result.state.value} {result.reason}".rstrip())
+    return 0 if result.docked else 1
