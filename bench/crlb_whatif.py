@@ -52,16 +52,15 @@ from monodock.core.camera import CameraModel  # noqa: E402
 from monodock.core.layout import ROLES, DockLayout  # noqa: E402
 from monodock.core.pose import DockPose  # noqa: E402
 from monodock.core.robot import RobotConfig  # noqa: E402
-from monodock.estimation.crlb import (  # noqa: E402
+from monodock.estimation.corner_noise import (  # noqa: E402
     DEFAULT_CORNER_C,
     DEFAULT_SMALL_SIDE_PX,
     DEFAULT_SMALL_SIGMA_PX,
     CornerNoise,
-    WhatIfResult,
     corner_sides_px,
-    what_if,
 )
 from monodock.estimation.planar import planar_candidates, solve_planar  # noqa: E402
+from monodock.evaluation.what_if import WhatIfResult, what_if  # noqa: E402
 from monodock.perception.detect import MarkerDetector  # noqa: E402
 from monodock.sim import PoseDistribution, Simulator  # noqa: E402
 

@@ -23,7 +23,9 @@ import numpy as np
 
 from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks
 from monodock.estimation.estimator import Estimator
-from monodock.io.live import LiveStats, open_source, run_live
+from monodock.estimation.factory import make_estimator
+from monodock.io.frames import open_frames
+from monodock.io.live import LiveStats, run_live
 from monodock.sim import Simulator
 
 CHUNK = 20
@@ -49,7 +51,7 @@ def write_video(path: Path, images: list[np.ndarray], size: tuple[int, int]) -> 
 
 def measure(video: Path, estimator: Estimator, method: str, out: Path) -> LiveStats:
     """One run_live over the video, rows to a CSV file."""
-    with open_source(str(video)) as source, out.open("w", encoding="utf-8", newline="") as sink:
+    with open_frames(str(video), skip_bad=True) as source, out.open("w", encoding="utf-8", newline="") as sink:
         return run_live(source, estimator, method, sink=sink)
 
 
@@ -68,12 +70,7 @@ def main() -> None:
         measure(video, board, "board", Path(tmp) / "warmup.csv")  # first calls load OpenCV's code paths
         runs["board"] = measure(video, board, "board", Path(tmp) / "board.csv")
         if args.model:
-            from monodock.cli.main import _load_bundle
-            from monodock.estimation.regression import RegressionEstimator
-
-            bundle = _load_bundle(args.model)
-            regression = RegressionEstimator(bundle, sim.camera, sim.robot).estimate
-            est = Estimator(sim.camera, sim.layout, sim.robot, ("regression",), extra={"regression": regression})
+            est = make_estimator(bundle=args.model, method="regression", camera=sim.camera, robot=sim.robot)
             runs["regression"] = measure(video, est, "regression", Path(tmp) / "regression.csv")
     rows = [
         [

@@ -32,15 +32,18 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from _common import emit, environment, markdown_table
-from monodock.estimation.bundle import Bundle, save_bundle
-from monodock.estimation.regression import RegressionEstimator, bundle_metadata, training_sets
+from monodock.estimation.bundle import Bundle
+from monodock.estimation.regression import RegressionEstimator
+from monodock.estimation.segments import SegmentTable
 from monodock.learning.dataset import label_recording, read_dataset
-from monodock.learning.train import SegmentTable, TrainConfig, TrainingResult, train
+from monodock.learning.export import save_bundle
+from monodock.learning.pipeline import bundle_metadata, training_sets
+from monodock.learning.train import TrainConfig, TrainingResult, train
 from monodock.perception.detect import MarkerDetector
 from monodock.perception.features import DEFAULT_MARKER_SETS, MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
-from monodock.recording import write_recording
 from monodock.sim import Nuisances, PoseDistribution, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
+from monodock.sim.recording import write_recording
 
 
 class SklearnModels:

@@ -45,11 +45,11 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks  # noqa: E402
+from monodock.estimation.bundle import load_bundle  # noqa: E402
 from monodock.estimation.estimator import Estimator  # noqa: E402
-from monodock.estimation.fused import FusedEstimator, FusionTables, fusion_tables_of  # noqa: E402
+from monodock.estimation.fused import FusedEstimator, FusionTables  # noqa: E402
 from monodock.estimation.pnp import estimate_board, estimate_single_marker  # noqa: E402
 from monodock.estimation.regression import RegressionEstimator  # noqa: E402
-from monodock.evaluation.selftrain import load_bundle  # noqa: E402
 from monodock.perception.detect import Detection, MarkerDetector  # noqa: E402
 from monodock.perception.features import feature_vector  # noqa: E402
 from monodock.perception.refine import refine_detection  # noqa: E402
@@ -65,11 +65,10 @@ def _fused_estimator(model: str | None, camera: Any, layout: Any, robot: Any) ->
             camera, layout, robot, ("fused",), fused=FusedEstimator(camera, layout, robot, FusionTables(0.22))
         )
     bundle = load_bundle(Path(model))
-    meta = bundle.manifest["metadata"]
-    if meta["layout"] != layout.to_dict() or meta["robot"] != robot.to_dict():
+    if bundle.layout() != layout or bundle.robot() != robot:
         raise SystemExit(f"{model}: the bundle is not for the simulator's default layout and mounts")
     regression = RegressionEstimator(bundle, camera, robot)
-    fused = FusedEstimator(camera, layout, robot, fusion_tables_of(bundle), regression)
+    fused = FusedEstimator(camera, layout, robot, bundle.fusion_tables(), regression)
     return Estimator(camera, layout, robot, ("fused",), fused=fused)
 
 

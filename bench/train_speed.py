@@ -9,7 +9,7 @@ the depth. Then:
 
 (a) times ``monodock.learning.train.train`` with the papers' search (1 depth + 45 angle tasks × 7 model types × up to
     10 draws) on ``--jobs`` worker processes;
-(b) times ``monodock.estimation.bundle.save_bundle`` (ONNX export) and reports the bundle's size on disk;
+(b) times ``monodock.learning.export.save_bundle`` (ONNX export) and reports the bundle's size on disk;
 (c) times ``Bundle.load`` (checksums + ONNX Runtime sessions);
 (d) times one-row prediction through the loaded Bundle (depth, and the first segment's angle model), and, for
     each model type, refits the type's best depth hyperparameters on all rows (SVR: the first 4,000) and times
@@ -37,7 +37,10 @@ from typing import Any
 import numpy as np
 
 from _common import emit, environment, fmt, markdown_table
-from monodock.estimation.bundle import Bundle, bundle_size_bytes, onnx_model_bytes, ort_session, save_bundle
+from monodock.estimation.bundle import Bundle, bundle_size_bytes, ort_session
+from monodock.learning.dataset import read_dataset
+from monodock.learning.export import onnx_model_bytes, save_bundle
+from monodock.learning.pipeline import training_sets
 from monodock.learning.train import MODEL_NAMES, TrainConfig, TrainingSet, make_estimator, train
 
 # Samples per 5 cm segment from 25 cm in the paper's Table 2 (the 245-250 cm segment is not listed: none).
@@ -139,9 +142,6 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     if args.dataset:
-        from monodock.estimation.regression import training_sets
-        from monodock.learning.dataset import read_dataset
-
         ts = training_sets(read_dataset(args.dataset), (args.set,))[0]
     else:
         ts = synthetic_set(args.rows, args.seed)

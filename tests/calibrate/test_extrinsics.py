@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 from pathlib import Path
@@ -11,22 +10,23 @@ import numpy as np
 import pytest
 
 from monodock.calibrate.extrinsics import (
-    add_parser,
     extrinsics_from_pairs,
     extrinsics_from_recording,
     read_pairs_csv,
-    simulated_pairs,
     tf_line,
     write_pairs_csv,
 )
+from monodock.cli.main import parser
 from monodock.core.layout import DockLayout
 from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
 from monodock.learning.label import label_frame
 from monodock.perception.detect import MarkerDetector
-from monodock.recording import open_recording, pair_nearest, write_recording
+from monodock.recording import open_recording, pair_nearest
 from monodock.sim import Nuisances, PoseDistribution, Simulator
+from monodock.sim.calibration import simulated_pairs
 from monodock.sim.drive import DriveConfig, plan_drive
+from monodock.sim.recording import write_recording
 
 FAST = Nuisances().updated(supersample=2)
 TRUE_LASER = Mount(0.12, -0.03, 0.19, 0.0, 0.0, math.radians(2.0))
@@ -48,9 +48,8 @@ def _sim() -> Simulator:
 
 
 def _cli(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="monodock calibrate")
-    add_parser(parser.add_subparsers(dest="calibrate_command", required=True))
-    args = parser.parse_args(argv)
+    """``monodock calibrate ARGV`` through the real parser, with its errors raised (not printed)."""
+    args = parser().parse_args(["calibrate", *argv])
     return int(args.func(args))
 
 

@@ -18,14 +18,14 @@ from numpy.typing import NDArray
 from monodock.calibrate import (
     IntrinsicsResult,
     calibrate_intrinsics,
-    coverage_png,
     find_board,
     parse_board,
     select_frames,
 )
-from monodock.calibrate.intrinsics import add_parser
+from monodock.cli.main import parser
 from monodock.core.camera import CameraModel
 from monodock.errors import InputError
+from monodock.report.calibration import coverage_png
 from monodock.sim.checkerboard import BoardView, board_points, render_board_views
 
 BOARD = (8, 6)
@@ -53,12 +53,15 @@ def result(views: list[BoardView]) -> tuple[IntrinsicsResult, float]:
     return res, time.perf_counter() - t0
 
 
-def _harness() -> argparse.ArgumentParser:
-    """A stand-in for ``monodock calibrate``: the real one lives in cli.py."""
-    p = argparse.ArgumentParser(prog="monodock calibrate")
-    sub = p.add_subparsers(dest="calibrate_command", required=True)
-    add_parser(sub)
-    return p
+class _Calibrate:
+    """``monodock calibrate ...`` through the real parser, with its errors raised (not printed)."""
+
+    def parse_args(self, argv: list[str]) -> argparse.Namespace:
+        return parser().parse_args(["calibrate", *argv])
+
+
+def _harness() -> _Calibrate:
+    return _Calibrate()
 
 
 def _rms(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:

@@ -16,17 +16,8 @@ from monodock.core.camera import CameraModel
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
-from monodock.estimation.crlb import (
-    CornerNoise,
-    Variant,
-    corner_sides_px,
-    crlb,
-    default_variants,
-    pose_jacobian,
-    scaled_camera,
-    visible_roles,
-    what_if,
-)
+from monodock.estimation.corner_noise import CornerNoise, corner_sides_px
+from monodock.estimation.crlb import crlb, pose_jacobian, visible_roles
 from monodock.estimation.planar import (
     PlanarFit,
     PosePrior,
@@ -35,6 +26,7 @@ from monodock.estimation.planar import (
     pose_information,
     solve_planar,
 )
+from monodock.evaluation.what_if import Variant, default_variants, scaled_camera, what_if
 from monodock.sim import Simulator
 
 CAMERA_X = 0.17  # RobotConfig.default().camera_mount.x: poses below are given by depth from the camera

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import io
@@ -17,12 +16,14 @@ import cv2
 import numpy as np
 import pytest
 
+from monodock.cli.main import parser
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.errors import InputError
-from monodock.estimation.estimator import COVARIANCE_COLUMNS, Estimator
+from monodock.estimation.estimator import Estimator
 from monodock.estimation.pnp import PoseEstimate, estimate_board
-from monodock.io.live import LIVE_COLUMNS, FrameSource, add_parser, open_source, run_live
-from monodock.recording.nav2 import (
+from monodock.io.frames import FrameSource, open_frames
+from monodock.io.live import run_live
+from monodock.io.nav2 import (
     DOCK_POSE_COVARIANCE_TOPIC,
     DOCK_POSE_TOPIC,
     POSE_WITH_COVARIANCE_STAMPED,
@@ -32,6 +33,7 @@ from monodock.recording.nav2 import (
     read_pose_bag,
     write_pose_bag,
 )
+from monodock.io.rows import COVARIANCE_COLUMNS, LIVE_COLUMNS
 from monodock.sim import Nuisances, PoseDistribution, Simulator
 
 FRAMES = 30
@@ -66,10 +68,8 @@ def calibration(folder: Path) -> list[str]:
 
 
 def run_cli(argv: list[str]) -> int:
-    """`monodock run` through a parser of its own (cli.py wires add_parser the same way)."""
-    parser = argparse.ArgumentParser(prog="monodock")
-    add_parser(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
+    """``monodock ARGV`` through the real parser, with its errors raised (not printed)."""
+    args = parser().parse_args(argv)
     return int(args.func(args))
 
 
@@ -101,7 +101,7 @@ def test_run_live_streams_rows_that_match_the_truth(drive: tuple[Simulator, list
         seen.append(sink.getvalue().count("\n"))
 
     est = Estimator(sim.camera, sim.layout, sim.robot, ("board",))
-    with open_source(str(video)) as source:
+    with open_frames(str(video), skip_bad=True) as source:
         stats = run_live(source, est, "board", sink=sink, on_row=on_row)
     assert seen == list(range(2, FRAMES + 2))
     rows = list(csv.DictReader(io.StringIO(sink.getvalue())))
@@ -165,7 +165,7 @@ def test_a_video_that_cannot_be_opened(tmp_path: Path, content: str) -> None:
     video = tmp_path / "broken.mp4"
     video.write_text(content)
     for spec, name in ((str(video), "broken.mp4"), (str(tmp_path / "gone.avi"), "gone.avi"), ("7", "camera 7")):
-        with pytest.raises(InputError) as info, open_source(spec) as source:
+        with pytest.raises(InputError) as info, open_frames(spec) as source:
             list(source)
         assert name in str(info.value)
         assert len(str(info.value).splitlines()) == 1
@@ -195,27 +195,29 @@ def test_a_camera_that_stops_ends_the_run(drive: tuple[Simulator, list[DockPose]
     sim = drive[0]
     est = Estimator(sim.camera, sim.layout, sim.robot, ("board",))
     said: list[str] = []
-    source = FrameSource("camera 0", "camera", capture=FakeCamera(3), stall_timeout_s=0.1)
+    source = FrameSource.of_capture("camera 0", "camera", FakeCamera(3), stall_timeout_s=0.1)
     stats = run_live(source, est, "board", sink=None, on_message=said.append)
     assert (stats.frames, stats.valid) == (3, 0)
     assert said == [stats.stop_reason]
     assert "camera 0: no frame for" in said[0]
     assert "stopping after 3 frames" in said[0]
+    silent = FrameSource.of_capture("camera 0", "camera", FakeCamera(0), stall_timeout_s=0.1)
     with pytest.raises(InputError, match="nothing received"):
-        run_live(FrameSource("camera 0", "camera", capture=FakeCamera(0), stall_timeout_s=0.1), est, "board", sink=None)
+        run_live(silent, est, "board", sink=None)
 
 
 def test_no_monodock_module_needs_rclpy() -> None:
-    """Every module but the two ROS 2 ones imports with rclpy blocked; those then name rclpy."""
+    """Every module but the ROS 2 ones (the two nodes and their command lines) imports with rclpy blocked; those
+    then name rclpy."""
     script = """
 import importlib, pkgutil, sys
 sys.modules["rclpy"] = None  # any import of rclpy now fails
 import monodock
-ros = ("monodock.ros.detector", "monodock.ros.dock_node")
+ros = ("monodock.cli.ros_nodes", "monodock.ros.detector", "monodock.ros.dock_node")
 names = [m.name for m in pkgutil.walk_packages(monodock.__path__, "monodock.") if m.name not in ros]
 for name in names:
     importlib.import_module(name)
-assert "monodock.io.live" in names and "monodock.recording.nav2" in names and "monodock.dock.controller" in names
+assert "monodock.io.live" in names and "monodock.io.nav2" in names and "monodock.dock.controller" in names
 for name in ros:
     try:
         importlib.import_module(name)
@@ -226,8 +228,12 @@ for name in ros:
 """
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
-    lines = done.stdout.splitlines()[-2:]
-    assert [line.split()[0] for line in lines] == ["monodock.ros.detector", "monodock.ros.dock_node"]
+    lines = done.stdout.splitlines()[-3:]
+    assert [line.split()[0] for line in lines] == [
+        "monodock.cli.ros_nodes",
+        "monodock.ros.detector",
+        "monodock.ros.dock_node",
+    ]
     assert all("rclpy" in line for line in lines)
 
 
@@ -348,7 +354,7 @@ def test_live_rows_and_bag_carry_a_methods_covariance(
 
     est = Estimator(sim.camera, sim.layout, sim.robot, ("fused",), extra={"fused": board_with_covariance})
     sink = io.StringIO()
-    with open_source(str(video)) as source, PoseStampedBagWriter(tmp_path / "cov_bag") as bag:
+    with open_frames(str(video), skip_bad=True) as source, PoseStampedBagWriter(tmp_path / "cov_bag") as bag:
         run_live(source, est, "fused", sink=sink, output_format="jsonl", bag=bag, max_frames=5)
     rows = [json.loads(line) for line in sink.getvalue().splitlines()]
     assert len(rows) == 5
@@ -366,7 +372,7 @@ def test_ros_node_publishes_the_covariance_beside_the_pose(
 ) -> None:
     """The live node, against stand-ins for rclpy and the message packages (ROS 2 is not installed here): an
     image in, a PoseStamped out matching the truth and, with a covariance, a PoseWithCovarianceStamped of the
-    same pose with the 6x6 layout of monodock.recording.nav2; without one, the pose alone."""
+    same pose with the 6x6 layout of monodock.io.nav2; without one, the pose alone."""
     import array
     import importlib
     import sys
@@ -418,10 +424,10 @@ def test_ros_node_publishes_the_covariance_beside_the_pose(
     monkeypatch.delitem(sys.modules, "monodock.ros.detector", raising=False)
     ros_node = importlib.import_module("monodock.ros.detector")
     monkeypatch.delitem(sys.modules, "monodock.ros.detector")  # forgotten afterwards: it was built on stand-ins
-    args = ros_node._parser().parse_args(
-        ["--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml"), "--image-topic", "/cam"]
+    options = ros_node.DetectorOptions(
+        layout=str(folder / "layout.yaml"), robot=str(folder / "robot.yaml"), image_topic="/cam"
     )
-    node = ros_node.DockPoseNode(args)
+    node = ros_node.DockPoseNode(options)
     cov = np.array([[2e-6, 1e-7, 0.0], [1e-7, 1e-6, -2e-7], [0.0, -2e-7, 3e-5]])
     attach = [True]
 

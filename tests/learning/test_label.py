@@ -11,10 +11,11 @@ import pytest
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
 from monodock.core.pose import DockPose
+from monodock.core.projection import project_to_image, scan_in_base
 from monodock.core.robot import Mount, RobotConfig
 from monodock.core.scan import LaserScan
 from monodock.estimation.regression import lateral_by_back_projection
-from monodock.learning.label import LidarLabel, label_frame, points_across_marker, project_to_image, scan_in_base
+from monodock.learning.label import LidarLabel, label_frame, points_across_marker
 from monodock.perception.detect import MarkerDetector
 from monodock.perception.features import FEATURE_NAMES, feature_vector, model_feature_names, model_features
 from monodock.sim import LidarModel, Nuisances, PoseDistribution, RoomGeometry, Simulator

@@ -18,9 +18,10 @@ from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
 from monodock.learning.dataset import dataset_columns, read_dataset, write_dataset
-from monodock.recording import open_recording, write_recording
+from monodock.recording import open_recording
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
+from monodock.sim.recording import write_recording
 
 FAST = Nuisances().updated(supersample=2)
 
@@ -301,8 +302,9 @@ def test_a_segment_without_data_gives_no_angle_and_says_why(work: Path, tmp_path
     import dataclasses
 
     from monodock.core.pose import DockPose
-    from monodock.estimation.bundle import Bundle, save_bundle
+    from monodock.estimation.bundle import Bundle
     from monodock.estimation.regression import RegressionEstimator, bundle_metadata, training_sets
+    from monodock.learning.export import save_bundle
     from monodock.learning.train import TrainConfig, train
     from monodock.perception.detect import MarkerDetector
 

@@ -13,8 +13,10 @@ import pytest
 from numpy.typing import NDArray
 
 from monodock.errors import ConfigError, InputError
-from monodock.estimation.bundle import BUNDLE_FILE, Bundle, bundle_size_bytes, save_bundle
-from monodock.learning.train import MODEL_NAMES, SegmentTable, TrainConfig, TrainingResult, TrainingSet, train
+from monodock.estimation.bundle import BUNDLE_FILE, Bundle, bundle_size_bytes
+from monodock.estimation.segments import SegmentTable
+from monodock.learning.export import save_bundle
+from monodock.learning.train import MODEL_NAMES, TrainConfig, TrainingResult, TrainingSet, train
 from monodock.report.training import training_tables, write_training_report
 
 SET = "m1m2m3"

@@ -18,19 +18,27 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
+from monodock.core.frame import Frame
 from monodock.core.robot import Mount, RobotConfig
 from monodock.core.scan import LaserScan
 from monodock.errors import ConfigError, InputError
-from monodock.io.frames import iter_frames
-from monodock.recording import open_recording, pair_nearest, write_recording
+from monodock.io.frames import open_frames
+from monodock.recording import open_recording, pair_nearest
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.drive import PAPER_SEGMENT_COUNTS, SEGMENTS, DriveConfig, Stop, plan_drive, segment_bounds
+from monodock.sim.recording import write_recording
 
 SEED = 21
 ROS2 = get_typestore(Stores.ROS2_HUMBLE)
 ROS1 = get_typestore(Stores.ROS1_NOETIC)
 # rosbags' Noetic store has no tf2_msgs; a ROS 1 robot's bag carries the definition, as this one will.
 ROS1.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+
+
+def frames_of(inputs: list[Path], **options: Any) -> list[Frame]:
+    """Every frame of ``open_frames(inputs, **options)``."""
+    with open_frames(inputs, **options) as source:
+        return list(source)
 
 
 # --- the simulated world and its truth -------------------------------------------------------------
@@ -366,13 +374,13 @@ def test_bag_cut_short_reads_what_is_there(
         assert len(list(rec.images())) == len(frames)
 
 
-def test_cut_short_warning_reaches_iter_frames(tmp_path: Path, mcap_bag: Path) -> None:
+def test_cut_short_warning_reaches_the_frame_source(tmp_path: Path, mcap_bag: Path) -> None:
     bag = tmp_path / "cut"
     shutil.copytree(mcap_bag, bag)
     data = bag / "drive.mcap"
     data.write_bytes(data.read_bytes()[: data.stat().st_size // 2])
     said: list[str] = []
-    frames = list(iter_frames([bag], on_warning=said.append))
+    frames = frames_of([bag], on_warning=said.append)
     assert frames
     assert len(said) == 1
     assert "cut short" in said[0]
@@ -612,10 +620,10 @@ def test_undecodable_compressed_image_costs_only_its_frame(
     assert "does not decode" in frames[1].error
     np.testing.assert_array_equal(frames[0].image, truth_images[0])
     np.testing.assert_array_equal(frames[2].image, truth_images[1])
-    # Through iter_frames the bad frame is an error unless skip_bad.
+    # Through the frame source the bad frame is an error unless skip_bad.
     with pytest.raises(InputError, match="skip-bad"):
-        list(iter_frames([bag]))
-    assert [f.image is None for f in iter_frames([bag], skip_bad=True)] == [False, True, False]
+        frames_of([bag])
+    assert [f.image is None for f in frames_of([bag], skip_bad=True)] == [False, True, False]
 
 
 def test_images_come_in_stamp_order(tmp_path: Path, truth_images: list[NDArray[np.uint8]]) -> None:
@@ -625,7 +633,7 @@ def test_images_come_in_stamp_order(tmp_path: Path, truth_images: list[NDArray[n
         ("/i", "sensor_msgs/msg/Image", raw_image(s, "mono8", truth_images[k], w, h, w), 10.0 + k)
         for k, s in enumerate(stamps)
     ]
-    frames = list(iter_frames([write_ros2_bag(tmp_path / "o", messages)]))
+    frames = frames_of([write_ros2_bag(tmp_path / "o", messages)])
     assert [(f.name, f.stamp) for f in frames] == [("0", 1.0), ("1", 2.0), ("2", 3.0)]
     np.testing.assert_array_equal(frames[0].image, truth_images[1])
     np.testing.assert_array_equal(frames[2].image, truth_images[0])
@@ -739,8 +747,8 @@ def test_wrong_suffix_is_read_by_content(tmp_path: Path, mcap_bag: Path, stops: 
         assert [f.stamp for f in rec.images()] == pytest.approx([s.image_stamp for s in stops], abs=1e-6)
 
 
-def test_iter_frames_names_recording_frames_by_index(mcap_bag: Path, stops: list[Stop]) -> None:
-    frames = list(iter_frames([mcap_bag]))
+def test_the_frame_source_names_recording_frames_by_index(mcap_bag: Path, stops: list[Stop]) -> None:
+    frames = frames_of([mcap_bag])
     assert [f.name for f in frames] == [str(i) for i in range(len(stops))]
     assert [f.stamp for f in frames] == pytest.approx([s.image_stamp for s in stops], abs=1e-6)
-    assert [f.name for f in iter_frames([mcap_bag / "drive.mcap"])] == [f.name for f in frames]
+    assert [f.name for f in frames_of([mcap_bag / "drive.mcap"])] == [f.name for f in frames]

@@ -16,45 +16,49 @@ optical frame:
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import math
 import os
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import cv2
 import numpy as np
+import yaml
 from numpy.typing import ArrayLike, NDArray
 
+from monodock.calibrate.target import DiamondTarget, TargetView
 from monodock.core import transforms
+from monodock.core.atomic import write_text_atomic
 from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
+from monodock.estimation.pnp import estimate_board
+from monodock.perception.detect import MarkerDetector, as_gray
+from monodock.recording import open_recording, pair_nearest
 
 if TYPE_CHECKING:
     from monodock.calibrate.target import DiamondTarget, TargetView
     from monodock.core.camera import CameraModel
     from monodock.core.layout import DockLayout
-    from monodock.core.pose import DockPose
     from monodock.core.scan import LaserScan
-    from monodock.sim.simulator import Simulator
 
 __all__ = [
     "MIN_PAIRS",
     "DockView",
     "ExtrinsicsResult",
-    "add_parser",
     "edge_pairs_from_views",
     "extrinsics_from_dock_views",
     "extrinsics_from_pairs",
     "extrinsics_from_recording",
     "extrinsics_from_target_views",
+    "face_half_width",
     "face_points",
     "read_pairs_csv",
-    "simulated_pairs",
+    "result_yaml",
+    "target_views_from_recording",
     "tf_line",
     "write_pairs_csv",
     "write_result_yaml",
@@ -243,7 +247,6 @@ def extrinsics_from_pairs(
         InputError: fewer than MIN_PAIRS pairs, NaN, mismatched shapes, collinear LiDAR points, or no solution
             with the points in front of the camera.
     """
-    import cv2
 
     obj, img = _check_pairs(points_laser, pixels)
     K, D = camera.matrix, camera.dist
@@ -304,7 +307,6 @@ def _pnp_uncertainty(
     rms: float,
 ) -> tuple[dict[str, float], float]:
     """1-sigma of the mount's six fields by numerical Jacobian of the reprojection, and its condition."""
-    import cv2
 
     base = Mount.from_matrix(base_T_optical @ optical_T_laser)
     optical_T_base = transforms.invert(base_T_optical)
@@ -555,9 +557,6 @@ def dock_views_from_recording(
     Views whose board PnP fails, sees fewer than ``min_markers`` markers or fits its corners worse than
     ``max_reprojection_px`` are rejected (counted by reason).
     """
-    from monodock.estimation.pnp import estimate_board
-    from monodock.perception.detect import MarkerDetector
-    from monodock.recording import open_recording, pair_nearest
 
     rejected: dict[str, int] = {}
 
@@ -678,7 +677,6 @@ def write_pairs_csv(
     force: bool = False,
 ) -> None:
     """Write pairs as the CSV that read_pairs_csv reads (x, y metres in the laser frame; u, v pixels)."""
-    from monodock.core.atomic import write_text_atomic
 
     lines = ["x,y,u,v"] + [
         f"{p[0]:.6f},{p[1]:.6f},{q[0]:.4f},{q[1]:.4f}" for p, q in zip(points_laser, pixels, strict=True)
@@ -686,71 +684,11 @@ def write_pairs_csv(
     write_text_atomic(path, "\n".join(lines) + "\n", force=force)
 
 
-def simulated_pairs(
-    sim: Simulator,
-    poses: Sequence[DockPose],
-    *,
-    seed: int,
-    pixel_noise_px: float = 0.5,
-    per_view: int = 12,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The pairs a person would click in simulated views: charger-face returns and the pixels where they hit.
-
-    For each pose the simulator's LiDAR scans the charger (with its range noise); returns whose beam truly
-    hits the face (known from the pose and the true laser mount) keep their measured position in the laser
-    frame, paired with the projection of the true hit point through the true camera, plus ``pixel_noise_px``
-    of Gaussian noise (a careful click). Up to ``per_view`` evenly spread returns per pose.
-    """
-    from monodock.learning.label import project_to_image
-
-    rng = np.random.default_rng(seed)
-    face = sim.world.surfaces[sim.world.surface_index("charger_face")]
-    half_w = face.s_len / 2.0
-    base_T_laser = sim.robot.base_T_laser()
-    pts_out: list[NDArray[np.float64]] = []
-    px_out: list[NDArray[np.float64]] = []
-    for k, pose in enumerate(poses):
-        scan = sim.scan(pose, rng=np.random.default_rng([seed, k]))
-        dock_T_laser = transforms.invert(pose.matrix()) @ base_T_laser
-        a = scan.angles()
-        d = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1) @ dock_T_laser[:3, :3].T
-        o = dock_T_laser[:3, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = -o[0] / d[:, 0]
-        hit = o + t[:, None] * d
-        r = scan.ranges.astype(np.float64)
-        on_face = (
-            np.isfinite(t)
-            & (t > 0)
-            & (np.abs(hit[:, 1]) < half_w - 0.01)
-            & (hit[:, 2] > 0)
-            & (hit[:, 2] < face.t_len)
-            & np.isfinite(r)
-            & (np.abs(r - t) < 0.05)
-        )
-        idx = np.flatnonzero(on_face)
-        if len(idx) == 0:
-            continue
-        idx = idx[np.unique(np.linspace(0, len(idx) - 1, min(per_view, len(idx))).round().astype(int))]
-        measured = np.stack([r[idx] * np.cos(a[idx]), r[idx] * np.sin(a[idx])], axis=1)
-        true_base = transforms.apply(pose.matrix(), hit[idx])
-        px = project_to_image(true_base, sim.camera, sim.robot)
-        px = px + rng.normal(0.0, pixel_noise_px, px.shape)
-        w, h = sim.camera.size
-        ok = np.all(np.isfinite(px), axis=1) & (px[:, 0] > 0) & (px[:, 0] < w - 1) & (px[:, 1] > 0) & (px[:, 1] < h - 1)
-        pts_out.append(measured[ok])
-        px_out.append(px[ok])
-    if not pts_out:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    return np.vstack(pts_out), np.vstack(px_out)
-
-
 # --- outputs ------------------------------------------------------------------------------------------
 
 
 def result_yaml(result: ExtrinsicsResult) -> str:
     """The result as YAML: ``laser_mount`` (as in the robot file), the laser in camera_optical, the tf line."""
-    import yaml
 
     o = result.optical_T_laser
     qx, qy, qz, qw = _quaternion(o[:3, :3])
@@ -788,151 +726,8 @@ def result_yaml(result: ExtrinsicsResult) -> str:
 
 def write_result_yaml(path: str | os.PathLike[str], result: ExtrinsicsResult, *, force: bool = False) -> None:
     """Write result_yaml atomically (an existing file only with ``force``)."""
-    from monodock.core.atomic import write_text_atomic
 
     write_text_atomic(path, result_yaml(result), force=force)
-
-
-def overlay_png(
-    image: NDArray[np.uint8],
-    pixels: NDArray[np.float64],
-    selected: NDArray[np.bool_],
-    camera: CameraModel,
-    robot: RobotConfig,
-    layout: DockLayout | None = None,
-    detection: Any = None,
-) -> bytes:
-    """PNG bytes of LiDAR points (pixels, e.g. from label.project_to_image) drawn on a camera frame (Fig. 8c)."""
-    import cv2
-
-    from monodock.core.layout import DockLayout
-    from monodock.perception.detect import Detection
-    from monodock.report.overlay import draw_overlay
-
-    det = detection if detection is not None else Detection({}, (), (image.shape[1], image.shape[0]))
-    pic = draw_overlay(
-        image, det, layout or DockLayout.default(), camera, robot, lidar_px=pixels, lidar_selected=selected
-    )
-    ok, buf = cv2.imencode(".png", pic)
-    if not ok:
-        raise InputError("cannot encode the overlay PNG")
-    return bytes(buf.tobytes())
-
-
-# --- command line -------------------------------------------------------------------------------------
-
-
-def add_parser(calibrate_subparsers: Any) -> None:
-    """Add ``extrinsics`` to the ``monodock calibrate`` sub-commands."""
-    p = calibrate_subparsers.add_parser(
-        "extrinsics",
-        help="the LiDAR mount relative to the camera: from point/pixel pairs, or from a recording of the dock",
-        description=(
-            "Calibrate the LiDAR mount in base_link, given the camera mount. With --pairs: SolvePnP on LiDAR "
-            "points (laser frame) matched to pixels (CSV x,y,u,v). With --recording: the charger face the camera "
-            "sees (board PnP) must hold the LiDAR's face points; solves x, y, yaw and keeps z, roll, pitch."
-        ),
-    )
-    src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--pairs", help="CSV of LiDAR point / pixel pairs: x,y,u,v (optional z), metres and pixels")
-    src.add_argument("--recording", help="recording with camera images and LiDAR scans of the charger")
-    src.add_argument(
-        "--target-views",
-        help="the diamond target seen edge-on: a recording (rosbag2 or ROS 1 bag; images paired with scans by "
-        "stamp) or a folder of NNNN.png images and scans.npz; solves all six mount fields",
-    )
-    p.add_argument(
-        "--target", help="with --target-views: the diamond target YAML (default: 0.5 m side, 16 cm markers, ids 20-23)"
-    )
-    p.add_argument("--robot", required=True, help="robot YAML: the camera mount, and the LiDAR mount as the prior")
-    p.add_argument("--camera", help="camera file (needed with --pairs; default with --recording: its CameraInfo)")
-    p.add_argument("--layout", help="dock layout YAML (needed with --recording)")
-    p.add_argument("--out", required=True, help="result YAML: laser_mount in base_link, the laser in camera_optical")
-    p.add_argument("--tf", help="also write the tf line 'x y z qx qy qz qw' (base_link -> laser) to this file")
-    p.add_argument("--robot-out", help="also write the robot YAML with the calibrated laser mount")
-    p.add_argument("--overlay", help="PNG: the LiDAR points projected on a camera frame with the calibrated mount")
-    p.add_argument(
-        "--image", help="with --pairs and --overlay: a frame the pairs were clicked in (points: magenta, clicks: blue)"
-    )
-    p.add_argument(
-        "--tolerance", type=float, default=PAIRING_TOLERANCE_S, help="image/scan pairing tolerance, s (default 0.05)"
-    )
-    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.set_defaults(func=_cmd_extrinsics)
-
-
-def _cmd_extrinsics(args: argparse.Namespace) -> int:
-    from monodock.core.atomic import check_writable, write_bytes_atomic, write_text_atomic
-    from monodock.core.camera import CameraModel
-    from monodock.core.layout import DockLayout
-
-    outputs = [o for o in (args.out, args.tf, args.robot_out, args.overlay) if o]
-    if len({os.path.abspath(o) for o in outputs}) < len(outputs):
-        raise InputError("--out, --tf, --robot-out and --overlay must be different files")
-    for o in outputs:
-        check_writable(o, force=args.force)
-    if not (args.tolerance > 0 and math.isfinite(args.tolerance)):
-        raise InputError(f"--tolerance must be a positive number of seconds, got {args.tolerance}")
-    robot = RobotConfig.load(args.robot)
-    png: bytes | None = None
-    if args.target_views:
-        result, png = _target_form(args, robot)
-    elif args.pairs:
-        if not args.camera:
-            raise InputError("--pairs needs --camera (the intrinsics the pixels were clicked in)")
-        if args.overlay and not args.image:
-            raise InputError("--overlay with --pairs needs --image (the camera frame to draw on)")
-        camera = CameraModel.load(args.camera)
-        points, pixels = read_pairs_csv(args.pairs)
-        result = extrinsics_from_pairs(points, pixels, camera, robot.base_T_optical(), prior=robot.laser_mount)
-        if args.overlay:
-            from monodock.io.frames import read_image
-            from monodock.learning.label import project_to_image
-
-            image = read_image(args.image)
-            calibrated = result.robot(robot)
-            # Magenta: the LiDAR points under the calibrated mount; blue: the clicked pixels they should cover.
-            projected = project_to_image(transforms.apply(calibrated.base_T_laser(), points), camera, calibrated)
-            png = overlay_png(
-                image,
-                np.vstack([projected, pixels]),
-                np.r_[np.ones(len(points), bool), np.zeros(len(pixels), bool)],
-                camera,
-                calibrated,
-            )
-    else:
-        if not args.layout:
-            raise InputError("--recording needs --layout (the charger's markers)")
-        layout = DockLayout.load(args.layout)
-        camera_arg = CameraModel.load(args.camera) if args.camera else None
-        result, rv = extrinsics_from_recording(
-            args.recording, layout, robot, camera=camera_arg, tolerance_s=args.tolerance
-        )
-        for w in rv.warnings:
-            print(f"warning: {w}")
-        if args.overlay and rv.overlay_frame is not None:
-            image, scan, det = rv.overlay_frame
-            calibrated = result.robot(robot)
-            view = DockView("", rv.views[0].base_T_dock, scan.points())
-            sel = face_points(view, calibrated.base_T_laser(), face_half_width(layout), FACE_GATE_M[-1])
-            from monodock.learning.label import project_to_image, scan_in_base
-
-            px = project_to_image(scan_in_base(scan, calibrated), rv.camera, calibrated)
-            png = overlay_png(image, px, sel, rv.camera, calibrated, layout, det)
-    print(result.summary())
-    write_result_yaml(args.out, result, force=args.force)
-    written = [args.out]
-    if args.tf:
-        write_text_atomic(args.tf, tf_line(result) + "\n", force=args.force)
-        written.append(args.tf)
-    if args.robot_out:
-        result.robot(robot).save(args.robot_out, force=args.force)
-        written.append(args.robot_out)
-    if png is not None and args.overlay:
-        write_bytes_atomic(args.overlay, png, force=args.force)
-        written.append(args.overlay)
-    print("wrote " + ", ".join(written))
-    return 0
 
 
 # --- (c) diamond target: LiDAR segment ends on the board's slanted edges ------------------------------
@@ -960,9 +755,7 @@ def _target_board_pose(
     image: NDArray[np.generic], camera: CameraModel, target: DiamondTarget, detector: Any
 ) -> NDArray[np.float64] | None:
     """optical_T_target from the target's markers in an image (two markers at least), or None."""
-    import cv2
 
-    from monodock.perception.detect import as_gray
 
     corners, ids, _ = detector.detectMarkers(as_gray(image))
     if ids is None:
@@ -1147,7 +940,6 @@ def edge_pairs_from_views(
     Raises:
         InputError: fewer than MIN_TARGET_VIEWS views with the board and its segment found.
     """
-    import cv2
 
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
@@ -1210,7 +1002,6 @@ def extrinsics_from_target_views(
     target: DiamondTarget | None = None,
 ) -> ExtrinsicsResult:
     """The full 6-DoF LiDAR mount from views of the diamond target: edge pairs, then SolvePnP on them."""
-    from monodock.calibrate.target import DiamondTarget
 
     tgt = target or DiamondTarget()
     points, pixels, facts = edge_pairs_from_views(views, camera, base_T_optical, tgt, prior_mount)
@@ -1233,8 +1024,6 @@ def target_views_from_recording(
 ) -> tuple[list[TargetView], CameraModel | None, list[str]]:
     """Views of the diamond target from a recording: each image with the scan nearest in stamp (within
     ``tolerance_s``), the recording's camera (CameraInfo) if it has one, and the reader's warnings."""
-    from monodock.calibrate.target import TargetView
-    from monodock.recording import open_recording, pair_nearest
 
     with open_recording(path) as rec:
         if rec.scan_topic is None:
@@ -1252,35 +1041,3 @@ def target_views_from_recording(
     if not views:
         raise InputError(f"{path}: no image has a scan within {tolerance_s * 1000:.0f} ms")
     return views, camera, warnings
-
-
-def _target_form(args: argparse.Namespace, robot: RobotConfig) -> tuple[ExtrinsicsResult, bytes | None]:
-    """``--target-views``: the diamond target in a recording or a folder of views; the result and its overlay."""
-    from monodock.calibrate.target import DiamondTarget, read_target_views
-    from monodock.core.camera import CameraModel
-    from monodock.io.frames import is_recording
-
-    target = DiamondTarget.load(args.target) if args.target else DiamondTarget()
-    recorded_camera = None
-    if is_recording(args.target_views):
-        views, recorded_camera, warnings = target_views_from_recording(args.target_views, tolerance_s=args.tolerance)
-        for w in warnings:
-            print(f"warning: {w}", file=sys.stderr)
-    else:
-        views = read_target_views(args.target_views)
-    if args.camera:
-        camera = CameraModel.load(args.camera)
-    elif recorded_camera is not None:
-        camera = recorded_camera
-    else:
-        raise InputError("--target-views needs --camera (the intrinsics of the images) unless a recording has them")
-    result = extrinsics_from_target_views(views, camera, robot.base_T_optical(), robot.laser_mount, target)
-    png = None
-    if args.overlay:
-        # The papers' Fig. 8c on the first view: the scan through the calibrated mount must run across the target.
-        from monodock.learning.label import project_to_image, scan_in_base
-
-        calibrated = result.robot(robot)
-        pixels = project_to_image(scan_in_base(views[0].scan, calibrated), camera, calibrated)
-        png = overlay_png(views[0].image, pixels, np.zeros(len(pixels), dtype=bool), camera, calibrated)
-    return result, png

@@ -9,14 +9,10 @@ the image: a calibration from views that never reach the image corners extrapola
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -29,12 +25,11 @@ __all__ = [
     "DEFAULT_MAX_BLUR_PX",
     "IntrinsicsResult",
     "ViewResult",
-    "add_parser",
     "calibrate_intrinsics",
-    "coverage_png",
     "find_board",
     "parse_board",
     "select_frames",
+    "summary",
 ]
 
 DEFAULT_MAX_BLUR_PX = 4.0  # 10-90 % edge width; OpenCV calls < ~3 px sharp, a cheap webcam's views sit near 2.5
@@ -393,130 +388,6 @@ def select_frames(
         chosen.append(best)
         covered |= cands[best][4]
     return [(cands[k][1], cands[k][2]) for k in sorted(chosen, key=lambda k: cands[k][0])]
-
-
-def coverage_png(result: IntrinsicsResult) -> bytes:
-    """A PNG heat map of where the used views' corners fell in the image, with every corner dotted on top."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cam = result.camera
-    w, h = cam.width, cam.height
-    fig, ax = plt.subplots(figsize=(7.5, 7.5 * h / w + 0.9), dpi=100)
-    try:
-        im = ax.imshow(
-            result.coverage,
-            extent=(0, w, h, 0),
-            cmap="viridis",
-            interpolation="nearest",
-            vmin=0,
-            vmax=max(1, int(result.coverage.max())),
-        )
-        gr, gc = result.coverage.shape
-        for r in range(gr):
-            for c in range(gc):
-                n = int(result.coverage[r, c])
-                colour = "red" if n == 0 else "white"
-                ax.text((c + 0.5) * w / gc, (r + 0.5) * h / gr, str(n), ha="center", va="center", color=colour)
-        for v in result.views:
-            if v.used and v.corners is not None:
-                ax.plot(v.corners[:, 0], v.corners[:, 1], ".", ms=1.5, color="orange", alpha=0.6)
-        ax.set_xlim(0, w)
-        ax.set_ylim(h, 0)
-        ax.set_xlabel("u (px)")
-        ax.set_ylabel("v (px)")
-        ax.set_title(
-            f"corner coverage {result.coverage_fraction:.0%} of {gc}x{gr} cells - "
-            f"{result.used} views, RMS {result.rms_px:.3f} px"
-        )
-        fig.colorbar(im, ax=ax, label="corners per cell", fraction=0.035, pad=0.02)
-        fig.tight_layout()
-        from io import BytesIO
-
-        buf = BytesIO()
-        fig.savefig(buf, format="png")
-        return buf.getvalue()
-    finally:
-        plt.close(fig)
-
-
-# --- command line -------------------------------------------------------------------------------
-
-
-def add_parser(calibrate_subparsers: Any) -> None:
-    """Add ``intrinsics`` to the ``monodock calibrate`` sub-commands."""
-    p = calibrate_subparsers.add_parser(
-        "intrinsics",
-        help="camera intrinsics and distortion from checkerboard images, a video or a recording",
-        description="Calibrate fx, fy, cx, cy and plumb_bob distortion from views of a checkerboard; write ROS "
-        "camera_info YAML and a PNG of how the corners covered the image.",
-    )
-    p.add_argument("images", nargs="+", metavar="IMAGES", help="image files, folders of images, videos or recordings")
-    p.add_argument("--board", default="8x6", help="inner corners per row x per column (default: 8x6, 9x7 squares)")
-    p.add_argument("--square", type=float, default=0.025, help="square side, metres (default: 0.025)")
-    p.add_argument("--out", required=True, help="camera_info YAML to write")
-    p.add_argument("--coverage", help="coverage heat map PNG (default: <out stem>_coverage.png next to --out)")
-    p.add_argument("--max-views", type=int, default=25, help="views picked from a video or recording (default: 25)")
-    p.add_argument(
-        "--max-blur",
-        type=float,
-        default=DEFAULT_MAX_BLUR_PX,
-        help=f"reject views whose edges are wider than this, px (default: {DEFAULT_MAX_BLUR_PX:g})",
-    )
-    p.add_argument("--min-views", type=int, default=5, help="fewest usable views (default: 5)")
-    p.add_argument("--name", default="camera", help="camera_name in the YAML (default: camera)")
-    p.add_argument("--force", action="store_true", help="replace existing output files")
-    p.set_defaults(func=run_intrinsics)
-
-
-def _input_views(args: argparse.Namespace, board: tuple[int, int]) -> Iterable[tuple[str, NDArray[np.generic]]]:
-    """(name, image) of every still image, and of the frames picked from each video or recording."""
-    from monodock.io.frames import VIDEO_SUFFIXES, is_recording, iter_frames
-
-    for item in args.images:
-        p = Path(item)
-        frames = ((f.name, f.image) for f in iter_frames([p]) if f.image is not None)
-        if p.exists() and (is_recording(p) or p.suffix.lower() in VIDEO_SUFFIXES):
-            named = ((f"{p.name}#{n}", img) for n, img in frames)
-            yield from select_frames(named, board, max_views=args.max_views, max_blur_px=args.max_blur)
-        else:
-            yield from frames
-
-
-def run_intrinsics(args: argparse.Namespace) -> int:
-    """Run ``monodock calibrate intrinsics``: calibrate, print a summary, write the YAML and coverage PNG."""
-    from monodock.core.atomic import check_writable, write_bytes_atomic
-
-    board = parse_board(args.board)
-    if not (math.isfinite(args.square) and args.square > 0):
-        raise InputError(f"--square must be a positive length in metres, got {args.square}")
-    if not (math.isfinite(args.max_blur) and args.max_blur > 0):
-        raise InputError(f"--max-blur must be a positive number of pixels, got {args.max_blur}")
-    if args.max_views < 1 or args.min_views < 1:
-        raise InputError("--max-views and --min-views must be at least 1")
-    out = Path(args.out)
-    cov = Path(args.coverage) if args.coverage else out.with_name(f"{out.stem}_coverage.png")
-    if cov.resolve() == out.resolve():
-        raise InputError(f"--coverage {cov} is the same file as --out")
-    check_writable(out, force=args.force)
-    check_writable(cov, force=args.force)
-    result = calibrate_intrinsics(
-        _input_views(args, board),
-        board,
-        args.square,
-        max_blur_px=args.max_blur,
-        min_views=args.min_views,
-        name=args.name,
-    )
-    result.camera.save(out, force=args.force)
-    write_bytes_atomic(cov, coverage_png(result), force=args.force)
-    print(summary(result))
-    print(f"-> {out}, {cov}")
-    for w in result.warnings:
-        print(f"warning: {w}", file=sys.stderr)
-    return 0
 
 
 def summary(result: IntrinsicsResult) -> str:

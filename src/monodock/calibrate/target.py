@@ -15,11 +15,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
+import yaml
 from numpy.typing import NDArray
 
 from monodock.core.scan import LaserScan
 from monodock.errors import InputError
+from monodock.io.frames import read_image
 
 __all__ = ["S_AXIS", "T_AXIS", "DiamondTarget", "TargetView", "read_target_views", "write_target_views"]
 
@@ -82,7 +85,6 @@ class DiamondTarget:
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DiamondTarget:
         """Read a target YAML (see from_dict)."""
-        import yaml
 
         p = Path(path)
         if not p.is_file():
@@ -91,7 +93,6 @@ class DiamondTarget:
 
     def aruco_dictionary(self) -> Any:
         """The OpenCV dictionary object."""
-        import cv2
 
         name = self.dictionary
         if not hasattr(cv2.aruco, name):
@@ -135,7 +136,6 @@ class TargetView:
 
 def write_target_views(folder: str | os.PathLike[str], views: Sequence[TargetView]) -> None:
     """Write views as ``NNNN.png`` images and one ``scans.npz`` (ranges row per view, and the beam geometry)."""
-    import cv2
 
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
@@ -155,7 +155,6 @@ def write_target_views(folder: str | os.PathLike[str], views: Sequence[TargetVie
 
 def read_target_views(folder: str | os.PathLike[str]) -> list[TargetView]:
     """Read views written by write_target_views: image ``k`` (sorted PNGs) pairs with scan row ``k``."""
-    from monodock.io.frames import read_image
 
     p = Path(folder)
     if not p.is_dir():

@@ -20,23 +20,24 @@ import numpy as np
 
 from monodock.core.atomic import atomic_directory
 from monodock.core.camera import CameraModel
-from monodock.estimation.bundle import Bundle
+from monodock.core.projection import project_to_image, scan_in_base
+from monodock.estimation.bundle import Bundle, load_bundle
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.fused import FusedEstimator, fusion_tables_of
+from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.regression import RegressionEstimator
 from monodock.evaluation.dock_sim import DockSimConfig, run_dock_sim
 from monodock.evaluation.heldout import FrameMethod, evaluate_report, regression_method
-from monodock.evaluation.selftrain import SelfTrainConfig, load_bundle, simulate_and_train, train_bundle
+from monodock.evaluation.selftrain import SelfTrainConfig, simulate_and_train, train_bundle
 from monodock.learning.dataset import label_error_table, label_errors, label_recording, write_dataset
-from monodock.learning.label import points_across_marker, project_to_image, scan_in_base
+from monodock.learning.label import points_across_marker
 from monodock.perception.features import DEFAULT_MARKER_SETS
-from monodock.recording import write_recording
 from monodock.report.dock_report import dock_section, write_dock_files
 from monodock.report.html import HtmlReport
 from monodock.report.overlay import draw_overlay
 from monodock.report.training import training_tables, write_training_report
 from monodock.sim import Nuisances, SimFrame, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
+from monodock.sim.recording import write_recording
 
 __all__ = ["DemoConfig", "run_demo"]
 
@@ -212,7 +213,7 @@ def run_demo(out: str | Path, config: DemoConfig, *, force: bool = False) -> dic
                 }
             )
 
-        fused = FusedEstimator(sim_test.camera, sim_test.layout, sim_test.robot, fusion_tables_of(bundle), regression)
+        fused = FusedEstimator(sim_test.camera, sim_test.layout, sim_test.robot, bundle.fusion_tables(), regression)
         summary = evaluate_report(
             ds_test,
             regression,

@@ -177,12 +177,12 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
 
 def _regression_bundle(args: argparse.Namespace, config: Any, jobs: int) -> Path:
     """The --model bundle (checked against the simulated layout), or the cached self-trained one."""
-    from monodock.core.layout import DockLayout
-    from monodock.evaluation.selftrain import SelfTrainConfig, cached_bundle, load_bundle
+    from monodock.estimation.bundle import load_bundle
+    from monodock.evaluation.selftrain import SelfTrainConfig, cached_bundle
 
     if args.model:
         bundle = load_bundle(Path(args.model))
-        layout = DockLayout.from_dict(bundle.manifest["metadata"]["layout"], f"{args.model}: layout")
+        layout = bundle.layout()
         if layout != config.layout:
             raise InputError(f"{args.model} was trained for another dock layout than the one simulated")
         return Path(args.model)

@@ -15,6 +15,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
+import cv2
+
 S = TypeVar("S")
 T = TypeVar("T")
 R = TypeVar("R")
@@ -26,7 +28,6 @@ SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_N
 
 
 def _start_worker(initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
-    import cv2
 
     cv2.setNumThreads(1)
     if initializer is not None:

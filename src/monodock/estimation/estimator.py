@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import csv
-import io
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,38 +11,21 @@ from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
+from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
 from monodock.perception.detect import Detection, MarkerDetector, as_gray
+from monodock.perception.refine import refine_detection
+from monodock.perception.synthetic import synthetic_view
 
-__all__ = ["COVARIANCE_COLUMNS", "CSV_COLUMNS", "METHODS", "Estimator", "FrameEstimates", "estimates_csv"]
+__all__ = ["METHODS", "Estimator", "FrameEstimates"]
 
 Method = Callable[[Detection, CameraModel, DockLayout, RobotConfig], PoseEstimate]
 
 # The geometric methods; the regression of the papers joins them with its model bundle.
 METHODS: dict[str, Method] = {"pnp": estimate_single_marker, "board": estimate_board}
-
-COVARIANCE_COLUMNS = ("cov_xx", "cov_xy", "cov_xyaw", "cov_yy", "cov_yyaw", "cov_yawyaw")
-_COVARIANCE_INDEX = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-
-CSV_COLUMNS = (
-    "frame",
-    "stamp",
-    "method",
-    "valid",
-    "x_m",
-    "y_m",
-    "yaw_deg",
-    "markers_seen",
-    "reprojection_px",
-    "tilt_deg",
-    "reason",
-    # The pose covariance (SI units: m^2, m rad, rad^2) when the method gives one (fused), else empty.
-    *COVARIANCE_COLUMNS,
-)
-
 
 @dataclass(frozen=True)
 class FrameEstimates:
@@ -104,8 +85,6 @@ class Estimator:
         ests: dict[str, PoseEstimate] = {}
         for m in self.methods:
             if m == "fused" and self.fused is not None:
-                from monodock.perception.refine import refine_detection
-
                 refined = refine_detection(gray, det, self.camera, modules=self.modules)
                 ests[m] = self.fused.estimate(det, refined, ests.get("regression"))
             elif m in self.extra:
@@ -114,62 +93,28 @@ class Estimator:
                 ests[m] = METHODS[m](det, self.camera, self.layout, self.robot)
         return FrameEstimates(name, stamp, det, ests)
 
+    @property
+    def method(self) -> str:
+        """The first of the methods: the one a single answer (``estimate_pose``, a row of ``monodock run``) gives."""
+        return self.methods[0]
+
+    def estimate_pose(self, image: NDArray[np.generic], *, stamp: float = math.nan, name: str = "") -> PoseEstimate:
+        """The estimate of ``method`` for one image (the DockPose in base_link, or None with the reason)."""
+        return self.estimate(name, stamp, image).estimates[self.method]
+
     def warm_up(self) -> None:
         """Run the fused method's compiled kernels once, so that a live stream's first frames are not late.
 
         numba loads them from its on-disk cache (~0.3 s) or, on a machine's first run, compiles them (~20 s).
-        Two synthetic views of the dock at 1 m, drawn by the simulator with this camera, layout and mount: one
-        normally exposed, one over-exposed for the clipped-marker path (~2 s in all at 1280x720, most of it the
-        renderer's first call). Nothing to do for the other methods.
+        Two synthetic views of the dock 1 m ahead (``perception.synthetic``, this camera, layout and mount): one
+        normally exposed, one over-exposed for the clipped-marker path. Nothing to do for the other methods.
         """
         if "fused" not in self.methods:
             return
-        from monodock.core.pose import DockPose
-        from monodock.sim import Nuisances, Simulator
-
         pose = DockPose(self.robot.camera_mount.x + 1.0, 0.0, 0.0)
         for exposure in (1.0, 1.6):
-            nuisances = Nuisances.clean().updated(exposure=exposure, supersample=2)
-            sim = Simulator(layout=self.layout, camera=self.camera, robot=self.robot, nuisances=nuisances)
-            self.estimate("warm-up", 0.0, sim.render(pose))
+            self.estimate("warm-up", 0.0, synthetic_view(self.camera, self.layout, self.robot, pose, exposure=exposure))
 
     def failed(self, name: str, stamp: float, reason: str) -> FrameEstimates:
         """The invalid result of a frame that could not be read."""
         return FrameEstimates(name, stamp, None, {m: PoseEstimate(m, None, reason) for m in self.methods})
-
-
-def estimates_csv(results: Iterable[FrameEstimates]) -> str:
-    """The EST.csv text of DESIGN.md: a header and one row per frame and method."""
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(CSV_COLUMNS)
-
-    def num(v: float, fmt: str) -> str:
-        return format(v, fmt) if math.isfinite(v) else ""
-
-    for r in results:
-        for method, e in r.estimates.items():
-            p = e.pose
-            w.writerow(
-                [
-                    r.name,
-                    num(r.stamp, ".6f"),
-                    method,
-                    "true" if p is not None else "false",
-                    num(p.x, ".5f") if p else "",
-                    num(p.y, ".5f") if p else "",
-                    num(p.yaw_deg, ".4f") if p else "",
-                    " ".join(e.markers_seen)
-                    if e.markers_seen
-                    else (" ".join(r.detection.roles_seen) if r.detection else ""),
-                    num(e.reprojection_px, ".4f"),
-                    num(e.tilt_deg, ".3f"),
-                    e.reason,
-                    *(
-                        [format(float(e.covariance[i, j]), ".6g") for i, j in _COVARIANCE_INDEX]
-                        if p is not None and e.covariance is not None
-                        else [""] * len(COVARIANCE_COLUMNS)
-                    ),
-                ]
-            )
-    return buf.getvalue()

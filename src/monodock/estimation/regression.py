@@ -22,9 +22,7 @@ from monodock.core.robot import RobotConfig
 from monodock.estimation.pnp import PoseEstimate
 from monodock.perception.detect import Detection
 from monodock.perception.features import (
-    FEATURE_NAMES,
     MARKER_SETS,
-    MODEL_FEATURE_SCHEMA,
     choose_marker_set,
     feature_vector,
     model_feature_names,
@@ -33,18 +31,14 @@ from monodock.perception.features import (
 
 if TYPE_CHECKING:
     from monodock.estimation.bundle import Bundle
-    from monodock.learning.dataset import Dataset
-    from monodock.learning.train import TrainingSet
 
 __all__ = [
     "ANGLE_LABELS",
     "DEPTH_LABELS",
     "RANGE_TOLERANCE_M",
     "RegressionEstimator",
-    "bundle_metadata",
     "lateral_by_back_projection",
     "lateral_from_normalised",
-    "training_sets",
 ]
 
 # Which label columns the models learn: the papers' (default) or the line fit's.
@@ -156,62 +150,3 @@ class RegressionEstimator:
 def _m2_centre_columns(set_name: str) -> list[int]:
     names = model_feature_names(set_name)
     return [names.index("m2_u"), names.index("m2_v")]
-
-
-def training_sets(
-    dataset: Dataset,
-    set_names: tuple[str, ...],
-    *,
-    depth_label: str = "point",
-    angle_label: str = "line",
-    camera: CameraModel | None = None,
-) -> list[TrainingSet]:
-    """The rows each marker set's models learn from: valid labels, and every marker of the set seen.
-
-    Features are computed with the dataset's own camera unless ``camera`` is given (a robot whose camera
-    file is wrong trains, and then runs, with that file); the segment of a row is its depth label measured
-    from the camera (the papers' depth), i.e. the label's x minus the camera mount's x.
-    """
-    from monodock.learning.train import TrainingSet
-
-    robot = dataset.robot()
-    camera = camera or dataset.camera()
-    raw = dataset.raw_features()
-    valid = np.asarray(dataset["label_valid"], dtype=bool)
-    x = np.asarray(dataset[DEPTH_LABELS[depth_label]], dtype=np.float64)
-    yaw = np.asarray(dataset[ANGLE_LABELS[angle_label]], dtype=np.float64)
-    out = []
-    for name in set_names:
-        X = model_features(raw, camera, name)
-        ok = valid & np.all(np.isfinite(X), axis=1) & np.isfinite(x) & np.isfinite(yaw)
-        out.append(
-            TrainingSet(
-                name=name,
-                feature_names=model_feature_names(name),
-                X=X[ok],
-                depth=x[ok],
-                yaw_deg=yaw[ok],
-                segment_depth=x[ok] - robot.camera_mount.x,
-            )
-        )
-    return out
-
-
-def bundle_metadata(dataset: Dataset, *, depth_label: str, angle_label: str, source: str) -> dict[str, object]:
-    """What a bundle must carry besides its models: the calibration, layout, schema and label definitions."""
-    x = np.asarray(dataset[DEPTH_LABELS[depth_label]], dtype=np.float64)
-    ok = np.asarray(dataset["label_valid"], dtype=bool) & np.isfinite(x)
-    cam_x = dataset.robot().camera_mount.x
-    return {
-        "feature_schema": MODEL_FEATURE_SCHEMA,
-        "raw_features": list(FEATURE_NAMES),
-        "layout": dataset.metadata["layout"],
-        "camera": dataset.metadata["camera"],
-        "robot": dataset.metadata["robot"],
-        "depth_label": DEPTH_LABELS[depth_label],
-        "angle_label": ANGLE_LABELS[angle_label],
-        "depth_definition": "targets: DockPose x (m) and yaw (deg) in base_link; segments: x minus camera_mount.x",
-        "label_depth_range_m": [float(x[ok].min() - cam_x), float(x[ok].max() - cam_x)] if ok.any() else None,
-        "dataset": source,
-        "dataset_rows": len(dataset),
-    }

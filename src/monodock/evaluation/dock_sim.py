@@ -198,16 +198,16 @@ def _environment(config: DockSimConfig) -> _Environment:
         extra: dict[str, Callable[[Any], Any]] = {}
         fused = None
         if any(m in BUNDLE_METHODS for m in config.methods):
-            from monodock.estimation.fused import FusedEstimator, fusion_tables_of
+            from monodock.estimation.bundle import load_bundle
+            from monodock.estimation.fused import FusedEstimator
             from monodock.estimation.regression import RegressionEstimator
-            from monodock.evaluation.selftrain import load_bundle
 
             assert config.bundle is not None
             bundle = load_bundle(config.bundle)
             regression = RegressionEstimator(bundle, sim.camera, sim.robot)
             extra["regression"] = regression.estimate
             if "fused" in config.methods:
-                tables = fusion_tables_of(bundle)
+                tables = bundle.fusion_tables()
                 fused = FusedEstimator(sim.camera, sim.layout, sim.robot, tables, regression)
         # One estimator per method, so that a frame costs only its own method.
         perceive = {

@@ -21,7 +21,8 @@ from numpy.typing import NDArray
 from monodock.core.layout import ROLES
 from monodock.core.pose import DockPose
 from monodock.errors import InputError
-from monodock.estimation.crlb import CornerNoise, corner_sides_px, crlb
+from monodock.estimation.corner_noise import CornerNoise, corner_sides_px
+from monodock.estimation.crlb import crlb
 from monodock.estimation.planar import planar_model
 from monodock.perception.features import refined_detection_from_row
 
@@ -316,7 +317,7 @@ def _bound_change(rows: list[LimitRow], correlated: Mapping[tuple[str, str], Lim
 
 def limit_section(report: Any, dataset: Any, poses: Mapping[str, NDArray[np.float64]], out: Any) -> dict[str, Any]:
     """The report's "physical limit" section; returns its summary (empty without truth or refined corners)."""
-    from monodock.estimation.crlb import what_if
+    from monodock.evaluation.what_if import what_if
 
     truth = np.column_stack(
         [dataset["truth_x_m"], dataset["truth_y_m"], np.radians(np.asarray(dataset["truth_yaw_deg"], dtype=float))]

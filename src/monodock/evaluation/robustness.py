@@ -329,10 +329,10 @@ class _TableSetup:
 def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, Any, int]:
     """The fusion tables ``monodock train`` would learn with one level's files: label the calibration set with
     the LiDAR through those files, run both methods on it, learn. Returns (key, tables, labelled rows)."""
-    from monodock.estimation.fused import learn_fusion_from
+    from monodock.estimation.bundle import load_bundle
     from monodock.estimation.regression import RegressionEstimator
-    from monodock.evaluation.selftrain import load_bundle
     from monodock.learning.dataset import Dataset, LabelRun, label_frames
+    from monodock.learning.fusion import learn_fusion_from
 
     cal = setup.calibrations[key]
     ck = _camera_key(cal.camera)
@@ -389,13 +389,13 @@ class _Runtime:
     """The models a worker loads once: the detector, and per calibration level the methods on those files."""
 
     def __init__(self, setup: _TestSetup) -> None:
-        from monodock.estimation.fused import FusedEstimator, fusion_tables_of
+        from monodock.estimation.bundle import load_bundle
+        from monodock.estimation.fused import FusedEstimator
         from monodock.estimation.regression import RegressionEstimator
-        from monodock.evaluation.selftrain import load_bundle
         from monodock.perception.detect import MarkerDetector
 
         bundle = load_bundle(Path(setup.bundle_path))
-        stale = fusion_tables_of(bundle)
+        stale = bundle.fusion_tables()
         self.detector = MarkerDetector(setup.sim.layout)
         self.methods: dict[str, tuple[Calibration, Any, Any, Any]] = {}
         for key, cal in setup.calibrations.items():
@@ -544,8 +544,8 @@ def run_robustness(
 
     ``camera``, ``layout`` and ``robot`` are the robot's true calibration (the simulator's and the right files).
     """
-    from monodock.estimation.fused import fusion_tables_of
-    from monodock.evaluation.selftrain import load_bundle
+
+    from monodock.estimation.bundle import load_bundle
 
     if config.frames < 1:
         raise InputError(f"--frames must be at least 1, got {config.frames}")
@@ -555,7 +555,7 @@ def run_robustness(
         )
     if config.jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {config.jobs}")
-    fusion_tables_of(load_bundle(bundle_path))  # one clear line now for a bundle without fusion tables
+    load_bundle(bundle_path).fusion_tables()  # one clear line now for a bundle without fusion tables
     started = time.perf_counter()
     sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=_DEFAULT, seed=config.seed)
     images: dict[str, ImageCondition] = {"default": ImageCondition("default", _DEFAULT)}

@@ -22,17 +22,18 @@ import numpy as np
 from monodock import __version__
 from monodock.core.atomic import atomic_directory
 from monodock.core.camera import CameraModel
-from monodock.estimation.bundle import Bundle, save_bundle
-from monodock.estimation.fused import FUSION_LEARNING, FUSION_SCHEMA, fusion_holdout, train_fusion
-from monodock.estimation.regression import bundle_metadata, training_sets
+from monodock.estimation.bundle import load_bundle
+from monodock.estimation.fused import FUSION_SCHEMA
 from monodock.learning.dataset import Dataset, label_recording
-from monodock.learning.train import TrainConfig, TrainingResult, train
-from monodock.perception.features import DEFAULT_MARKER_SETS, MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
-from monodock.recording import write_recording
+from monodock.learning.fusion import FUSION_LEARNING
+from monodock.learning.pipeline import TrainOptions
+from monodock.learning.pipeline import train_bundle as pipeline_train_bundle
+from monodock.learning.train import TrainingResult
 from monodock.sim import Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
+from monodock.sim.recording import write_recording
 
-__all__ = ["SelfTrainConfig", "cache_root", "cached_bundle", "load_bundle", "simulate_and_train", "train_bundle"]
+__all__ = ["SelfTrainConfig", "cache_root", "cached_bundle", "simulate_and_train", "train_bundle"]
 
 
 @dataclass(frozen=True)
@@ -53,33 +54,12 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def load_bundle(path: Path) -> Bundle:
-    """A bundle with the current feature schema (any marker set)."""
-    return Bundle.load(
-        path,
-        expected_feature_names={s: model_feature_names(s) for s in MARKER_SETS},
-        feature_schema=MODEL_FEATURE_SCHEMA,
-    )
-
-
 def train_bundle(
     ds: Dataset, out: Path, *, trials: int, seed: int, jobs: int, camera: CameraModel | None = None
 ) -> TrainingResult:
-    """Train the default marker sets on a labelled dataset and save the bundle to ``out``.
-
-    A tenth of the rows is held out of the regression's training; the fused method's tables are learned on
-    them afterwards (``fused.train_fusion``).
-    """
-    holdout = fusion_holdout(len(ds), seed=seed)
-    sets = training_sets(ds.subset(~holdout), DEFAULT_MARKER_SETS, camera=camera)
-    result = train(sets, TrainConfig(trials=trials, seed=seed, jobs=jobs), progress=True)
-    meta = bundle_metadata(ds, depth_label="point", angle_label="line", source="simulated training drive")
-    meta["fusion_holdout_rows"] = int(holdout.sum())
-    if camera is not None:
-        meta["camera"] = camera.to_ros_dict()
-    save_bundle(out, result, metadata=meta)
-    train_fusion(out, ds, holdout, camera=camera)
-    return result
+    """Train the default marker sets on a labelled dataset and save the bundle to ``out`` (``learning.pipeline``)."""
+    options = TrainOptions(trials=trials, seed=seed, jobs=jobs, camera=camera, source="simulated training drive")
+    return pipeline_train_bundle(ds, out, options).result
 
 
 def simulate_and_train(

@@ -1,43 +1,46 @@
-"""Reading the frames a user points monodock at: image files, folders of images, videos and recordings."""
+"""One frame source for everything a user points monodock at: images, folders, videos, cameras, streams, recordings.
+
+``open_frames`` takes what the user typed (one or more paths, a camera index, a URL) and gives a ``FrameSource``:
+a context manager that yields ``Frame``s in order, each named and stamped by the one rule of ``core.frame.Frame``
+(a recording's header stamp, a video's position in the file, a camera's or stream's capture time, NaN for an
+image file). ``monodock estimate``, ``monodock run``, calibration and the tests all read frames through it.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import math
+import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
+from types import TracebackType
+from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core.frame import Frame
 from monodock.errors import InputError
+from monodock.recording.read import Recording, is_recording, open_recording
 
 __all__ = [
     "IMAGE_SUFFIXES",
-    "RECORDING_SUFFIXES",
+    "STALL_TIMEOUT_S",
     "VIDEO_SUFFIXES",
     "Frame",
-    "is_recording",
-    "iter_frames",
+    "FrameSource",
+    "open_frames",
     "read_image",
 ]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v")
-RECORDING_SUFFIXES = (".mcap", ".db3", ".bag")
+# How long a camera or stream may go without a frame before the source stops.
+STALL_TIMEOUT_S = 2.0
 
 _log = logging.getLogger("monodock")
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One image to process: its name (file name or frame index), timestamp in seconds, and pixels."""
-
-    name: str
-    stamp: float
-    image: NDArray[np.uint8] | None
-    error: str = ""
 
 
 def read_image(path: str | Path) -> NDArray[np.uint8]:
@@ -52,15 +55,26 @@ def read_image(path: str | Path) -> NDArray[np.uint8]:
     return np.asarray(img)
 
 
-def is_recording(path: str | Path) -> bool:
-    """Whether a path looks like a recording: a rosbag2 folder (with metadata.yaml), an .mcap, .db3 or .bag file."""
-    p = Path(path)
-    if p.is_dir():
-        return (p / "metadata.yaml").is_file()
-    return p.suffix.lower() in RECORDING_SUFFIXES
+def _quietly(opener: Callable[[], Any]) -> Any:
+    """Open a capture without OpenCV's own warnings on stderr: a failure is told once, as an InputError."""
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        return opener()
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+
+
+def _open_video(path: Path) -> Any:
+    cap = _quietly(lambda: cv2.VideoCapture(str(path)))
+    if not cap.isOpened():
+        cap.release()
+        raise InputError(f"cannot open video {path}")
+    return cap
 
 
 def _expand(inputs: Sequence[str | Path]) -> list[Path]:
+    """Image files, videos and recordings in order; a folder of images gives its images sorted by name."""
     paths: list[Path] = []
     for item in inputs:
         p = Path(item)
@@ -78,68 +92,197 @@ def _expand(inputs: Sequence[str | Path]) -> list[Path]:
     return paths
 
 
-def _recording_frames(
-    path: Path, *, skip_bad: bool, image_topic: str | None, on_warning: Callable[[str], None]
-) -> Iterator[Frame]:
-    from monodock.recording import open_recording
+class FrameSource:
+    """Frames of image files, folders, videos, a camera, a stream or recordings, in order; a context manager.
 
-    with open_recording(path, image_topic=image_topic) as rec:
+    Make one with ``open_frames`` (or ``FrameSource.of_capture`` for a capture object you already hold).
+
+    Attributes:
+        name: how messages name the source ("camera 0", "video drive.avi", "3 inputs", ...).
+        kind: "camera", "stream", "video", "recording" or "files" (image files, or several inputs).
+        fps: a lone video's or camera's frame rate (0 when unknown).
+        stop_reason: why the frames ended early (a device that stopped delivering), "" otherwise.
+        warnings: what the recording reader had to say (a bag cut short), also passed to ``on_warning``.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        kind: str,
+        *,
+        paths: Sequence[Path] = (),
+        capture: Any = None,
+        recording: Recording | None = None,
+        skip_bad: bool = True,
+        image_topic: str | None = None,
+        stall_timeout_s: float = STALL_TIMEOUT_S,
+        on_warning: Callable[[str], None] | None = None,
+    ) -> None:
+        self.name, self.kind = name, kind
+        self._paths = list(paths)
+        self._capture, self._recording = capture, recording
+        self.skip_bad, self.image_topic = skip_bad, image_topic
+        self.stall_timeout_s = stall_timeout_s
+        self._on_warning = on_warning
+        fps = float(capture.get(cv2.CAP_PROP_FPS)) if capture is not None else 0.0
+        self.fps = fps if math.isfinite(fps) and 0.0 < fps < 1000.0 else 0.0
+        self.stop_reason = ""
+        self.warnings: list[str] = []
+
+    @classmethod
+    def of_capture(cls, name: str, kind: str, capture: Any, *, stall_timeout_s: float = STALL_TIMEOUT_S) -> FrameSource:
+        """A source over an opened ``cv2.VideoCapture`` (or anything with its read/get/release methods)."""
+        return cls(name, kind, capture=capture, stall_timeout_s=stall_timeout_s)
+
+    @property
+    def paced_by_stamps(self) -> bool:
+        """Whether the stamps are a file's timeline (videos, recordings), which a real-time playback follows."""
+        return self.kind in ("video", "recording")
+
+    def __iter__(self) -> Iterator[Frame]:
+        if self._capture is not None:
+            yield from self._capture_frames(self._capture, live=self.kind in ("camera", "stream"))
+        elif self._recording is not None:
+            yield from self._recording_frames(self._recording)
+        else:
+            yield from self._file_frames()
+
+    # --- the kinds of input ---------------------------------------------------------------------------------
+
+    def _warn(self, text: str) -> None:
+        self.warnings.append(text)
+        (self._on_warning or _log.warning)(text)
+
+    def _file_frames(self) -> Iterator[Frame]:
+        for p in self._paths:
+            if is_recording(p):
+                with open_recording(p, image_topic=self.image_topic) as rec:
+                    yield from self._recording_frames(rec)
+            elif p.suffix.lower() in VIDEO_SUFFIXES:
+                cap = _open_video(p)
+                try:
+                    yield from self._capture_frames(cap, live=False, label=f"video {p}")
+                finally:
+                    cap.release()
+            else:
+                try:
+                    yield Frame(p.name, math.nan, read_image(p), arrival=time.perf_counter())
+                except InputError as exc:
+                    if not self.skip_bad:
+                        raise
+                    yield Frame(p.name, math.nan, None, str(exc), arrival=time.perf_counter())
+
+    def _recording_frames(self, rec: Recording) -> Iterator[Frame]:
         said = 0
 
         def tell() -> None:
             nonlocal said
             for text in rec.warnings[said:]:
-                on_warning(text)
+                self._warn(text)
             said = len(rec.warnings)
 
         tell()  # what opening found (a bag cut short) is said before the frames, not after
+        count = 0
         for frame in rec.images():
-            if frame.image is None and not skip_bad:
+            if frame.image is None and not self.skip_bad:
                 raise InputError(f"{frame.error} (pass --skip-bad to go on without it)")
-            yield frame
+            count += 1
+            yield dataclasses.replace(frame, arrival=time.perf_counter())
         tell()
+        if count == 0:
+            raise InputError(f"recording {rec.path} has no images")
+
+    def _capture_frames(self, cap: Any, *, live: bool, label: str = "") -> Iterator[Frame]:
+        label = label or self.name
+        index = 0
+        last = time.monotonic()
+        while True:
+            ok, img = cap.read()
+            if ok and img is not None:
+                arrival = time.perf_counter()
+                stamp = time.time() if live else float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
+                yield Frame(str(index), stamp, np.asarray(img, dtype=np.uint8), arrival=arrival)
+                index += 1
+                last = time.monotonic()
+                continue
+            if not live:  # the end of the file
+                if index == 0:
+                    raise InputError(f"{label} has no readable frames")
+                return
+            waited = time.monotonic() - last
+            if waited >= self.stall_timeout_s:
+                if index == 0:
+                    raise InputError(f"{label}: no frame for {self.stall_timeout_s:.1f} s; nothing received")
+                self.stop_reason = f"{label}: no frame for {waited:.1f} s; stopping after {index} frames"
+                return
+            time.sleep(0.01)
+
+    # --- context manager --------------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Release the device, file or recording."""
+        if self._capture is not None:
+            self._capture.release()
+        if self._recording is not None:
+            self._recording.close()
+
+    def __enter__(self) -> FrameSource:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
 
 
-def iter_frames(
-    inputs: Sequence[str | Path],
+def open_frames(
+    inputs: str | Path | Sequence[str | Path],
     *,
     skip_bad: bool = False,
     image_topic: str | None = None,
+    size: tuple[int, int] | None = None,
+    stall_timeout_s: float = STALL_TIMEOUT_S,
     on_warning: Callable[[str], None] | None = None,
-) -> Iterator[Frame]:
-    """Frames of image files, folders (sorted by name), videos and recordings, in order.
+) -> FrameSource:
+    """Open a frame source: image files, folders of images, videos, recordings, a camera index or a URL.
 
-    A recording (a rosbag2 folder with metadata.yaml, an .mcap, .db3 or ROS 1 .bag file) gives its images in
-    stamp order, named by index, with their header stamps; ``image_topic`` picks one when it has several.
-    An unreadable image raises InputError, or with ``skip_bad`` yields a Frame without pixels and the reason.
-    What the reader has to say about a recording (e.g. that it was cut short) goes to ``on_warning``, by
-    default the "monodock" logger.
+    Args:
+        inputs: one spec or several. A camera index ("0") or an rtsp:// or http(s):// URL stands alone; paths
+            may be image files, folders (their images, sorted by name), videos and recordings (a rosbag2
+            folder with metadata.yaml, an .mcap, .db3 or ROS 1 .bag file).
+        skip_bad: an unreadable image file or recording frame gives a Frame without pixels and the reason
+            instead of an InputError.
+        image_topic: a recording's image topic, when it has several.
+        size: (width, height) to ask a camera for (the calibrated size); devices may ignore it.
+        stall_timeout_s: how long a camera or stream may go without a frame before the source stops.
+        on_warning: what to do with a recording reader's warnings (default: the "monodock" logger).
+
+    Raises:
+        InputError: a path that does not exist, a folder without images, a device, stream, video or
+            recording that cannot be opened (one line naming it).
     """
-    warn = on_warning or _log.warning
-    for p in _expand(inputs):
+    specs = [inputs] if isinstance(inputs, str | Path) else list(inputs)
+    if not specs:
+        raise InputError("no input given")
+    text = str(specs[0]).strip()
+    if len(specs) == 1 and (text.isdigit() or "://" in text):
+        kind = "camera" if text.isdigit() else "stream"
+        name = f"{kind} {text}"
+        cap = _quietly(lambda: cv2.VideoCapture(int(text) if kind == "camera" else text))
+        if not cap.isOpened():
+            cap.release()
+            raise InputError(f"cannot open {name}")
+        if size is not None and kind == "camera":
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, size[0])
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, size[1])
+        return FrameSource.of_capture(name, kind, cap, stall_timeout_s=stall_timeout_s)
+    paths = _expand(specs)
+    common: dict[str, Any] = {"skip_bad": skip_bad, "image_topic": image_topic, "on_warning": on_warning}
+    if len(specs) == 1 and len(paths) == 1:
+        p = paths[0]
         if is_recording(p):
-            yield from _recording_frames(p, skip_bad=skip_bad, image_topic=image_topic, on_warning=warn)
-            continue
+            rec = open_recording(p, image_topic=image_topic)
+            return FrameSource(f"recording {p}", "recording", recording=rec, **common)
         if p.suffix.lower() in VIDEO_SUFFIXES:
-            cap = cv2.VideoCapture(str(p))
-            if not cap.isOpened():
-                raise InputError(f"cannot open video {p}")
-            index = 0
-            try:
-                while True:
-                    ok, img = cap.read()
-                    if not ok:
-                        break
-                    yield Frame(str(index), float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0, np.asarray(img))
-                    index += 1
-            finally:
-                cap.release()
-            if index == 0:
-                raise InputError(f"video {p} has no readable frames")
-            continue
-        try:
-            yield Frame(p.name, float("nan"), read_image(p))
-        except InputError as exc:
-            if not skip_bad:
-                raise
-            yield Frame(p.name, float("nan"), None, str(exc))
+            return FrameSource(f"video {p}", "video", capture=_open_video(p), **common)
+    return FrameSource(str(specs[0]) if len(specs) == 1 else f"{len(specs)} inputs", "files", paths=paths, **common)

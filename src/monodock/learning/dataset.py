@@ -31,6 +31,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
+from tqdm import tqdm
 
 from monodock import __version__
 from monodock.core.atomic import write_bytes_atomic
@@ -39,7 +40,10 @@ from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.learning.label import LABEL_COLUMNS, LidarLabel, label_frame
+from monodock.perception.detect import MarkerDetector, as_gray
 from monodock.perception.features import FEATURE_NAMES, REFINED_CORNER_NAMES, feature_vector, refined_vector
+from monodock.perception.refine import refine_detection
+from monodock.recording import open_recording, pair_nearest
 
 __all__ = [
     "DATASET_SCHEMA",
@@ -298,11 +302,7 @@ def label_recording(
     The camera comes from the recording's CameraInfo and the mounts from its /tf_static, unless given; a
     recording without them needs them given. Returns the dataset, the counts and the reader's warnings.
     """
-    from tqdm import tqdm
 
-    from monodock.perception.detect import MarkerDetector, as_gray
-    from monodock.perception.refine import refine_detection
-    from monodock.recording import open_recording, pair_nearest
 
     if not (tolerance_s > 0 and math.isfinite(tolerance_s)):
         raise InputError(f"pairing tolerance must be a positive number of seconds, got {tolerance_s}")

@@ -39,8 +39,6 @@ __all__ = [
     "LidarLabel",
     "label_frame",
     "points_across_marker",
-    "project_to_image",
-    "scan_in_base",
 ]
 
 LABEL_COLUMNS = (
@@ -225,11 +223,6 @@ def _marker_planes(corners: NDArray[np.float64], camera: CameraModel, robot: Rob
     n_mid = _plane_normal(mid, np.cross(n_left, n_right))
     return _MarkerPlanes(base_T_optical[:3, 3], n_left, n_right, n_mid, mid)
 
-
-def scan_in_base(scan: LaserScan, robot: RobotConfig) -> NDArray[np.float64]:
-    """The scan's valid returns as points (N, 3) in base_link."""
-    pts2 = scan.points()
-    return transforms.apply(robot.base_T_laser(), np.column_stack([pts2, np.zeros(len(pts2))]))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -443,13 +436,6 @@ def points_across_marker(
     """Which base_link points (N, 3) fall across marker 2 as the camera sees it (papers Fig. 9)."""
     return _marker_planes(corners_m2, camera, robot).across(points)
 
-
-def project_to_image(points: NDArray[np.float64], camera: CameraModel, robot: RobotConfig) -> NDArray[np.float64]:
-    """Pixels (N, 2) of base_link points through the lens (papers Eq. 1, Fig. 8c); NaN outside the camera's field."""
-    p = transforms.apply(transforms.invert(robot.base_T_optical()), points)
-    px = camera.project(p) if len(p) else np.zeros((0, 2))
-    px[~camera.in_view_field(p)] = np.nan
-    return px
 
 
 def label_frame(

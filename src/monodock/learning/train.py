@@ -25,14 +25,17 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from joblib import Parallel, delayed
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
+from tqdm import tqdm
 
 from monodock.errors import ConfigError, InputError
+from monodock.estimation.segments import SegmentTable
 
 __all__ = [
     "MODEL_NAMES",
     "ModelScore",
-    "SegmentTable",
     "SetResult",
     "TaskResult",
     "TrainConfig",
@@ -102,56 +105,6 @@ class TrainingSet:
                 raise InputError(f"training set {self.name}: {label} holds NaN or infinite values")
         if len(set(self.feature_names)) != len(self.feature_names):
             raise InputError(f"training set {self.name}: feature names are not unique")
-
-
-@dataclass(frozen=True)
-class SegmentTable:
-    """The depth segments of the angle models: ``count`` segments of ``width_m`` from ``start_m`` (metres)."""
-
-    start_m: float = 0.25
-    width_m: float = 0.05
-    count: int = 45
-
-    def __post_init__(self) -> None:
-        if not (self.count >= 1 and self.width_m > 0 and math.isfinite(self.start_m) and math.isfinite(self.width_m)):
-            raise ConfigError(f"segment table needs count >= 1 and width > 0, got {self.count} x {self.width_m} m")
-
-    @property
-    def end_m(self) -> float:
-        """The far edge of the last segment, metres."""
-        return self.start_m + self.count * self.width_m
-
-    def index(self, depth_m: float) -> int | None:
-        """The segment of a depth in metres; None outside [start, end]. The far edge belongs to the last segment."""
-        # Scalar twin of ``indices`` (it runs on every frame at run time); the same rounding and edges.
-        if not math.isfinite(depth_m):
-            return None
-        pos = round((depth_m - self.start_m) / self.width_m, 9)
-        k = self.count - 1 if pos == self.count else math.floor(pos)
-        return k if 0 <= k < self.count else None
-
-    def indices(self, depth_m: NDArray[np.float64]) -> NDArray[np.int64]:
-        """The segment of each depth in metres, -1 where it falls outside the table (NaN included)."""
-        d = np.asarray(depth_m, dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            # Rounded so that 0.30 m, which is 0.2999... in binary, starts segment 1 as a reader expects.
-            pos = np.round((d - self.start_m) / self.width_m, 9)
-            k = np.floor(pos)
-            k = np.where(pos == self.count, self.count - 1, k)
-            ok = np.isfinite(k) & (k >= 0) & (k < self.count)
-        return np.where(ok, k, -1).astype(np.int64)
-
-    def bounds(self, i: int) -> tuple[float, float]:
-        """The (near, far) depth of segment ``i`` in metres."""
-        if not 0 <= i < self.count:
-            raise IndexError(f"segment {i} outside 0..{self.count - 1}")
-        lo = self.start_m + i * self.width_m
-        return lo, lo + self.width_m
-
-    def label(self, i: int) -> str:
-        """Segment ``i`` as a range in centimetres, e.g. '25–30 cm'."""
-        lo, hi = self.bounds(i)
-        return f"{lo * 100:g}–{hi * 100:g} cm"
 
 
 @dataclass(frozen=True)
@@ -669,7 +622,6 @@ def _fit_one(
     """Fit one draw and score it on the test split (runs in a worker process)."""
     from sklearn.exceptions import ConvergenceWarning, UndefinedMetricWarning
     from sklearn.metrics import mean_squared_error, r2_score
-    from threadpoolctl import threadpool_limits
 
     # One BLAS thread: the workers already fill the cores, and a fixed thread count keeps results bit-identical.
     with threadpool_limits(limits=1), warnings.catch_warnings():
@@ -703,8 +655,6 @@ def _run(
     n_workers: int,
     progress: bool,
 ) -> Iterator[_Outcome]:
-    from joblib import Parallel, delayed
-    from tqdm import tqdm
 
     def args(job: _Job) -> tuple[Any, ...]:
         t = tasks[job.task]

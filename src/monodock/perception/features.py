@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import ROLE_NUMBER, ROLES, DockLayout
@@ -37,6 +37,7 @@ __all__ = [
     "model_features",
     "refined_detection_from_row",
     "refined_vector",
+    "side_lengths",
 ]
 
 CORNER_NAMES = ("tl", "tr", "br", "bl")
@@ -66,14 +67,26 @@ def _centre(c: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.asarray(p + t * r, dtype=np.float64)
 
 
+def side_lengths(corners: ArrayLike) -> tuple[float, float, float, float]:
+    """A marker's four sides in pixels, in ArUco order: top (TL-TR), right (TR-BR), bottom (BR-BL), left (BL-TL).
+
+    The one place a side length is measured: the papers' features, the fused method's corner noise and the
+    Cramér–Rao bound's all read it here. Plain floats: it runs per marker on every frame.
+    """
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = np.asarray(corners, dtype=np.float64).reshape(4, 2).tolist()
+    return (
+        math.hypot(x1 - x0, y1 - y0),
+        math.hypot(x2 - x1, y2 - y1),
+        math.hypot(x3 - x2, y3 - y2),
+        math.hypot(x0 - x3, y0 - y3),
+    )
+
+
 def marker_features(corners: NDArray[np.float64]) -> MarkerFeatures:
     """Side lengths (top TL-TR, bottom BR-BL, left BL-TL, right TR-BR), corners and centre of a marker."""
     c = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-
-    def side(i: int, j: int) -> float:
-        return math.hypot(float(c[i, 0] - c[j, 0]), float(c[i, 1] - c[j, 1]))
-
-    return MarkerFeatures(side(0, 1), side(2, 3), side(3, 0), side(1, 2), c, _centre(c))
+    top, right, bottom, left = side_lengths(c)
+    return MarkerFeatures(top, bottom, left, right, c, _centre(c))
 
 
 def _names() -> tuple[str, ...]:

@@ -1,4 +1,9 @@
-"""Recordings: rosbag2 bags of a simulated drive, and a reader for any robot's rosbag2 or ROS 1 bags (DESIGN.md)."""
+"""Recordings: reading any robot's rosbag2 (MCAP, sqlite3) or ROS 1 bag, salvaging cut-short ones, writing rosbag2.
+
+``read`` finds the topics by message type and gives images, scans, CameraInfo, /tf_static mounts and ground
+truth; ``salvage`` reads what is there of a bag cut short; ``write`` writes a bag as ``ros2 bag record`` would;
+``messages`` converts between monodock's values and ROS messages (no rclpy: rosbags' own message types).
+"""
 
 from __future__ import annotations
 
@@ -10,8 +15,7 @@ from monodock.recording.write import (
     SCAN_TOPIC,
     TF_STATIC_TOPIC,
     TRUTH_TOPIC,
-    RecordingSummary,
-    write_recording,
+    BagWriter,
 )
 
 __all__ = [
@@ -22,10 +26,9 @@ __all__ = [
     "SCAN_TOPIC",
     "TF_STATIC_TOPIC",
     "TRUTH_TOPIC",
+    "BagWriter",
     "Recording",
-    "RecordingSummary",
     "is_recording",
     "open_recording",
     "pair_nearest",
-    "write_recording",
 ]

@@ -22,18 +22,27 @@ from rosbags.highlevel import AnyReader
 
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
+from monodock.core.frame import Frame
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
 from monodock.core.scan import LaserScan
 from monodock.errors import InputError
-from monodock.io.frames import RECORDING_SUFFIXES, Frame, is_recording
 from monodock.recording import messages as m
 from monodock.recording.salvage import Salvage, SalvageError, sniff
 
 __all__ = ["RECORDING_SUFFIXES", "Recording", "is_recording", "open_recording", "pair_nearest"]
 
+RECORDING_SUFFIXES = (".mcap", ".db3", ".bag")
 _SUFFIX = {"mcap": ".mcap", "sqlite3": ".db3", "ros1": ".bag"}
 _STORAGE_SUFFIXES = (".mcap", ".db3")
+
+
+def is_recording(path: str | os.PathLike[str]) -> bool:
+    """Whether a path looks like a recording: a rosbag2 folder (with metadata.yaml), an .mcap, .db3 or .bag file."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    return p.suffix.lower() in RECORDING_SUFFIXES
 
 
 def pair_nearest(image_stamps: ArrayLike, scan_stamps: ArrayLike, tolerance_s: float) -> NDArray[np.int64]:

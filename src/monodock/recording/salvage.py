@@ -17,7 +17,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rosbags.typesys import get_types_from_idl, get_types_from_msg
+import lz4.frame  # type: ignore[import-untyped]
+from backports import zstd
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from monodock.recording.messages import humble_typestore, normalize_msgtype
@@ -104,11 +106,9 @@ def _partial_decompress(data: bytes | memoryview, compression: str) -> bytes:
         return bytes(data)
     decompressor: Any
     if compression == "zstd":
-        from backports import zstd
 
         decompressor = zstd.ZstdDecompressor()
     elif compression == "lz4":
-        import lz4.frame  # type: ignore[import-untyped]
 
         decompressor = lz4.frame.LZ4FrameDecompressor()
     elif compression == "bz2":
@@ -179,7 +179,6 @@ class Salvage:
                 continue
         if not types:
             return humble_typestore()
-        from rosbags.typesys import Stores, get_typestore
 
         store = get_typestore(Stores.EMPTY)
         store.register(types)

@@ -24,9 +24,9 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from monodock.core.atomic import check_writable, write_bytes_atomic, write_text_atomic
+from monodock.estimation.segments import SegmentTable
 from monodock.learning.train import (
     MODEL_NAMES,
-    SegmentTable,
     SetResult,
     TaskResult,
     TrainingResult,

@@ -4,7 +4,7 @@ Subscribes to a sensor_msgs/Image or CompressedImage topic (and camera_info when
 runs the estimator of ``monodock run`` (a bundle's regression, or PnP on calibration files) on each image, and
 publishes a geometry_msgs/PoseStamped in base_link with the image's stamp for every valid estimate, and, when
 the method gives the estimate's covariance, the same pose as geometry_msgs/PoseWithCovarianceStamped on
-``detected_dock_pose_with_covariance`` (the 6x6 convention of monodock.recording.nav2: x, y, yaw at rows and
+``detected_dock_pose_with_covariance`` (the 6x6 convention of monodock.io.nav2: x, y, yaw at rows and
 columns 0, 1, 5; z, roll and pitch zero). Images are decoded with numpy and OpenCV
 (monodock.recording.messages), without cv_bridge.
 
@@ -23,25 +23,44 @@ except ImportError as _exc:  # the message should say what to do, not only what 
         name="rclpy",
     ) from _exc
 
-import argparse
 import math
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
-from monodock.cli.main import add_estimator_options
+from monodock.core.camera import CameraModel
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator
+from monodock.estimation.factory import make_estimator
+from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 from monodock.recording import messages as m
-from monodock.recording.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 
-__all__ = ["main"]
+__all__ = ["DetectorOptions", "DockPoseNode", "run_detector"]
+
+
+@dataclass(frozen=True)
+class DetectorOptions:
+    """What the detector node runs: the estimator (a bundle, or the calibration files) and its topics."""
+
+    model: str | None = None
+    method: str | None = None
+    camera: str | None = None
+    layout: str | None = None
+    robot: str | None = None
+    refinement: str = "subpix"
+    image_topic: str = "/camera/image_raw"
+    compressed: bool = False
+    camera_info_topic: str = "/camera/camera_info"
+    pose_topic: str = DOCK_POSE_TOPIC
+    pose_covariance_topic: str = DOCK_POSE_COVARIANCE_TOPIC
+    frame_id: str = "base_link"
 
 
 class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
     """Estimates the dock's pose in each image and publishes the valid ones on ``detected_dock_pose``."""
 
-    def __init__(self, args: argparse.Namespace) -> None:
+    def __init__(self, args: DetectorOptions) -> None:
         super().__init__("monodock")
         from geometry_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
             Point,
@@ -132,21 +151,20 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         self.covariance_publisher.publish(with_cov)
 
 
-def _estimator(args: argparse.Namespace, camera: Any = None) -> tuple[Estimator, str]:
-    """The Estimator of the options (as ``monodock run``), or of camera_info's camera with the layout and robot."""
-    if camera is None:
-        from monodock.cli.main import build_estimator
+def _estimator(args: DetectorOptions, camera: CameraModel | None = None) -> tuple[Estimator, str]:
+    """The Estimator of the options, or of camera_info's camera with the layout and robot files."""
+    estimator = make_estimator(
+        method=args.method,
+        bundle=args.model,
+        camera=camera if camera is not None else args.camera,
+        layout=args.layout,
+        robot=args.robot,
+        refinement=args.refinement,
+    )
+    return estimator, estimator.method
 
-        return build_estimator(args)
-    from monodock.core.layout import DockLayout
-    from monodock.core.robot import RobotConfig
 
-    method = args.method or "board"
-    layout, robot = DockLayout.load(args.layout), RobotConfig.load(args.robot)
-    return Estimator(camera, layout, robot, (method,), refinement=args.refinement), method
-
-
-def _check_options(args: argparse.Namespace) -> None:
+def _check_options(args: DetectorOptions) -> None:
     """InputError for options that cannot work, before anything is subscribed."""
     if args.model or args.camera:
         return
@@ -157,29 +175,9 @@ def _check_options(args: argparse.Namespace) -> None:
         raise InputError(f"without --model, give {' '.join(missing)} (and --camera, or a camera_info topic)")
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="monodock-ros", description=__doc__.split("\n", 1)[0] if __doc__ else None)
-    add_estimator_options(
-        p, camera_help="camera file (default: from camera_info)", robot_help="robot YAML (camera mount)"
-    )
-    p.add_argument("--camera-info-topic", default="/camera/camera_info")
-    p.add_argument("--pose-topic", default=DOCK_POSE_TOPIC)
-    p.add_argument(
-        "--pose-covariance-topic",
-        default=DOCK_POSE_COVARIANCE_TOPIC,
-        help="PoseWithCovarianceStamped of the estimates that have a covariance",
-    )
-    p.add_argument("--frame-id", default="base_link")
-    return p
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the node until shut down (Ctrl-C); user errors print one line and return 2."""
-    from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]
-
-    raw = list(sys.argv if argv is None else ["monodock-ros", *argv])
-    args = _parser().parse_args(remove_ros_args(raw)[1:])
-    rclpy.init(args=raw)
+def run_detector(args: DetectorOptions, argv: Sequence[str]) -> int:
+    """Run the node until shut down (Ctrl-C); ``argv`` carries the ROS arguments. User errors: one line, 2."""
+    rclpy.init(args=list(argv))
     try:
         node = DockPoseNode(args)
     except MonodockError as exc:
@@ -194,7 +192,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -20,28 +20,46 @@ except ImportError as _exc:  # the message should say what to do, not only what 
         name="rclpy",
     ) from _exc
 
-import argparse
 import math
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
-from monodock.cli.main import add_estimator_options
 from monodock.core.pose2d import Pose2D
 from monodock.dock.controller import DockingMission, MissionConfig, blind_gap, make_perceive, run_mission
 from monodock.dock.interface import CameraFrame, Odometry
 from monodock.dock.planner import PlannerConfig
 from monodock.dock.pose_filter import MeasurementNoise
 from monodock.errors import MonodockError
+from monodock.estimation.factory import make_estimator
 from monodock.recording import messages as m
 
-__all__ = ["Ros2Robot", "main"]
+__all__ = ["DockOptions", "Ros2Robot", "run_dock"]
+
+
+@dataclass(frozen=True)
+class DockOptions:
+    """What the docking node runs: the estimator (a bundle, or the calibration files), its topics and Point A."""
+
+    model: str | None = None
+    method: str | None = None
+    camera: str | None = None
+    layout: str | None = None
+    robot: str | None = None
+    refinement: str = "subpix"
+    image_topic: str = "/camera/image_raw"
+    compressed: bool = False
+    odom_topic: str = "/odom"
+    cmd_vel_topic: str = "/cmd_vel"
+    contact_topic: str | None = None
+    standoff: float = 1.0
 
 
 class Ros2Robot:
     """The robot interface over ROS 2 topics; ``sleep`` spins the node so callbacks run while it waits."""
 
-    def __init__(self, node: Node, args: argparse.Namespace) -> None:
+    def __init__(self, node: Node, args: DockOptions) -> None:
         from geometry_msgs.msg import Twist  # type: ignore[import-not-found, unused-ignore]
         from nav_msgs.msg import Odometry as OdometryMsg  # type: ignore[import-not-found, unused-ignore]
         from sensor_msgs.msg import CompressedImage, Image  # type: ignore[import-not-found, unused-ignore]
@@ -99,31 +117,21 @@ class Ros2Robot:
             rclpy.spin_once(self.node, timeout_sec=left)
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="monodock-dock-ros", description=__doc__.split("\n", 1)[0] if __doc__ else None)
-    add_estimator_options(
-        p, camera_help="camera file (needed without --model)", robot_help="robot YAML (mounts, front_offset, limits)"
-    )
-    p.add_argument("--odom-topic", default="/odom")
-    p.add_argument("--cmd-vel-topic", default="/cmd_vel")
-    p.add_argument("--contact-topic", help="std_msgs/Bool that is true on contact with the charger (optional)")
-    p.add_argument("--standoff", type=float, default=1.0, help="Point A: floor between front edge and face, m")
-    return p
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Dock once and exit: 0 when docked, 1 when the mission failed, 2 on bad options."""
-    from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]
-
-    from monodock.cli.main import build_estimator
-
-    raw = list(sys.argv if argv is None else ["monodock-dock-ros", *argv])
-    args = _parser().parse_args(remove_ros_args(raw)[1:])
-    rclpy.init(args=raw)
+def run_dock(args: DockOptions, argv: Sequence[str]) -> int:
+    """Dock once and exit: 0 when docked, 1 when the mission failed, 2 on bad options; ``argv``: the ROS arguments."""
+    rclpy.init(args=list(argv))
     node = Node("monodock_dock")
     robot: Ros2Robot | None = None
     try:
-        estimator, method = build_estimator(args)
+        estimator = make_estimator(
+            method=args.method,
+            bundle=args.model,
+            camera=args.camera,
+            layout=args.layout,
+            robot=args.robot,
+            refinement=args.refinement,
+        )
+        method = estimator.method
         robot = Ros2Robot(node, args)
         config = MissionConfig(planner=PlannerConfig(args.standoff), measurement=MeasurementNoise.for_method(method))
         blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -18,7 +19,6 @@ __all__ = ["render_target_views", "target_surface", "target_world"]
 
 def target_surface(target: DiamondTarget, world_T_target: NDArray[np.float64], name: str = "diamond_target") -> Surface:
     """The board as a simulator surface with its markers, posed by ``world_T_target`` (4x4)."""
-    import cv2
 
     R, t = world_T_target[:3, :3], world_T_target[:3, 3]
     left = R @ np.array([-target.half_diagonal, 0.0, 0.0]) + t

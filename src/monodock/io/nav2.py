@@ -18,7 +18,6 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
-from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -26,14 +25,15 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from rosbags.interfaces import Connection
+from rosbags.rosbag2 import Reader, ReaderError
 
 from monodock.core import transforms
-from monodock.core.atomic import atomic_directory
 from monodock.core.pose import DockPose
-from monodock.errors import InputError
-from monodock.estimation.estimator import COVARIANCE_COLUMNS
+from monodock.errors import ConfigError, InputError
+from monodock.io.rows import COVARIANCE_COLUMNS
 from monodock.recording import messages as m
-from monodock.recording.write import _RELIABLE, BASE_FRAME, STORAGES, _lift_bag
+from monodock.recording.write import BASE_FRAME, RELIABLE, BagWriter
 
 __all__ = [
     "DOCK_POSE_COVARIANCE_TOPIC",
@@ -154,35 +154,22 @@ class PoseStampedBagWriter:
         topic: str = DOCK_POSE_TOPIC,
         covariance_topic: str = DOCK_POSE_COVARIANCE_TOPIC,
     ) -> None:
-        if storage not in STORAGES:
-            raise InputError(f"bag storage '{storage}' is unknown ({', '.join(STORAGES)})")
+        try:
+            self._bag = BagWriter(path, storage=storage, force=force)
+        except ConfigError as exc:
+            raise InputError(f"bag {exc}") from None
         self.path = Path(path)
-        self.force, self.storage, self.frame_id, self.topic = force, storage, frame_id, topic
-        self.covariance_topic = covariance_topic
+        self.frame_id, self.topic, self.covariance_topic = frame_id, topic, covariance_topic
         self.written = 0
         self.written_with_covariance = 0
-        self._stack: ExitStack | None = None
-        self._writer: Any = None
-        self._conn: Any = None
-        self._cov_conn: Any = None
-        self._tmp: Path | None = None
+        self._open = False
+        self._conn: Connection | None = None
+        self._cov_conn: Connection | None = None
 
     def __enter__(self) -> PoseStampedBagWriter:
-        from rosbags.rosbag2 import Writer
-
-        stack = ExitStack()
-        try:
-            self._tmp = stack.enter_context(atomic_directory(self.path, force=self.force))
-            # Version 8 stores QoS as the integers Humble's rosbag2 reads (as recording.write_recording does).
-            writer = Writer(self._tmp / self.path.name, version=8, storage_plugin=STORAGES[self.storage])
-            writer.open()
-            self._conn = writer.add_connection(
-                self.topic, m.POSE_STAMPED, typestore=m.humble_typestore(), offered_qos_profiles=[_RELIABLE]
-            )
-        except BaseException:
-            stack.close()
-            raise
-        self._writer, self._stack = writer, stack
+        self._bag.__enter__()
+        self._open = True
+        self._conn = self._bag.connect(self.topic, m.POSE_STAMPED, RELIABLE)
         return self
 
     def write(self, stamp: float, pose: DockPose, covariance: NDArray[np.float64] | None = None) -> None:
@@ -190,28 +177,25 @@ class PoseStampedBagWriter:
 
         With a 3x3 ``covariance`` (x m, y m, yaw rad), also the PoseWithCovarianceStamped of the same pose.
         """
-        if self._writer is None:
+        if not self._open or self._conn is None:
             raise RuntimeError("PoseStampedBagWriter.write outside its with block")
         if not math.isfinite(stamp):
             raise ValueError(f"stamp {stamp} is not a time")
-        ts = m.humble_typestore()
         msg = m.pose_msg(pose, stamp, self.frame_id)
-        ns = round(stamp * 1e9)
-        self._writer.write(self._conn, ns, ts.serialize_cdr(msg, m.POSE_STAMPED))
+        self._bag.write(self._conn, msg, stamp)
         self.written += 1
         if covariance is None:
             return
         if self._cov_conn is None:
-            self._cov_conn = self._writer.add_connection(
-                self.covariance_topic, POSE_WITH_COVARIANCE_STAMPED, typestore=ts, offered_qos_profiles=[_RELIABLE]
-            )
-        with_cov = ts.types[POSE_WITH_COVARIANCE_STAMPED](
+            self._cov_conn = self._bag.connect(self.covariance_topic, POSE_WITH_COVARIANCE_STAMPED, RELIABLE)
+        types = self._bag.typestore.types
+        with_cov = types[POSE_WITH_COVARIANCE_STAMPED](
             header=msg.header,
-            pose=ts.types["geometry_msgs/msg/PoseWithCovariance"](
+            pose=types["geometry_msgs/msg/PoseWithCovariance"](
                 pose=msg.pose, covariance=np.array(pose_covariance_6x6(covariance), dtype=np.float64)
             ),
         )
-        self._writer.write(self._cov_conn, ns, ts.serialize_cdr(with_cov, POSE_WITH_COVARIANCE_STAMPED))
+        self._bag.write(self._cov_conn, with_cov, stamp)
         self.written_with_covariance += 1
 
     def write_row(self, row: Mapping[str, object]) -> bool:
@@ -225,21 +209,9 @@ class PoseStampedBagWriter:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        stack, writer, tmp = self._stack, self._writer, self._tmp
-        self._stack = self._writer = None
-        if stack is None or tmp is None:
-            return
-        try:
-            writer.close()
-            if exc is None:
-                bag = tmp / self.path.name
-                tmp.chmod(bag.stat().st_mode & 0o777)
-                _lift_bag(tmp, bag)
-        except BaseException as err:
-            stack.__exit__(type(err), err, err.__traceback__)
-            raise
-        # Renames the folder into place, or (after an error in the with block) removes it.
-        stack.__exit__(exc_type, exc, tb)
+        if self._open:
+            self._open = False
+            self._bag.__exit__(exc_type, exc, tb)
 
 
 def write_pose_bag(
@@ -295,7 +267,6 @@ def read_pose_bag(path: str | os.PathLike[str], topic: str = DOCK_POSE_TOPIC) ->
     Raises:
         InputError: the bag cannot be read, has no such topic, or the topic holds another type.
     """
-    from rosbags.rosbag2 import Reader, ReaderError
 
     ts = m.humble_typestore()
     try:

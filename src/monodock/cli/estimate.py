@@ -1,0 +1,75 @@
+"""``monodock estimate``: the DockPose in images, folders, videos or recordings, as EST.csv (and a Nav2 bag)."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+
+from tqdm import tqdm
+
+from monodock.cli.options import SubParsers, add_calibration, build_estimator
+from monodock.core.atomic import check_writable, write_text_atomic
+from monodock.errors import InputError
+from monodock.estimation.estimator import Estimator, FrameEstimates
+from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS
+from monodock.io.frames import open_frames
+from monodock.io.nav2 import write_pose_bag
+from monodock.io.rows import estimates_csv
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers: SubParsers) -> None:
+    """Add ``estimate``."""
+    e = subparsers.add_parser("estimate", help="estimate the DockPose in images, folders, videos or recordings")
+    e.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders of images, videos, or recordings")
+    e.add_argument("--model", help="model bundle (carries its camera, layout and mounts; --camera may override)")
+    e.add_argument(
+        "--method",
+        choices=METHOD_NAMES,
+        help="regression: the papers' models (default with --model); pnp: marker 2 alone (IPPE_SQUARE), the "
+        "papers' baseline; board: all visible markers (default without --model); fused: planar PnP on "
+        "bias-free corners combined with the regression, with a covariance (needs --model)",
+    )
+    e.add_argument("--out", required=True, help="EST.csv to write")
+    e.add_argument("--bag", metavar="OUT_BAG", help="also write the valid poses as a Nav2 detected_dock_pose rosbag2")
+    e.add_argument("--refinement", choices=REFINEMENTS, default="subpix", help="ArUco corner refinement")
+    e.add_argument("--skip-bad", action="store_true", help="an unreadable image gives an invalid row, not an error")
+    e.add_argument("--force", action="store_true", help="overwrite an existing output")
+    add_calibration(e, required=False)
+    e.set_defaults(func=run)
+
+
+def _estimate_all(args: argparse.Namespace, estimator: Estimator) -> list[FrameEstimates]:
+    """Every frame's estimates; with ``--skip-bad`` an unreadable or unusable frame is an invalid row."""
+    results = []
+    with open_frames(args.inputs, skip_bad=args.skip_bad) as frames:
+        for f in tqdm(frames, desc="estimate", unit="frame", leave=False, disable=None):
+            if f.image is None:
+                results.append(estimator.failed(f.name, f.stamp, f.error))
+                continue
+            try:
+                results.append(estimator.estimate(f.name, f.stamp, f.image))
+            except InputError as exc:
+                if not args.skip_bad:
+                    raise
+                results.append(estimator.failed(f.name, f.stamp, str(exc)))
+    return results
+
+
+def run(args: argparse.Namespace) -> int:
+    """``monodock estimate``."""
+    estimator = build_estimator(args)
+    check_writable(args.out, force=args.force)
+    if args.bag:
+        check_writable(args.bag, force=args.force)
+    results = _estimate_all(args, estimator)
+    text = estimates_csv(results)
+    write_text_atomic(args.out, text, force=args.force)
+    valid = sum(1 for r in results for e in r.estimates.values() if e.valid)
+    print(f"{estimator.method}: {valid}/{len(results)} frames with an estimate -> {args.out}")
+    if args.bag:
+        n = write_pose_bag(args.bag, csv.DictReader(io.StringIO(text)), force=args.force)
+        print(f"{n} PoseStamped on detected_dock_pose (base_link) -> {args.bag}")
+    return 0

@@ -1,0 +1,168 @@
+"""What several commands share: the one-line-error parser, calibration and nuisance options, the estimator's."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from typing import TYPE_CHECKING, Any, NoReturn
+
+import cv2
+import numpy as np
+
+from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout
+from monodock.core.robot import RobotConfig
+from monodock.errors import InputError, MonodockError
+from monodock.estimation.bundle import Bundle
+from monodock.estimation.estimator import Estimator, FrameEstimates
+from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
+from monodock.estimation.factory import bundle_calibration as _bundle_calibration
+from monodock.report.overlay import draw_overlay
+
+if TYPE_CHECKING:
+    SubParsers = argparse._SubParsersAction[Any]
+else:
+    SubParsers = Any
+
+__all__ = [
+    "Parser",
+    "SubParsers",
+    "add_calibration",
+    "add_estimator_options",
+    "add_topics",
+    "build_estimator",
+    "bundle_calibration",
+    "jobs",
+    "load_calibration",
+    "overlay_png",
+    "positive_seconds",
+    "range_option",
+]
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the usage error on one line, like every other monodock error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def add_calibration(p: argparse.ArgumentParser, *, required: bool) -> None:
+    """``--camera``, ``--layout``, ``--robot``."""
+    p.add_argument("--camera", required=required, help="camera file: ROS camera_info YAML or OpenCV FileStorage")
+    p.add_argument("--layout", required=required, help="dock layout YAML")
+    p.add_argument("--robot", required=required, help="robot YAML (camera and LiDAR mounts, front_offset)")
+
+
+def load_calibration(args: argparse.Namespace) -> tuple[CameraModel, DockLayout, RobotConfig]:
+    """The camera, layout and robot of the options, each the built-in default when not given."""
+    camera = CameraModel.load(args.camera) if args.camera else CameraModel.default()
+    layout = DockLayout.load(args.layout) if args.layout else DockLayout.default()
+    robot = RobotConfig.load(args.robot) if args.robot else RobotConfig.default()
+    return camera, layout, robot
+
+
+def range_option(p: argparse.ArgumentParser, flag: str, default: tuple[float, float], what: str) -> None:
+    """A ``--flag MIN MAX`` option."""
+    p.add_argument(
+        flag,
+        type=float,
+        nargs=2,
+        default=default,
+        metavar=("MIN", "MAX"),
+        help=f"{what} (default {default[0]:g} {default[1]:g})",
+    )
+
+
+def jobs(value: int | None) -> int:
+    """Worker processes: the option's value, else the cores (at most 4)."""
+    return value if value and value > 0 else max(1, min(4, os.cpu_count() or 1))
+
+
+def positive_seconds(flag: str, value: float) -> float:
+    """A positive, finite number of seconds, or InputError naming the flag."""
+    if not (value > 0 and math.isfinite(value)):
+        raise InputError(f"{flag} must be a positive number of seconds, got {value}")
+    return value
+
+
+def add_topics(p: argparse.ArgumentParser) -> None:
+    """A recording's topics (found by message type by default) and the image/scan pairing tolerance."""
+    g = p.add_argument_group("recording topics (default: found by message type)")
+    g.add_argument("--image-topic", help="sensor_msgs/Image or CompressedImage topic")
+    g.add_argument("--camera-info-topic", help="sensor_msgs/CameraInfo topic")
+    g.add_argument("--scan-topic", help="sensor_msgs/LaserScan topic")
+    g.add_argument(
+        "--tolerance", type=float, default=0.05, help="pair an image with a scan at most this far in stamp, s (0.05)"
+    )
+
+
+def add_estimator_options(
+    p: argparse.ArgumentParser, *, methods: tuple[str, ...] = METHOD_NAMES, camera_help: str, robot_help: str
+) -> None:
+    """The options of ``build_estimator``."""
+    p.add_argument("--model", help="model bundle (carries its camera, layout and mounts; --camera may override)")
+    p.add_argument(
+        "--method",
+        choices=methods,
+        help="regression: the papers' models (default with --model); pnp: marker 2 alone (IPPE_SQUARE), the "
+        "papers' baseline; board: all visible markers (default without --model); fused: planar PnP on "
+        "bias-free corners combined with the regression, with a covariance (needs --model)",
+    )
+    p.add_argument("--camera", help=camera_help)
+    p.add_argument("--layout", help="dock layout YAML (with --model: must match the bundle's)")
+    p.add_argument("--robot", help=robot_help)
+    p.add_argument("--refinement", choices=REFINEMENTS, default="subpix", help="ArUco corner refinement")
+
+
+def build_estimator(args: argparse.Namespace) -> Estimator:
+    """The Estimator of ``--model`` / ``--method`` / ``--camera --layout --robot`` (``estimation.factory``)."""
+    if not args.model:
+        if args.method in ("regression", "fused"):
+            raise InputError(f"the {args.method} method needs --model BUNDLE")
+        missing = [f"--{k}" for k in ("camera", "layout", "robot") if not getattr(args, k, None)]
+        if missing:
+            raise InputError(f"without --model, give {' '.join(missing)} (the PnP methods need the calibration)")
+    return make_estimator(
+        method=args.method,
+        bundle=args.model,
+        camera=getattr(args, "camera", None),
+        layout=getattr(args, "layout", None),
+        robot=getattr(args, "robot", None),
+        refinement=getattr(args, "refinement", "subpix"),
+    )
+
+
+def bundle_calibration(args: argparse.Namespace, bundle: Bundle) -> tuple[CameraModel, DockLayout, RobotConfig]:
+    """The bundle's camera, layout and mounts; --camera and --robot override, --layout must match."""
+    return _bundle_calibration(
+        bundle,
+        camera=getattr(args, "camera", None),
+        layout=getattr(args, "layout", None),
+        robot=getattr(args, "robot", None),
+    )
+
+
+def overlay_png(
+    image: np.ndarray,
+    result: FrameEstimates,
+    estimator: Estimator,
+    truth_corners: dict[str, np.ndarray] | None = None,
+    method: str = "board",
+) -> bytes:
+    """The overlay of one estimated frame (its detection and ``method``'s estimate), PNG-encoded."""
+    assert result.detection is not None
+    pic = draw_overlay(
+        image,
+        result.detection,
+        estimator.layout,
+        estimator.camera,
+        estimator.robot,
+        result.estimates.get(method),
+        truth_corners,
+    )
+    ok, buf = cv2.imencode(".png", pic)
+    if not ok:
+        raise MonodockError("cannot encode the overlay PNG")
+    return bytes(buf.tobytes())

@@ -1,0 +1,87 @@
+"""The command lines of the ROS 2 nodes (``monodock-ros``, ``monodock-dock-ros``): flags in, typed options out.
+
+The nodes themselves live in ``monodock.ros`` and take typed options; ROS arguments (``--ros-args ...``) pass
+through to rclpy. This module needs rclpy, as the node modules do.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]
+
+from monodock.cli.options import add_estimator_options
+from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC
+from monodock.ros.detector import DetectorOptions, run_detector
+from monodock.ros.dock_node import DockOptions, run_dock
+
+__all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser"]
+
+
+
+
+def _add_image_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--image-topic", default="/camera/image_raw")
+    p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")
+
+
+def detector_parser() -> argparse.ArgumentParser:
+    """``monodock-ros``'s flags."""
+    p = argparse.ArgumentParser(prog="monodock-ros", description="camera images in, detected_dock_pose out")
+    add_estimator_options(
+        p, camera_help="camera file (default: from camera_info)", robot_help="robot YAML (camera mount)"
+    )
+    _add_image_options(p)
+    p.add_argument("--camera-info-topic", default="/camera/camera_info")
+    p.add_argument("--pose-topic", default=DOCK_POSE_TOPIC)
+    p.add_argument(
+        "--pose-covariance-topic",
+        default=DOCK_POSE_COVARIANCE_TOPIC,
+        help="PoseWithCovarianceStamped of the estimates that have a covariance",
+    )
+    p.add_argument("--frame-id", default="base_link")
+    return p
+
+
+def dock_parser() -> argparse.ArgumentParser:
+    """``monodock-dock-ros``'s flags."""
+    p = argparse.ArgumentParser(prog="monodock-dock-ros", description="dock once: cmd_vel out, odom and image in")
+    add_estimator_options(
+        p, camera_help="camera file (needed without --model)", robot_help="robot YAML (mounts, front_offset, limits)"
+    )
+    _add_image_options(p)
+    p.add_argument("--odom-topic", default="/odom")
+    p.add_argument("--cmd-vel-topic", default="/cmd_vel")
+    p.add_argument("--contact-topic", help="std_msgs/Bool that is true on contact with the charger (optional)")
+    p.add_argument("--standoff", type=float, default=1.0, help="Point A: floor between front edge and face, m")
+    return p
+
+
+def detector_options(argv: Sequence[str]) -> DetectorOptions:
+    """The detector's options from its flags (ROS arguments removed first)."""
+    args = detector_parser().parse_args(list(argv))
+    return DetectorOptions(**vars(args))
+
+
+def dock_options(argv: Sequence[str]) -> DockOptions:
+    """The docking node's options from its flags (ROS arguments removed first)."""
+    args = dock_parser().parse_args(list(argv))
+    return DockOptions(**vars(args))
+
+
+def _argv(prog: str, argv: Sequence[str] | None) -> list[str]:
+    return list(sys.argv if argv is None else [prog, *argv])
+
+
+def detector_main(argv: Sequence[str] | None = None) -> int:
+    """``monodock-ros``: run the detector node until shut down."""
+    raw = _argv("monodock-ros", argv)
+    return run_detector(detector_options(remove_ros_args(raw)[1:]), raw)
+
+
+def dock_main(argv: Sequence[str] | None = None) -> int:
+    """``monodock-dock-ros``: dock once; 0 when docked, 1 when the mission failed, 2 on bad options."""
+    raw = _argv("monodock-dock-ros", argv)
+    return run_dock(dock_options(remove_ros_args(raw)[1:]), raw)

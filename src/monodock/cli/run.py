@@ -1,0 +1,134 @@
+"""``monodock run``: live estimation from a camera, stream, video or recording, one row per frame as it comes."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+from pathlib import Path
+from typing import IO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monodock.cli.options import SubParsers, add_estimator_options, build_estimator
+from monodock.core.atomic import check_writable
+from monodock.errors import InputError
+from monodock.estimation.estimator import Estimator, FrameEstimates
+from monodock.io.frames import open_frames
+from monodock.io.live import Draw, run_live
+from monodock.io.nav2 import PoseStampedBagWriter
+from monodock.report.overlay import draw_overlay
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers: SubParsers) -> None:
+    """Add ``run``."""
+    r = subparsers.add_parser(
+        "run",
+        help="live estimation from a camera, stream, video or recording: one row per frame as it comes",
+    )
+    r.add_argument(
+        "--source",
+        required=True,
+        help="camera index (0, 1 ...), video file, rtsp:// or http:// URL, "
+        "or recording (rosbag2 folder, .mcap, .db3, .bag)",
+    )
+    add_estimator_options(
+        r,
+        methods=("regression", "pnp", "board", "fused"),
+        camera_help="camera file: ROS camera_info YAML or OpenCV FileStorage",
+        robot_help="robot YAML (camera and LiDAR mounts, front_offset)",
+    )
+    r.add_argument("--out", default="-", help="rows to write: FILE.csv, FILE.jsonl, or - for stdout (default)")
+    r.add_argument("--format", choices=("csv", "jsonl"), help="row format (default: from --out's suffix, else csv)")
+    r.add_argument("--bag", metavar="OUT_BAG", help="also write the valid poses as a Nav2 detected_dock_pose rosbag2")
+    r.add_argument("--overlay-video", metavar="OUT.mp4", help="also write the overlay of every frame to a video")
+    r.add_argument("--show", action="store_true", help="show the overlay in a window ('q' stops)")
+    r.add_argument(
+        "--realtime",
+        action="store_true",
+        help="play a video or recording at its own rate (drops frames "
+        "it cannot keep up with); default: as fast as possible",
+    )
+    r.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    r.add_argument("--image-topic", help="a recording's image topic, when it has several")
+    r.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    r.set_defaults(func=run)
+
+
+def _output_format(args: argparse.Namespace) -> str:
+    if args.format:
+        return str(args.format)
+    return "jsonl" if str(args.out).lower().endswith((".jsonl", ".ndjson", ".json")) else "csv"
+
+
+def _draw(estimator: Estimator) -> Draw:
+    """The overlay of a frame: its detection and the method's estimate, at the frame's own size."""
+
+    def draw(image: NDArray[np.uint8], result: FrameEstimates) -> NDArray[np.uint8]:
+        assert result.detection is not None
+        return draw_overlay(
+            image,
+            result.detection,
+            estimator.layout,
+            estimator.camera,
+            estimator.robot,
+            result.estimates[estimator.method],
+            scale=1.0,
+        )
+
+    return draw
+
+
+def _say(text: str) -> None:
+    print(f"monodock run: {text}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``monodock run``: rows streamed to stdout or a file as they are made (see ``io.live``)."""
+    if args.max_frames is not None and args.max_frames < 1:
+        raise InputError(f"--max-frames must be at least 1, got {args.max_frames}")
+    to_stdout = args.out == "-"
+    for path in (None if to_stdout else args.out, args.bag, args.overlay_video):
+        if path:
+            check_writable(path, force=args.force)
+    estimator = build_estimator(args)
+    with contextlib.ExitStack() as stack:
+        source = stack.enter_context(
+            open_frames(
+                args.source, skip_bad=True, image_topic=args.image_topic, size=estimator.camera.size, on_warning=_say
+            )
+        )
+        bag = stack.enter_context(PoseStampedBagWriter(args.bag, force=args.force)) if args.bag else None
+        if to_stdout:
+            sink: IO[str] = sys.stdout
+        else:
+            # Streamed into the named file itself, so that it can be followed (tail -f) during the run;
+            # it was checked above not to replace anything without --force.
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            sink = stack.enter_context(open(args.out, "w", encoding="utf-8", newline=""))
+        stats = run_live(
+            source,
+            estimator,
+            estimator.method,
+            sink=sink,
+            output_format=_output_format(args),
+            bag=bag,
+            draw=_draw(estimator),
+            overlay_video=args.overlay_video,
+            force=args.force,
+            show=args.show,
+            realtime=args.realtime,
+            max_frames=args.max_frames,
+            on_message=_say,
+        )
+    where = "" if to_stdout else f" -> {args.out}"
+    if bag is not None:
+        where += f"; {bag.written} poses -> {args.bag}"
+        if bag.written_with_covariance:
+            where += f" ({bag.written_with_covariance} with covariance)"
+    summary = f"{estimator.method} on {source.name}: {stats.summary()}{where}"
+    print(summary, file=sys.stderr if to_stdout else sys.stdout)
+    return 0

@@ -1,0 +1,213 @@
+"""``monodock simulate``: rendered frames with LiDAR scans and ground truth, as a folder or a rosbag2 drive."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from monodock.cli.options import SubParsers, add_calibration, jobs, load_calibration, overlay_png, range_option
+from monodock.core.atomic import atomic_directory
+from monodock.errors import MonodockError
+from monodock.estimation.estimator import Estimator
+from monodock.sim import Nuisances, PoseDistribution, RoomGeometry, SimFrame, Simulator
+from monodock.sim.drive import DriveConfig, plan_drive
+from monodock.sim.export import FrameRecord, write_frame_folder
+from monodock.sim.recording import write_recording
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(subparsers: SubParsers) -> None:
+    """Add ``simulate``."""
+    s = subparsers.add_parser("simulate", help="render camera frames, LiDAR scans and ground truth to a folder")
+    s.add_argument("--out", required=True, help="output folder")
+    s.add_argument("--frames", type=int, default=200)
+    s.add_argument("--seed", type=int, default=0)
+    range_option(s, "--depth", (0.25, 2.5), "depth from the camera, metres")
+    range_option(s, "--lateral", (-0.4, 0.4), "DockPose y, metres")
+    range_option(s, "--yaw", (-30.0, 30.0), "DockPose yaw, degrees")
+    s.add_argument(
+        "--preview",
+        type=int,
+        nargs="?",
+        const=5,
+        default=0,
+        metavar="N",
+        help="also write overlay PNGs of the first N frames (default 5) to OUT/preview",
+    )
+    s.add_argument(
+        "--format",
+        choices=("folder", "rosbag2"),
+        default="folder",
+        help="folder: PNGs, scans.npz and ground_truth.csv (default); rosbag2: a stop-and-go data-collection "
+        "recording (Image, CameraInfo, LaserScan, /tf_static, ground truth on /monodock/ground_truth)",
+    )
+    g = s.add_argument_group("recording (--format rosbag2)")
+    g.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="rosbag2 storage (default mcap)")
+    g.add_argument(
+        "--encoding",
+        choices=("mono8", "bgr8", "png", "jpeg"),
+        default="mono8",
+        help="mono8/bgr8: sensor_msgs/Image; png/jpeg: sensor_msgs/CompressedImage (default mono8)",
+    )
+    g.add_argument(
+        "--density",
+        default="uniform",
+        help="stops per 5 cm depth segment: uniform (default), paper (Table 2's N), or 45 comma-separated weights",
+    )
+    g.add_argument("--camera-rate", type=float, default=15.0, help="camera frame rate, Hz (default 15)")
+    g.add_argument("--lidar-rate", type=float, default=10.0, help="LiDAR scan rate, Hz (default 10)")
+    s.add_argument("--jobs", type=int, help="worker processes (default: cores, at most 4)")
+    s.add_argument("--force", action="store_true", help="replace an existing output folder")
+    add_calibration(s, required=False)
+    add_nuisances(s)
+    s.set_defaults(func=run)
+
+
+def add_nuisances(p: argparse.ArgumentParser) -> None:
+    """The simulator's nuisance knobs (``sim.Nuisances``)."""
+    g = p.add_argument_group("nuisances (defaults: a cheap indoor webcam)")
+    g.add_argument("--clean", action="store_true", help="no nuisance at all: the exact render")
+    g.add_argument("--read-noise", type=float, help="sensor read noise, 8-bit digital numbers")
+    g.add_argument("--shot-noise", type=float, help="photon noise variance per digital number")
+    g.add_argument("--defocus", type=float, help="lens blur sigma, pixels")
+    g.add_argument("--motion-blur", type=float, help="motion streak length, pixels")
+    g.add_argument("--exposure", type=float, help="exposure gain")
+    g.add_argument("--exposure-jitter", type=float, help="per-frame log-normal spread of the exposure")
+    g.add_argument("--gamma", type=float, help="display gamma (1: linear)")
+    g.add_argument("--vignetting", type=float, help="relative fall-off at the image corners")
+    g.add_argument("--occluder-probability", type=float, help="chance per frame of an object hiding a marker")
+    g.add_argument("--no-clutter", action="store_true", help="no posters or foreign markers around the charger")
+    g.add_argument("--supersample", type=int, help="S: edge pixels get SxS area samples (default 16; lower is faster)")
+    g.add_argument("--side-walls", type=float, metavar="DIST", help="side walls DIST metres either side of the dock")
+
+
+def nuisances(args: argparse.Namespace) -> Nuisances:
+    """The Nuisances of the options (``add_nuisances``)."""
+    n = Nuisances.clean() if args.clean else Nuisances()
+    knobs = {
+        "read_noise": args.read_noise,
+        "shot_noise": args.shot_noise,
+        "defocus_px": args.defocus,
+        "motion_blur_px": args.motion_blur,
+        "exposure": args.exposure,
+        "exposure_jitter": args.exposure_jitter,
+        "gamma": args.gamma,
+        "vignetting": args.vignetting,
+        "occluder_probability": args.occluder_probability,
+    }
+    changes: dict[str, object] = {k: v for k, v in knobs.items() if v is not None}
+    for k, v in changes.items():
+        if not (isinstance(v, float) and math.isfinite(v) and v >= 0):
+            raise MonodockError(f"--{k.replace('_', '-')} must be a non-negative number, got {v}")
+    if args.no_clutter:
+        changes["clutter"] = False
+    if args.supersample is not None:
+        if args.supersample < 1:
+            raise MonodockError(f"--supersample must be at least 1, got {args.supersample}")
+        changes["supersample"] = args.supersample
+    return n.updated(**changes)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``monodock simulate``: frames to a folder, or a data-collection drive to a rosbag2 recording."""
+    camera, layout, robot = load_calibration(args)
+    if args.frames < 1:
+        raise MonodockError("--frames must be at least 1")
+    if args.preview < 0:
+        raise MonodockError("--preview must not be negative")
+    dist = PoseDistribution(depth=tuple(args.depth), lateral=tuple(args.lateral), yaw_deg=tuple(args.yaw))
+    for name, (lo, hi) in (("depth", args.depth), ("lateral", args.lateral), ("yaw", args.yaw)):
+        if not lo <= hi:
+            raise MonodockError(f"--{name}: the first value must not exceed the second ({lo} > {hi})")
+    room = RoomGeometry()
+    if args.side_walls is not None:
+        room = RoomGeometry(side_walls=args.side_walls)
+    sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=nuisances(args), room=room, seed=args.seed)
+    try:
+        poses = [sim.sample_pose(dist) for _ in range(args.frames)] if args.format == "folder" else []
+    except RuntimeError as exc:
+        raise MonodockError(str(exc)) from None
+    previews: list[tuple[str, bytes]] = []
+    estimator = Estimator(camera, layout, robot, ("board",))
+
+    def preview(rec: FrameRecord) -> None:
+        if rec.index < args.preview:
+            result = estimator.estimate(rec.name, rec.stamp, rec.frame.image)
+            previews.append((rec.name, overlay_png(rec.frame.image, result, estimator, rec.frame.truth.corners)))
+
+    t0 = time.perf_counter()
+    if args.format == "rosbag2":
+        return _simulate_recording(args, sim, estimator, dist)
+    infos = write_frame_folder(
+        args.out, sim, poses, seed=args.seed, jobs=jobs(args.jobs), force=args.force, on_frame=preview
+    )
+    dt = time.perf_counter() - t0
+    print(f"wrote {len(infos)} frames to {args.out} in {dt:.1f} s ({dt / len(infos) * 1000:.0f} ms/frame)")
+    if previews:
+        with atomic_directory(Path(args.out) / "preview", force=True) as tmp:
+            for name, png in previews:
+                (tmp / name).write_bytes(png)
+        print(f"preview overlays: {Path(args.out) / 'preview'}")
+    return 0
+
+
+def _simulate_recording(args: argparse.Namespace, sim: Simulator, estimator: Estimator, dist: PoseDistribution) -> int:
+    """``simulate --format rosbag2``: a stop-and-go data-collection drive written as a rosbag2 recording."""
+    density: str | tuple[float, ...] = args.density
+    if "," in args.density:
+        try:
+            density = tuple(float(w) for w in args.density.split(","))
+        except ValueError:
+            raise MonodockError(f"--density: not a list of numbers: {args.density}") from None
+    config = DriveConfig(
+        stops=args.frames,
+        depth=dist.depth,
+        lateral=dist.lateral,
+        yaw_deg=dist.yaw_deg,
+        density=density,
+        camera_rate_hz=args.camera_rate,
+        lidar_rate_hz=args.lidar_rate,
+    )
+    try:
+        stops = plan_drive(sim, config, np.random.default_rng([args.seed, 2]))
+    except RuntimeError as exc:
+        raise MonodockError(str(exc)) from None
+    previews: list[tuple[str, bytes]] = []
+
+    def preview(index: int, frame: SimFrame) -> None:
+        if index < args.preview:
+            name = f"frame_{index:06d}.png"
+            result = estimator.estimate(name, 0.0, frame.image)
+            previews.append((name, overlay_png(frame.image, result, estimator, frame.truth.corners)))
+
+    t0 = time.perf_counter()
+    summary = write_recording(
+        args.out,
+        sim,
+        stops,
+        seed=args.seed,
+        jobs=jobs(args.jobs),
+        storage=args.storage,
+        encoding=args.encoding,
+        force=args.force,
+        on_frame=preview,
+    )
+    dt = time.perf_counter() - t0
+    print(
+        f"wrote a {summary.duration_s:.0f} s recording ({summary.images} images, {summary.scans} scans, "
+        f"{summary.bytes / 1e6:.0f} MB) to {args.out} in {dt:.1f} s"
+    )
+    if previews:
+        target = Path(str(args.out).rstrip("/") + "_preview")
+        with atomic_directory(target, force=True) as tmp:
+            for name, png in previews:
+                (tmp / name).write_bytes(png)
+        print(f"preview overlays: {target}")
+    return 0
+
+
