@@ -31,20 +31,6 @@ def _record(path: Path, sim: Simulator, stops: int, seed: int, **drive: object) 
     write_recording(path, sim, plan, seed=seed, jobs=2, progress=False)
 
 
-@pytest.fixture(scope="module")
-def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A training drive (labelled, trained with one draw per model) and a held-out drive of another seed."""
-    root = tmp_path_factory.mktemp("pipeline")
-    _record(root / "train_rec", Simulator(nuisances=FAST, seed=1), 240, 1)
-    _record(root / "test_rec", Simulator(nuisances=FAST, seed=2), 40, 2)
-    Simulator().layout.save(root / "layout.yaml")
-    layout = str(root / "layout.yaml")
-    assert main(["label", str(root / "train_rec"), "--layout", layout, "--out", str(root / "train.parquet")]) == 0
-    code = main(["train", str(root / "train.parquet"), "--out", str(root / "bundle"), "--trials", "1", "--jobs", "2"])
-    assert code == 0
-    return root
-
-
 def _truth(root: Path, name: str) -> dict[str, tuple[float, float, float]]:
     with open_recording(root / name) as rec:
         return {f"{t:.6f}": (p.x, p.y, p.yaw_deg) for t, p in rec.ground_truth()}
