@@ -5,7 +5,6 @@ from __future__ import annotations
 import hashlib
 import json
 import pickle
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -13,54 +12,7 @@ import pytest
 
 from monodock.errors import InputError
 from monodock.estimation.bundle import BUNDLE_FILE, Bundle
-from monodock.learning.export import save_bundle
-from monodock.learning.train import TrainConfig, TrainingResult, TrainingSet, train
-
-SET = "m1m2m3"
-
-
-FEATURES = ("size", "ratio", "noise_a", "noise_b")
-
-
-META = {"feature_schema": "test-features/1", "layout": {"marker_size": 0.1}}
-
-
-def synthetic_set(seed: int = 0) -> TrainingSet:
-    """Rows from a known function: depth = 60 / size, yaw linear in a ratio whose slope grows with depth.
-
-    Depths cover 25-60 cm (segments 0-6), with segment 3 nearly empty; farther segments have no rows.
-    """
-    rng = np.random.default_rng(seed)
-    per_segment = [70, 70, 70, 10, 70, 70, 70]
-    depth = np.concatenate([rng.uniform(0.25 + 0.05 * k, 0.30 + 0.05 * k, n) for k, n in enumerate(per_segment)])
-    n = len(depth)
-    yaw = rng.uniform(-30.0, 30.0, n)
-    size = 60.0 / depth + rng.normal(0.0, 0.2, n)
-    ratio = yaw * (0.01 + 0.02 * depth) + rng.normal(0.0, 0.01, n)
-    X = np.column_stack([size, ratio, rng.normal(size=n), 50.0 * rng.normal(size=n)])
-    return TrainingSet(SET, FEATURES, X, depth + rng.normal(0.0, 0.003, n), yaw, depth)
-
-
-@pytest.fixture(scope="module")
-def data() -> TrainingSet:
-    return synthetic_set()
-
-
-@pytest.fixture(scope="module")
-def result(data: TrainingSet) -> TrainingResult:
-    return train([data], TrainConfig(trials=2, jobs=1, seed=3), progress=False)
-
-
-@pytest.fixture(scope="module")
-def saved(result: TrainingResult, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return save_bundle(tmp_path_factory.mktemp("b") / "bundle", result, metadata=META)
-
-
-@pytest.fixture
-def bundle_copy(saved: Path, tmp_path: Path) -> Path:
-    out = tmp_path / "bundle"
-    shutil.copytree(saved, out)
-    return out
+from shared import FEATURES, SET
 
 
 def test_predicting_without_a_model_or_with_bad_input_is_refused(saved: Path) -> None:

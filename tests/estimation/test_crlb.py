@@ -8,36 +8,17 @@ import math
 import numpy as np
 import pytest
 
-from monodock.core.camera import CameraModel
 from monodock.core.pose import DockPose
 from monodock.errors import InputError
 from monodock.estimation.corner_noise import CornerNoise, corner_sides_px
 from monodock.estimation.crlb import crlb, pose_jacobian, visible_roles
 from monodock.evaluation.what_if import Variant, default_variants, scaled_camera, what_if
 from monodock.sim import Simulator
-
-CAMERA_X = 0.17  # RobotConfig.default().camera_mount.x: poses below are given by depth from the camera
-
-
-STRONG_LENS = CameraModel.from_intrinsics(640, 480, 615.0, 613.0, 322.4, 237.1, (-0.2, 0.0, 0.0, 0.0, 0.0))
-
-
-def _pose(depth: float, y: float, yaw_deg: float) -> DockPose:
-    return DockPose(depth + CAMERA_X, y, math.radians(yaw_deg))
-
-
-@pytest.fixture(scope="module")
-def sim() -> Simulator:
-    return Simulator(seed=0)
-
-
-@pytest.fixture(scope="module")
-def strong_sim() -> Simulator:
-    return Simulator(camera=STRONG_LENS, seed=0)
+from shared import pose_at
 
 
 @pytest.mark.parametrize("lens", ["default", "k1=-0.2"])
-@pytest.mark.parametrize("truth", [_pose(0.6, 0.02, 5.0), _pose(2.0, -0.3, -25.0)])
+@pytest.mark.parametrize("truth", [pose_at(0.6, 0.02, 5.0), pose_at(2.0, -0.3, -25.0)])
 def test_jacobian_matches_finite_differences_of_true_corners(
     sim: Simulator, strong_sim: Simulator, lens: str, truth: DockPose
 ) -> None:
@@ -59,7 +40,7 @@ def test_jacobian_matches_finite_differences_of_true_corners(
 
 
 def test_crlb_scales_with_sigma_and_adds_markers(sim: Simulator) -> None:
-    pose = _pose(1.5, 0.0, 10.0)
+    pose = pose_at(1.5, 0.0, 10.0)
     args = (sim.camera, sim.layout, sim.robot)
     one = crlb(pose, *args, 0.3, roles=("center",))
     three = crlb(pose, *args, 0.3)
@@ -108,7 +89,7 @@ def test_crlb_with_correlated_corners(sim: Simulator) -> None:
     """Independent corners are the identity correlation; when a marker's four corners shift sideways together
     (correlation rho between their u errors), its lateral position is ~sqrt(1 + 3 rho) times less certain,
     as for the mean of four correlated readings."""
-    truth = _pose(1.0, 0.0, 0.0)
+    truth = pose_at(1.0, 0.0, 0.0)
     roles = ("center",)
     iid = crlb(truth, sim.camera, sim.layout, sim.robot, 0.05, roles)
     np.testing.assert_allclose(crlb(truth, sim.camera, sim.layout, sim.robot, 0.05, roles, np.eye(8)), iid)

@@ -11,10 +11,7 @@ import pytest
 
 from monodock.errors import InputError
 from monodock.estimation.fused import Correction, FusedEstimator, FusionTables, band_index, fuse_gaussians
-
-
-def _draw(rng: np.random.Generator, cov: np.ndarray, n: int) -> np.ndarray:
-    return rng.multivariate_normal(np.zeros(3), cov, size=n)
+from shared import draw_gaussian, noisy_detection
 
 
 def test_fusing_two_independent_estimates_beats_both_by_the_expected_amount() -> None:
@@ -23,8 +20,8 @@ def test_fusing_two_independent_estimates_beats_both_by_the_expected_amount() ->
     truth = np.column_stack([rng.uniform(0.5, 2.5, n), rng.uniform(-0.3, 0.3, n), rng.uniform(-3.1, 3.1, n)])
     cov_g = np.diag([0.002**2, 0.004**2, 0.02**2])
     cov_r = np.diag([0.004**2, 0.002**2, 0.02**2])
-    g = truth + _draw(rng, cov_g, n)
-    r = truth + _draw(rng, cov_r, n)
+    g = truth + draw_gaussian(rng, cov_g, n)
+    r = truth + draw_gaussian(rng, cov_r, n)
     fused = np.array([fuse_gaussians([g[i], r[i]], [cov_g, cov_r])[0] for i in range(n)])
     err = fused - truth
     err[:, 2] = (err[:, 2] + math.pi) % (2 * math.pi) - math.pi
@@ -87,16 +84,6 @@ class _CountingRegression:
         return self.answer
 
 
-def _noisy_detection(sim: object, pose: object, roles: tuple[str, ...], seed: int) -> object:
-    from monodock.perception.detect import Detection, MarkerObservation
-
-    rng = np.random.default_rng(seed)
-    corners = sim.true_corners(pose)  # type: ignore[attr-defined]
-    obs = {
-        r: MarkerObservation(r, sim.layout.marker(r).id, corners[r] + rng.normal(0, 0.05, (4, 2)))  # type: ignore[attr-defined]
-        for r in roles
-    }
-    return Detection(obs, (), sim.camera.size)  # type: ignore[attr-defined]
 
 
 def test_the_regression_runs_only_where_it_can_improve_the_answer() -> None:
@@ -110,7 +97,7 @@ def test_the_regression_runs_only_where_it_can_improve_the_answer() -> None:
 
     sim = Simulator(seed=4)
     truth = DockPose(1.17, 0.05, math.radians(10.0))
-    det = _noisy_detection(sim, truth, ("left", "center", "right"), 0)
+    det = noisy_detection(sim, truth, ("left", "center", "right"), 0)
 
     def run(reg_sd: tuple[float, float, float], answer: PoseEstimate, given: bool) -> tuple[PoseEstimate, int]:
         cov = np.diag(np.square(reg_sd))
@@ -143,7 +130,7 @@ def test_the_regression_runs_only_where_it_can_improve_the_answer() -> None:
     assert run(strong_sd, answer, given=True)[0].pose == strong.pose
 
     far = DockPose(2.3, 0.0, math.radians(20.0))
-    lone = _noisy_detection(sim, far, ("center",), 1)
+    lone = noisy_detection(sim, far, ("center",), 1)
     regression = _CountingRegression(PoseEstimate("regression", far, "", ("center",)))
     cov = np.diag([0.01**2, 0.01**2, math.radians(1.0) ** 2])
     est = FusedEstimator(
@@ -170,9 +157,6 @@ def test_the_covariance_floor_only_changes_what_is_below_it() -> None:
     np.testing.assert_allclose(got[0, 0] + got[1, 1] + 2 * got[0, 1], 4e-6, rtol=1e-6)
 
 
-def _in_view(sim: object, pose: object, role: str) -> bool:
-    corners = sim.true_corners(pose)[role]  # type: ignore[attr-defined]
-    return bool(np.all(np.isfinite(corners)) and sim.in_view(corners, 2.0))  # type: ignore[attr-defined]
 
 
 def test_the_warm_up_runs_both_refiner_paths_on_valid_views() -> None:

@@ -9,7 +9,6 @@ import math
 import numpy as np
 import pytest
 
-from monodock.core.camera import CameraModel
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
@@ -23,37 +22,24 @@ from monodock.estimation.planar import (
     solve_planar,
 )
 from monodock.sim import Simulator
-
-CAMERA_X = 0.17  # RobotConfig.default().camera_mount.x: poses below are given by depth from the camera
-
-
-STRONG_LENS = CameraModel.from_intrinsics(640, 480, 615.0, 613.0, 322.4, 237.1, (-0.2, 0.0, 0.0, 0.0, 0.0))
-
+from shared import pose_at
 
 ROLE_SETS = [("center",), ("left", "center"), ("left", "center", "right")]
 
 
-def _pose(depth: float, y: float, yaw_deg: float) -> DockPose:
-    return DockPose(depth + CAMERA_X, y, math.radians(yaw_deg))
 
 
 def _errors(a: DockPose, b: DockPose) -> np.ndarray:
     return np.array([a.x - b.x, a.y - b.y, wrap_angle(a.yaw - b.yaw)])
 
 
-@pytest.fixture(scope="module")
-def sim() -> Simulator:
-    return Simulator(seed=0)
 
 
-@pytest.fixture(scope="module")
-def strong_sim() -> Simulator:
-    return Simulator(camera=STRONG_LENS, seed=0)
 
 
 @pytest.mark.parametrize("lens", ["default", "k1=-0.2"])
 @pytest.mark.parametrize("roles", ROLE_SETS, ids=["1 marker", "2 markers", "3 markers"])
-@pytest.mark.parametrize("truth", [_pose(1.0, 0.05, 10.0), _pose(0.7, -0.04, -12.0), _pose(1.8, 0.2, 25.0)])
+@pytest.mark.parametrize("truth", [pose_at(1.0, 0.05, 10.0), pose_at(0.7, -0.04, -12.0), pose_at(1.8, 0.2, 25.0)])
 def test_exact_corners_recover_the_true_pose(
     sim: Simulator, strong_sim: Simulator, lens: str, roles: tuple[str, ...], truth: DockPose
 ) -> None:
@@ -71,7 +57,7 @@ def test_exact_corners_recover_the_true_pose(
 
 def test_start_far_off_still_converges(sim: Simulator) -> None:
     """Three markers, a start 40 cm and 25 degrees off: the damping keeps it on the way to the truth."""
-    truth = _pose(1.2, 0.1, -8.0)
+    truth = pose_at(1.2, 0.1, -8.0)
     corners = sim.true_corners(truth)
     start = DockPose(truth.x - 0.3, truth.y + 0.25, truth.yaw + math.radians(25.0))
     fit = solve_planar(corners, sim.camera, sim.layout, sim.robot, start=start, max_iterations=50)
@@ -80,7 +66,7 @@ def test_start_far_off_still_converges(sim: Simulator) -> None:
 
 
 @pytest.mark.parametrize(
-    "truth", [_pose(0.5, 0.0, 3.0), _pose(1.25, 0.08, -10.0), _pose(2.2, -0.15, 15.0)], ids=["near", "mid", "far"]
+    "truth", [pose_at(0.5, 0.0, 3.0), pose_at(1.25, 0.08, -10.0), pose_at(2.2, -0.15, 15.0)], ids=["near", "mid", "far"]
 )
 def test_monte_carlo_covariance_matches_the_bound(sim: Simulator, truth: DockPose) -> None:
     """iid σ = 0.2 px on the true corners: the estimates' covariance is the CRLB (±15 % per variance)."""
@@ -115,7 +101,7 @@ def test_monte_carlo_covariance_matches_the_bound(sim: Simulator, truth: DockPos
 def test_monte_carlo_per_corner_sigma(sim: Simulator) -> None:
     """Unequal noise (left marker 0.5 px, others 0.15 px): the weighted fit reaches the weighted bound,
     and beats the unweighted fit on the same draws."""
-    truth = _pose(1.5, -0.05, 12.0)
+    truth = pose_at(1.5, -0.05, 12.0)
     corners = sim.true_corners(truth)
     roles = ("left", "center", "right")
     per_corner = np.array([0.5] * 4 + [0.15] * 8)
@@ -138,7 +124,7 @@ def test_monte_carlo_per_corner_sigma(sim: Simulator) -> None:
 
 def test_corner_covariance_blocks_equal_scalar_sigma(sim: Simulator) -> None:
     """A 2x2 covariance σ²I per corner, a sigma per corner and a scalar σ are the same noise model."""
-    truth = _pose(1.1, 0.03, 7.0)
+    truth = pose_at(1.1, 0.03, 7.0)
     rng = np.random.default_rng(3)
     noisy = {r: c + rng.normal(0.0, 0.3, (4, 2)) for r, c in sim.true_corners(truth).items()}
     a = solve_planar(noisy, sim.camera, sim.layout, sim.robot, start=truth, corner_sigma=0.3)
@@ -151,7 +137,7 @@ def test_corner_covariance_blocks_equal_scalar_sigma(sim: Simulator) -> None:
         assert np.allclose(f.covariance, a.covariance, rtol=1e-6)
 
 
-@pytest.mark.parametrize("truth", [_pose(2.3, 0.1, 20.0), _pose(2.0, 0.3, 0.0)])
+@pytest.mark.parametrize("truth", [pose_at(2.3, 0.1, 20.0), pose_at(2.0, 0.3, 0.0)])
 def test_lone_far_marker_candidates_contain_the_truth(sim: Simulator, truth: DockPose) -> None:
     corners = {"center": sim.true_corners(truth)["center"]}
     cands = planar_candidates(corners, sim.camera, sim.layout, sim.robot)
@@ -170,7 +156,7 @@ def test_lone_far_marker_candidates_contain_the_truth(sim: Simulator, truth: Doc
 
 
 def test_candidates_for_three_markers_and_extra_starts(sim: Simulator) -> None:
-    truth = _pose(1.4, -0.1, 15.0)
+    truth = pose_at(1.4, -0.1, 15.0)
     corners = sim.true_corners(truth)
     cands = planar_candidates(corners, sim.camera, sim.layout, sim.robot, starts=[DockPose(1.0, 0.0, 0.0)])
     assert np.all(np.abs(_errors(cands[0].pose, truth)) < 1e-6)
@@ -179,7 +165,7 @@ def test_candidates_for_three_markers_and_extra_starts(sim: Simulator) -> None:
 
 
 def test_prior_pulls_as_expected(sim: Simulator) -> None:
-    truth = _pose(1.3, 0.05, 8.0)
+    truth = pose_at(1.3, 0.05, 8.0)
     corners = sim.true_corners(truth)
     offset = np.array([0.05, -0.03, math.radians(4.0)])
     mean = DockPose(truth.x + offset[0], truth.y + offset[1], truth.yaw + offset[2])
@@ -202,7 +188,7 @@ def test_prior_pulls_as_expected(sim: Simulator) -> None:
 
 
 def test_bad_input_raises_input_error(sim: Simulator) -> None:
-    truth = _pose(1.0, 0.0, 0.0)
+    truth = pose_at(1.0, 0.0, 0.0)
     corners = sim.true_corners(truth)
     args = (sim.camera, sim.layout, sim.robot)
     with pytest.raises(InputError, match="unknown marker role"):
@@ -224,7 +210,7 @@ def test_bad_input_raises_input_error(sim: Simulator) -> None:
 
 
 def test_start_behind_the_camera_is_reported_not_raised(sim: Simulator) -> None:
-    corners = sim.true_corners(_pose(1.0, 0.0, 0.0))
+    corners = sim.true_corners(pose_at(1.0, 0.0, 0.0))
     fit = solve_planar(corners, sim.camera, sim.layout, sim.robot, start=DockPose(-1.0, 0.0, 0.0))
     assert not fit.converged
     assert math.isinf(fit.cost)
@@ -259,7 +245,7 @@ def test_pitch_offset_absorbs_a_wrong_mount(error: str) -> None:
     worst3 = 0.0
     for depth in (1.0, 1.75, 2.5):
         for y, yaw_deg in ((0.05, 10.0), (-0.08, -10.0), (0.0, 0.0)):
-            truth = _pose(depth, y, yaw_deg)
+            truth = pose_at(depth, y, yaw_deg)
             corners = truth_sim.true_corners(truth)
             assert all(truth_sim.in_view(c) for c in corners.values())
             start = DockPose(truth.x + 0.05, truth.y - 0.03, truth.yaw + math.radians(5.0))
@@ -285,7 +271,7 @@ def test_pitch_offset_absorbs_a_wrong_mount(error: str) -> None:
 def test_pitch_offset_candidates_find_the_truth() -> None:
     """planar_candidates with pitch_sd (IPPE starts only) under a 1 degree mount pitch error."""
     truth_sim = Simulator(robot=_mount_off(pitch=math.radians(1.0)), seed=0)
-    truth = _pose(1.6, -0.1, 12.0)
+    truth = pose_at(1.6, -0.1, 12.0)
     corners = truth_sim.true_corners(truth)
     args = (truth_sim.camera, truth_sim.layout, RobotConfig.default())
     best = planar_candidates(corners, *args, pitch_sd=PITCH_SD)[0]
@@ -297,7 +283,7 @@ def test_pitch_offset_candidates_find_the_truth() -> None:
     assert plain.pitch_offset == 0.0
 
 
-@pytest.mark.parametrize("truth", [_pose(0.8, 0.05, 10.0), _pose(2.0, -0.2, -20.0)])
+@pytest.mark.parametrize("truth", [pose_at(0.8, 0.05, 10.0), pose_at(2.0, -0.2, -20.0)])
 def test_pitch_jacobian_matches_finite_differences_of_true_corners(truth: DockPose) -> None:
     """At a pitch offset of 0.7 degrees the 4-column model reproduces the corners of a simulator whose mount
     is pitched by that much, and its Jacobian matches central differences of those corners in x, y, yaw and
@@ -329,7 +315,7 @@ def test_pitch_offset_monte_carlo_reaches_its_bound(sim: Simulator) -> None:
     """Correct mount, σ = 0.05 px on the true corners, 3 markers at 1.5 m: the 4-DoF fit's (x, y, yaw)
     covariance is pose_information(pitch_sd) (±15 %), which costs at most 1.3x the 3-DoF bound."""
     sigma = 0.05
-    truth = _pose(1.5, 0.05, 8.0)
+    truth = pose_at(1.5, 0.05, 8.0)
     args = (sim.camera, sim.layout, sim.robot)
     roles = visible_roles(truth, *args)
     assert roles == ("left", "center", "right")
@@ -362,7 +348,7 @@ def test_pitch_offset_monte_carlo_reaches_its_bound(sim: Simulator) -> None:
 
 def test_pitch_sd_none_is_the_three_dof_fit(sim: Simulator) -> None:
     """pitch_sd=None is today's fit (pitch_offset 0), and a vanishing pitch prior converges to it."""
-    truth = _pose(1.2, 0.04, -6.0)
+    truth = pose_at(1.2, 0.04, -6.0)
     args = (sim.camera, sim.layout, sim.robot)
     rng = np.random.default_rng(23)
     noisy = {r: c + rng.normal(0.0, 0.3, (4, 2)) for r, c in sim.true_corners(truth).items()}
@@ -381,7 +367,7 @@ def test_pitch_sd_none_is_the_three_dof_fit(sim: Simulator) -> None:
 
 @pytest.mark.parametrize("bad", [0.0, -0.01, math.nan, math.inf])
 def test_bad_pitch_sd_raises_input_error(sim: Simulator, bad: float) -> None:
-    truth = _pose(1.0, 0.0, 0.0)
+    truth = pose_at(1.0, 0.0, 0.0)
     corners = sim.true_corners(truth)
     args = (sim.camera, sim.layout, sim.robot)
     with pytest.raises(InputError, match="pitch_sd"):
@@ -397,7 +383,7 @@ def test_pitch_prior_as_strong_as_the_corners_lands_half_way() -> None:
     the MAP pitch offset is half the truth (linear regime), and a very tight prior gives the 3-DoF fit."""
     believed = RobotConfig.default()
     s = Simulator(seed=0)
-    truth = _pose(1.5, 0.05, 8.0)
+    truth = pose_at(1.5, 0.05, 8.0)
     roles = ("left", "center", "right")
     sigma = 0.3
     _, J = planar_model(s.camera, s.layout, believed).jacobian(truth, roles, pitch_offset=0.0)
@@ -419,7 +405,7 @@ def test_pitch_prior_as_strong_as_the_corners_lands_half_way() -> None:
 def test_board_start_is_near_the_truth_and_the_fit_from_it_reaches_it(sim: Simulator, roles: tuple[str, ...]) -> None:
     from monodock.estimation.planar import board_start
 
-    truth = _pose(1.6, -0.1, 15.0)
+    truth = pose_at(1.6, -0.1, 15.0)
     corners = {r: c for r, c in sim.true_corners(truth).items() if r in roles}
     start = board_start(corners, sim.camera, sim.layout, sim.robot)
     if len(roles) < 2:

@@ -14,7 +14,6 @@ import cv2
 import numpy as np
 import pytest
 
-from monodock.cli.main import parser
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.errors import InputError
 from monodock.estimation.estimator import Estimator
@@ -28,45 +27,8 @@ from monodock.io.nav2 import (
     read_pose_bag,
 )
 from monodock.io.rows import COVARIANCE_COLUMNS, LIVE_COLUMNS
-from monodock.sim import Nuisances, PoseDistribution, Simulator
-
-FRAMES = 30
-
-
-BLACK = 12  # the frame that is all black: no markers
-
-
-@pytest.fixture(scope="module")
-def drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[Simulator, list[DockPose], Path, Path]:
-    """A 10 fps MJPG video of simulated frames with one black frame, the poses, and the calibration folder."""
-    folder = tmp_path_factory.mktemp("drive")
-    sim = Simulator(nuisances=Nuisances(supersample=4), seed=5)  # 4x4 edge samples: fast enough for a test
-    poses = [sim.sample_pose(PoseDistribution(depth=(0.4, 1.2))) for _ in range(FRAMES)]
-    video = folder / "drive.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, sim.camera.size)
-    assert writer.isOpened()
-    rng = np.random.default_rng(0)
-    for i, pose in enumerate(poses):
-        image = sim.frame(pose, 0.1 * i, rng).image
-        if i == BLACK:
-            image = np.zeros_like(image)
-        writer.write(cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
-    writer.release()
-    sim.camera.save(folder / "camera.yaml")
-    sim.layout.save(folder / "layout.yaml")
-    sim.robot.save(folder / "robot.yaml")
-    return sim, poses, video, folder
-
-
-def calibration(folder: Path) -> list[str]:
-    """The CLI options of the saved calibration files."""
-    return [f"--{k}={folder / f'{k}.yaml'}" for k in ("camera", "layout", "robot")]
-
-
-def run_cli(argv: list[str]) -> int:
-    """``monodock ARGV`` through the real parser, with its errors raised (not printed)."""
-    args = parser().parse_args(argv)
-    return int(args.func(args))
+from monodock.sim import Simulator
+from shared import BLACK, FRAMES, calibration, run_cli
 
 
 def check_against_truth(rows: list[dict[str, Any]], poses: list[DockPose]) -> None:

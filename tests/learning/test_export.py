@@ -8,58 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from numpy.typing import NDArray
 
 from monodock.errors import InputError
 from monodock.estimation.bundle import BUNDLE_FILE, Bundle, bundle_size_bytes
 from monodock.learning.export import save_bundle
 from monodock.learning.train import MODEL_NAMES, TrainConfig, TrainingResult, TrainingSet, train
-
-SET = "m1m2m3"
-
-
-FEATURES = ("size", "ratio", "noise_a", "noise_b")
-
-
-SPARSE_SEGMENT = 3  # 40-45 cm: only 10 rows of its own
-
-
-META = {"feature_schema": "test-features/1", "layout": {"marker_size": 0.1}}
-
-
-def synthetic_set(seed: int = 0) -> TrainingSet:
-    """Rows from a known function: depth = 60 / size, yaw linear in a ratio whose slope grows with depth.
-
-    Depths cover 25-60 cm (segments 0-6), with segment 3 nearly empty; farther segments have no rows.
-    """
-    rng = np.random.default_rng(seed)
-    per_segment = [70, 70, 70, 10, 70, 70, 70]
-    depth = np.concatenate([rng.uniform(0.25 + 0.05 * k, 0.30 + 0.05 * k, n) for k, n in enumerate(per_segment)])
-    n = len(depth)
-    yaw = rng.uniform(-30.0, 30.0, n)
-    size = 60.0 / depth + rng.normal(0.0, 0.2, n)
-    ratio = yaw * (0.01 + 0.02 * depth) + rng.normal(0.0, 0.01, n)
-    X = np.column_stack([size, ratio, rng.normal(size=n), 50.0 * rng.normal(size=n)])
-    return TrainingSet(SET, FEATURES, X, depth + rng.normal(0.0, 0.003, n), yaw, depth)
-
-
-def as_float32(X: NDArray[np.float64]) -> NDArray[np.float64]:
-    return X.astype(np.float32).astype(np.float64)
-
-
-@pytest.fixture(scope="module")
-def data() -> TrainingSet:
-    return synthetic_set()
-
-
-@pytest.fixture(scope="module")
-def result(data: TrainingSet) -> TrainingResult:
-    return train([data], TrainConfig(trials=2, jobs=1, seed=3), progress=False)
-
-
-@pytest.fixture(scope="module")
-def saved(result: TrainingResult, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return save_bundle(tmp_path_factory.mktemp("b") / "bundle", result, metadata=META)
+from shared import FEATURES, META, SET, SPARSE_SEGMENT, as_float32
 
 
 @pytest.mark.parametrize("model", MODEL_NAMES)

@@ -12,10 +12,7 @@ import pytest
 from monodock.errors import InputError
 from monodock.estimation.fused import Correction, FusionTables
 from monodock.learning.fusion import fit_correction, fusion_holdout, three_cornered_hat
-
-
-def _draw(rng: np.random.Generator, cov: np.ndarray, n: int) -> np.ndarray:
-    return rng.multivariate_normal(np.zeros(3), cov, size=n)
+from shared import draw_gaussian, in_view, noisy_detection
 
 
 def test_three_cornered_hat_separates_the_reference_noise_from_both_methods() -> None:
@@ -25,7 +22,9 @@ def test_three_cornered_hat_separates_the_reference_noise_from_both_methods() ->
     cov_b = np.array([[0.006**2, 0.3 * 0.006 * 0.003, 0], [0.3 * 0.006 * 0.003, 0.003**2, 0], [0, 0, 0.03**2]])
     cov_ref = np.diag([0.004**2, 0.002**2, math.radians(0.4) ** 2])
     truth = np.zeros((n, 3))
-    a, b, ref = truth + _draw(rng, cov_a, n), truth + _draw(rng, cov_b, n), truth + _draw(rng, cov_ref, n)
+    a = truth + draw_gaussian(rng, cov_a, n)
+    b = truth + draw_gaussian(rng, cov_b, n)
+    ref = truth + draw_gaussian(rng, cov_ref, n)
     got_a, got_b, got_ref = three_cornered_hat(a - ref, b - ref)
     for got, want in ((got_a, cov_a), (got_b, cov_b), (got_ref, cov_ref)):
         np.testing.assert_allclose(np.sqrt(np.diag(got)), np.sqrt(np.diag(want)), rtol=0.12)
@@ -37,7 +36,7 @@ def test_three_cornered_hat_ignores_a_few_gross_rows() -> None:
     rng = np.random.default_rng(1)
     n = 3000
     cov = np.diag([0.003**2, 0.003**2, 0.01**2])
-    a, b, ref = (_draw(rng, cov, n) for _ in range(3))
+    a, b, ref = (draw_gaussian(rng, cov, n) for _ in range(3))
     a[:15] += 0.5  # mislabelled rows
     got_a, _, _ = three_cornered_hat(a - ref, b - ref)
     assert math.sqrt(got_a[0, 0]) == pytest.approx(0.003, rel=0.15)
@@ -52,8 +51,8 @@ def test_the_correction_undoes_a_miscalibrated_camera() -> None:
     # The camera's view: turned by -1 degree about the camera and every distance along it 5 % short.
     turned = Correction(yaw_offset=math.radians(-1.0), pivot_x=pivot[0], pivot_y=pivot[1]).apply(truth)
     geometry = Correction(x_scale=1 / 1.05, pivot_x=pivot[0], pivot_y=pivot[1]).apply(turned)
-    geometry += _draw(rng, np.diag([0.001**2, 0.001**2, 0.002**2]), n)
-    labels = truth + _draw(rng, np.diag([0.003**2, 0.002**2, math.radians(0.4) ** 2]), n)
+    geometry += draw_gaussian(rng, np.diag([0.001**2, 0.001**2, 0.002**2]), n)
+    labels = truth + draw_gaussian(rng, np.diag([0.003**2, 0.002**2, math.radians(0.4) ** 2]), n)
     labels[:10, 0] += 0.3  # a few bad labels
     c = fit_correction(geometry, labels, pivot)
     err = c.apply(geometry) - truth
@@ -70,7 +69,7 @@ def test_the_correction_leaves_a_calibrated_camera_alone() -> None:
     rng = np.random.default_rng(5)
     n = 600
     truth = np.column_stack([rng.uniform(0.45, 2.7, n), rng.uniform(-0.4, 0.4, n), np.radians(rng.uniform(-30, 30, n))])
-    labels = truth + _draw(rng, np.diag([0.003**2, 0.002**2, math.radians(0.4) ** 2]), n)
+    labels = truth + draw_gaussian(rng, np.diag([0.003**2, 0.002**2, math.radians(0.4) ** 2]), n)
     labels[:, 0] += 0.001
     labels[:, 2] += math.radians(0.05)
     c = fit_correction(truth, labels, (0.17, 0.0))
@@ -146,16 +145,6 @@ def test_the_camera_mount_pitch_and_height_are_learned_from_the_images() -> None
     assert depth_error(FusionTables(0.2, mount_pitch_offset=pitch, mount_z_offset=height)) < 0.003
 
 
-def _noisy_detection(sim: object, pose: object, roles: tuple[str, ...], seed: int) -> object:
-    from monodock.perception.detect import Detection, MarkerObservation
-
-    rng = np.random.default_rng(seed)
-    corners = sim.true_corners(pose)  # type: ignore[attr-defined]
-    obs = {
-        r: MarkerObservation(r, sim.layout.marker(r).id, corners[r] + rng.normal(0, 0.05, (4, 2)))  # type: ignore[attr-defined]
-        for r in roles
-    }
-    return Detection(obs, (), sim.camera.size)  # type: ignore[attr-defined]
 
 
 def test_the_camera_mount_roll_is_learned_from_the_images() -> None:
@@ -174,8 +163,8 @@ def test_the_camera_mount_roll_is_learned_from_the_images() -> None:
     while len(dets) < 40:
         pose = sim.sample_pose(PoseDistribution(depth=(0.6, 2.4), require_in_view=("center",)))
         dets.append(
-            _noisy_detection(
-                sim, pose, tuple(r for r in sim.true_corners(pose) if _in_view(sim, pose, r)), 10 + len(dets)
+            noisy_detection(
+                sim, pose, tuple(r for r in sim.true_corners(pose) if in_view(sim, pose, r)), 10 + len(dets)
             )
         )
         truth.append((pose.x, pose.y, pose.yaw))
@@ -195,9 +184,6 @@ def test_the_camera_mount_roll_is_learned_from_the_images() -> None:
     assert errors(FusionTables(0.2, mount_roll_offset=roll)).mean(axis=0).max() < 0.002
 
 
-def _in_view(sim: object, pose: object, role: str) -> bool:
-    corners = sim.true_corners(pose)[role]  # type: ignore[attr-defined]
-    return bool(np.all(np.isfinite(corners)) and sim.in_view(corners, 2.0))  # type: ignore[attr-defined]
 
 
 def test_the_geometry_excess_ignores_label_and_regression_sharing_an_error() -> None:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import cv2
 import numpy as np
 import pytest
@@ -13,26 +11,9 @@ from monodock.core.pose import DockPose
 from monodock.errors import InputError
 from monodock.perception.detect import MarkerDetector, as_gray
 from monodock.perception.features import FEATURE_NAMES, feature_vector
-from monodock.sim import Nuisances, SimFrame, Simulator, World
+from monodock.sim import SimFrame, Simulator, World
 from monodock.sim.world import marker_patch
-
-CAMERA_X = 0.17  # the default robot's camera mount x: DockPose.x = depth + CAMERA_X
-
-
-ALL_IN_VIEW = DockPose(CAMERA_X + 0.9, 0.15, math.radians(-8.0))
-
-
-LEFT_OUT_OF_VIEW = DockPose(CAMERA_X + 0.5, 0.20, 0.0)
-
-
-@pytest.fixture(scope="module")
-def sim() -> Simulator:
-    return Simulator(nuisances=Nuisances.clean(), seed=1)
-
-
-@pytest.fixture(scope="module")
-def frames(sim: Simulator) -> dict[str, SimFrame]:
-    return {"all": sim.frame(ALL_IN_VIEW), "left_out": sim.frame(LEFT_OUT_OF_VIEW)}
+from shared import CAMERA_X
 
 
 def test_detects_three_roles_at_true_corners(sim: Simulator, frames: dict[str, SimFrame]) -> None:

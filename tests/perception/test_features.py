@@ -10,28 +10,9 @@ import pytest
 
 from monodock.core import transforms
 from monodock.core.layout import ROLES
-from monodock.core.pose import DockPose
 from monodock.perception.detect import MarkerDetector
 from monodock.perception.features import FEATURE_NAMES, feature_vector, marker_features
-from monodock.sim import Nuisances, SimFrame, Simulator
-
-CAMERA_X = 0.17  # the default robot's camera mount x: DockPose.x = depth + CAMERA_X
-
-
-ALL_IN_VIEW = DockPose(CAMERA_X + 0.9, 0.15, math.radians(-8.0))
-
-
-LEFT_OUT_OF_VIEW = DockPose(CAMERA_X + 0.5, 0.20, 0.0)
-
-
-@pytest.fixture(scope="module")
-def sim() -> Simulator:
-    return Simulator(nuisances=Nuisances.clean(), seed=1)
-
-
-@pytest.fixture(scope="module")
-def frames(sim: Simulator) -> dict[str, SimFrame]:
-    return {"all": sim.frame(ALL_IN_VIEW), "left_out": sim.frame(LEFT_OUT_OF_VIEW)}
+from monodock.sim import SimFrame, Simulator
 
 
 def test_side_lengths_of_true_corners(frames: dict[str, SimFrame]) -> None:

@@ -9,7 +9,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import pytest
 
@@ -19,39 +18,7 @@ from monodock.estimation.pnp import PoseEstimate, estimate_board
 from monodock.io.nav2 import (
     planar_covariance,
 )
-from monodock.sim import Nuisances, PoseDistribution, Simulator
-
-FRAMES = 30
-
-
-BLACK = 12  # the frame that is all black: no markers
-
-
-@pytest.fixture(scope="module")
-def drive(tmp_path_factory: pytest.TempPathFactory) -> tuple[Simulator, list[DockPose], Path, Path]:
-    """A 10 fps MJPG video of simulated frames with one black frame, the poses, and the calibration folder."""
-    folder = tmp_path_factory.mktemp("drive")
-    sim = Simulator(nuisances=Nuisances(supersample=4), seed=5)  # 4x4 edge samples: fast enough for a test
-    poses = [sim.sample_pose(PoseDistribution(depth=(0.4, 1.2))) for _ in range(FRAMES)]
-    video = folder / "drive.avi"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, sim.camera.size)
-    assert writer.isOpened()
-    rng = np.random.default_rng(0)
-    for i, pose in enumerate(poses):
-        image = sim.frame(pose, 0.1 * i, rng).image
-        if i == BLACK:
-            image = np.zeros_like(image)
-        writer.write(cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
-    writer.release()
-    sim.camera.save(folder / "camera.yaml")
-    sim.layout.save(folder / "layout.yaml")
-    sim.robot.save(folder / "robot.yaml")
-    return sim, poses, video, folder
-
-
-def calibration(folder: Path) -> list[str]:
-    """The CLI options of the saved calibration files."""
-    return [f"--{k}={folder / f'{k}.yaml'}" for k in ("camera", "layout", "robot")]
+from monodock.sim import Simulator
 
 
 def test_no_monodock_module_needs_rclpy() -> None:
@@ -61,7 +28,7 @@ def test_no_monodock_module_needs_rclpy() -> None:
 import importlib, pkgutil, sys
 sys.modules["rclpy"] = None  # any import of rclpy now fails
 import monodock
-ros = ("monodock.cli.ros_nodes", "monodock.ros.detector", "monodock.ros.dock_node")
+ros = ("monodock.cli.ros_nodes", "monodock.ros._rclpy", "monodock.ros.detector", "monodock.ros.dock_node")
 names = [m.name for m in pkgutil.walk_packages(monodock.__path__, "monodock.") if m.name not in ros]
 for name in names:
     importlib.import_module(name)
@@ -76,9 +43,10 @@ for name in ros:
 """
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
-    lines = done.stdout.splitlines()[-3:]
+    lines = done.stdout.splitlines()[-4:]
     assert [line.split()[0] for line in lines] == [
         "monodock.cli.ros_nodes",
+        "monodock.ros._rclpy",
         "monodock.ros.detector",
         "monodock.ros.dock_node",
     ]

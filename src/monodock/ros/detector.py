@@ -8,20 +8,10 @@ the method gives the estimate's covariance, the same pose as geometry_msgs/PoseW
 columns 0, 1, 5; z, roll and pitch zero). Images are decoded with numpy and OpenCV
 (monodock.recording.messages), without cv_bridge.
 
-This is the only monodock module that needs rclpy (a sourced ROS 2 installation); nothing else imports it.
+It needs rclpy (monodock.ros._rclpy says how to get it); nothing outside ros and its command line imports it.
 """
 
 from __future__ import annotations
-
-try:
-    import rclpy  # type: ignore[import-not-found, unused-ignore]
-    from rclpy.node import Node  # type: ignore[import-not-found, unused-ignore]
-except ImportError as _exc:  # the message should say what to do, not only what is missing
-    raise ModuleNotFoundError(
-        "monodock.ros.detector needs ROS 2's rclpy: source your ROS 2 setup (e.g. /opt/ros/humble/setup.bash) "
-        "first; the rest of monodock works without it",
-        name="rclpy",
-    ) from _exc
 
 import math
 import sys
@@ -32,25 +22,18 @@ from typing import Any
 from monodock.core.camera import CameraModel
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.factory import make_estimator
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 from monodock.recording import messages as m
+from monodock.ros._rclpy import Node, rclpy
+from monodock.ros.options import EstimatorOptions
 
 __all__ = ["DetectorOptions", "DockPoseNode", "run_detector"]
 
 
 @dataclass(frozen=True)
-class DetectorOptions:
+class DetectorOptions(EstimatorOptions):
     """What the detector node runs: the estimator (a bundle, or the calibration files) and its topics."""
 
-    model: str | None = None
-    method: str | None = None
-    camera: str | None = None
-    layout: str | None = None
-    robot: str | None = None
-    refinement: str = "subpix"
-    image_topic: str = "/camera/image_raw"
-    compressed: bool = False
     camera_info_topic: str = "/camera/camera_info"
     pose_topic: str = DOCK_POSE_TOPIC
     pose_covariance_topic: str = DOCK_POSE_COVARIANCE_TOPIC
@@ -91,7 +74,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             self.estimator.warm_up()
         else:  # the camera comes from camera_info; the layout and mounts from the files
             self.create_subscription(CameraInfo, args.camera_info_topic, self._on_camera_info, 1)
-        compressed = args.compressed or args.image_topic.rstrip("/").endswith("/compressed")
+        compressed = args.image_is_compressed
         self.msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
         self.create_subscription(CompressedImage if compressed else Image, args.image_topic, self._on_image, 1)
         self.publisher = self.create_publisher(PoseStamped, args.pose_topic, 10)
@@ -153,14 +136,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
 
 def _estimator(args: DetectorOptions, camera: CameraModel | None = None) -> tuple[Estimator, str]:
     """The Estimator of the options, or of camera_info's camera with the layout and robot files."""
-    estimator = make_estimator(
-        method=args.method,
-        bundle=args.model,
-        camera=camera if camera is not None else args.camera,
-        layout=args.layout,
-        robot=args.robot,
-        refinement=args.refinement,
-    )
+    estimator = args.estimator(camera)
     return estimator, estimator.method
 
 

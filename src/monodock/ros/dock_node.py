@@ -5,20 +5,10 @@
 optional std_msgs/Bool contact topic (the charger's "charging" or a bumper). Images are decoded with numpy and
 OpenCV (monodock.recording.messages), without cv_bridge.
 
-Like monodock.ros.detector, this module needs a sourced ROS 2 (rclpy) and nothing else in monodock imports it.
+Like monodock.ros.detector, this module needs rclpy (monodock.ros._rclpy says how to get it).
 """
 
 from __future__ import annotations
-
-try:
-    import rclpy  # type: ignore[import-not-found, unused-ignore]
-    from rclpy.node import Node  # type: ignore[import-not-found, unused-ignore]
-except ImportError as _exc:  # the message should say what to do, not only what is missing
-    raise ModuleNotFoundError(
-        "monodock.ros.dock_node needs ROS 2's rclpy: source your ROS 2 setup (e.g. /opt/ros/humble/setup.bash) "
-        "first; the rest of monodock works without it",
-        name="rclpy",
-    ) from _exc
 
 import math
 import sys
@@ -32,24 +22,17 @@ from monodock.dock.interface import CameraFrame, Odometry
 from monodock.dock.planner import PlannerConfig
 from monodock.dock.pose_filter import MeasurementNoise
 from monodock.errors import MonodockError
-from monodock.estimation.factory import make_estimator
 from monodock.recording import messages as m
+from monodock.ros._rclpy import Node, rclpy
+from monodock.ros.options import EstimatorOptions
 
 __all__ = ["DockOptions", "Ros2Robot", "run_dock"]
 
 
 @dataclass(frozen=True)
-class DockOptions:
+class DockOptions(EstimatorOptions):
     """What the docking node runs: the estimator (a bundle, or the calibration files), its topics and Point A."""
 
-    model: str | None = None
-    method: str | None = None
-    camera: str | None = None
-    layout: str | None = None
-    robot: str | None = None
-    refinement: str = "subpix"
-    image_topic: str = "/camera/image_raw"
-    compressed: bool = False
     odom_topic: str = "/odom"
     cmd_vel_topic: str = "/cmd_vel"
     contact_topic: str | None = None
@@ -70,7 +53,7 @@ class Ros2Robot:
         self._odom: Odometry | None = None
         self._frame: CameraFrame | None = None
         self._contact: bool | None = None
-        compressed = args.compressed or args.image_topic.rstrip("/").endswith("/compressed")
+        compressed = args.image_is_compressed
         self._msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
         self._cmd = node.create_publisher(Twist, args.cmd_vel_topic, 10)
         node.create_subscription(OdometryMsg, args.odom_topic, self._on_odom, 10)
@@ -123,14 +106,7 @@ def run_dock(args: DockOptions, argv: Sequence[str]) -> int:
     node = Node("monodock_dock")
     robot: Ros2Robot | None = None
     try:
-        estimator = make_estimator(
-            method=args.method,
-            bundle=args.model,
-            camera=args.camera,
-            layout=args.layout,
-            robot=args.robot,
-            refinement=args.refinement,
-        )
+        estimator = args.estimator()
         method = estimator.method
         robot = Ros2Robot(node, args)
         config = MissionConfig(planner=PlannerConfig(args.standoff), measurement=MeasurementNoise.for_method(method))

@@ -1,0 +1,90 @@
+"""Helpers several test files share (on the path through pytest's ``pythonpath``): what a test drive looks like,
+the command line as a library, synthetic training rows with a known answer."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from monodock.cli.main import parser
+from monodock.core.camera import CameraModel
+from monodock.core.pose import DockPose
+from monodock.learning.train import TrainingSet
+from monodock.perception.detect import Detection, MarkerObservation
+
+# The video drive of the live and ROS tests (conftest.drive).
+FRAMES = 30
+BLACK = 12  # the frame that is all black: no markers
+
+# The default robot's camera mount x: DockPose.x = depth from the camera + CAMERA_X.
+CAMERA_X = 0.17
+ALL_IN_VIEW = DockPose(CAMERA_X + 0.9, 0.15, math.radians(-8.0))
+LEFT_OUT_OF_VIEW = DockPose(CAMERA_X + 0.5, 0.20, 0.0)
+STRONG_LENS = CameraModel.from_intrinsics(640, 480, 615.0, 613.0, 322.4, 237.1, (-0.2, 0.0, 0.0, 0.0, 0.0))
+
+# Synthetic training rows (synthetic_set).
+SET = "m1m2m3"
+FEATURES = ("size", "ratio", "noise_a", "noise_b")
+SPARSE_SEGMENT = 3  # 40-45 cm: only 10 rows of its own
+META = {"feature_schema": "test-features/1", "layout": {"marker_size": 0.1}}
+
+
+def pose_at(depth: float, y: float, yaw_deg: float) -> DockPose:
+    """The DockPose of a dock ``depth`` metres from the camera."""
+    return DockPose(depth + CAMERA_X, y, math.radians(yaw_deg))
+
+
+def calibration(folder: Path) -> list[str]:
+    """The CLI options of the calibration files saved in ``folder``."""
+    return [f"--{k}={folder / f'{k}.yaml'}" for k in ("camera", "layout", "robot")]
+
+
+def run_cli(argv: list[str]) -> int:
+    """``monodock ARGV`` through the real parser, with its errors raised (not printed)."""
+    args = parser().parse_args(argv)
+    return int(args.func(args))
+
+
+def synthetic_set(seed: int = 0) -> TrainingSet:
+    """Rows from a known function: depth = 60 / size, yaw linear in a ratio whose slope grows with depth.
+
+    Depths cover 25-60 cm (segments 0-6), with segment 3 nearly empty; farther segments have no rows.
+    """
+    rng = np.random.default_rng(seed)
+    per_segment = [70, 70, 70, 10, 70, 70, 70]
+    depth = np.concatenate([rng.uniform(0.25 + 0.05 * k, 0.30 + 0.05 * k, n) for k, n in enumerate(per_segment)])
+    n = len(depth)
+    yaw = rng.uniform(-30.0, 30.0, n)
+    size = 60.0 / depth + rng.normal(0.0, 0.2, n)
+    ratio = yaw * (0.01 + 0.02 * depth) + rng.normal(0.0, 0.01, n)
+    X = np.column_stack([size, ratio, rng.normal(size=n), 50.0 * rng.normal(size=n)])
+    return TrainingSet(SET, FEATURES, X, depth + rng.normal(0.0, 0.003, n), yaw, depth)
+
+
+def as_float32(X: NDArray[np.float64]) -> NDArray[np.float64]:
+    return X.astype(np.float32).astype(np.float64)
+
+
+def draw_gaussian(rng: np.random.Generator, cov: np.ndarray, n: int) -> np.ndarray:
+    """``n`` zero-mean draws of covariance ``cov``."""
+    return rng.multivariate_normal(np.zeros(3), cov, size=n)
+
+
+def noisy_detection(sim: object, pose: object, roles: tuple[str, ...], seed: int) -> object:
+    """The true corners of ``roles`` at ``pose`` with 0.05 px of Gaussian noise, as a Detection."""
+    rng = np.random.default_rng(seed)
+    corners = sim.true_corners(pose)  # type: ignore[attr-defined]
+    obs = {
+        r: MarkerObservation(r, sim.layout.marker(r).id, corners[r] + rng.normal(0, 0.05, (4, 2)))  # type: ignore[attr-defined]
+        for r in roles
+    }
+    return Detection(obs, (), sim.camera.size)  # type: ignore[attr-defined]
+
+
+def in_view(sim: object, pose: object, role: str) -> bool:
+    """Whether a marker's true corners are all in the image (2 px margin)."""
+    corners = sim.true_corners(pose)[role]  # type: ignore[attr-defined]
+    return bool(np.all(np.isfinite(corners)) and sim.in_view(corners, 2.0))  # type: ignore[attr-defined]
