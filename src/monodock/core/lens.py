@@ -2,7 +2,7 @@
 
 What ``cv2.projectPoints`` computes, but callable per point from inside other kernels: the corner refiner's
 profiles and the planar fit's Levenberg–Marquardt loop, where an OpenCV call (and its argument checks) per
-evaluation would cost more than the arithmetic. ``tests/test_lens.py`` holds both to ``cv2.projectPoints``.
+evaluation would cost more than the arithmetic. ``tests/core/test_lens.py`` holds both to ``cv2.projectPoints``.
 The skew term of K is applied (OpenCV's projectPoints ignores it; calibrated cameras have none).
 """
 

@@ -2,7 +2,7 @@
 
 With Gaussian corner noise of known covariance, no unbiased estimator of the DockPose beats the covariance
 (JᵀWJ)⁻¹, J the Jacobian of the corner pixels w.r.t. (x, y, yaw) through the real lens and W the inverse
-corner covariance. ``monodock.estimation.planar.solve_planar`` reaches it (tests/test_planar_crlb.py checks that by
+corner covariance. ``estimation.planar.solve_planar`` reaches it (tests/estimation/test_planar.py checks that by
 Monte Carlo against the simulator's true corners).
 
 The corner noise it takes is ``corner_noise.CornerNoise``'s; ``evaluation.what_if`` asks what set-up changes buy.

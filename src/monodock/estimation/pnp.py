@@ -92,7 +92,7 @@ def _choose(cands: list[_Candidate]) -> _Candidate | None:
 
     Past ~1.7 m IPPE's two solutions fit a 10 cm marker's corners about equally well; the wrong one
     usually tilts the dock off the floor, so the upright prior picks the right one (single-marker yaw
-    error past 1.75 m: 8.9-10.8 deg with best reprojection alone, 6.3 with the prior; tests/test_pnp.py
+    error past 1.75 m: 8.9-10.8 deg with best reprojection alone, 6.3 with the prior; tests/estimation/test_pnp.py
     test_ippe_choice_*). The margin keeps noise-level tilt differences from overruling the fit.
     """
     cands = [c for c in cands if c.in_front and math.isfinite(c.rms)]
