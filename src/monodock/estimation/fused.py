@@ -3,8 +3,8 @@
 Two estimators with opposite weaknesses see the same frame:
 
 - **geometry**: the maximum-likelihood planar pose (x, y, yaw) of every visible marker's refined corners
-  (``perception.refine``, ``estimation.planar``). It is as good as the pixels allow, but only as right as the calibration;
-  a lone small marker has two near-equal minima (the sign of yaw).
+  (``perception.refine``, ``estimation.planar``). It is as good as the pixels allow, but only as right as the
+  calibration; a lone small marker has two near-equal minima (the sign of yaw).
 - **regression** (the papers'): learned from LiDAR labels, so it carries no calibration error, but no better
   than its labels, and blind outside its training range.
 
