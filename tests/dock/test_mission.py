@@ -1,4 +1,5 @@
-"""Docking: the eight cases, the mission in closed loop with the camera, its failure behaviour, and the base.
+"""Docking: the eight cases, the mission in closed loop with the camera, its states, its failure behaviour (each
+way to fail ends with its ``FailureReason``), and the base.
 
 Every check is against the simulator's truth (where the robot really is), never against the controller's own
 belief about itself.
@@ -30,7 +31,7 @@ from monodock.dock import (
     point_a,
     run_mission,
 )
-from monodock.dock.controller import blind_gap, make_perceive
+from monodock.dock.controller import FailureReason, blind_gap, make_perceive
 from monodock.dock.pose_filter import DockFilter, MeasurementNoise
 from monodock.estimation.estimator import Estimator
 from monodock.sim import Nuisances, Simulator
@@ -146,6 +147,35 @@ def _robot(start: Pose2D, **drive: object) -> SimulatedRobot:
     return SimulatedRobot(sim, start, DiffDriveConfig(**drive), np.random.default_rng(3))  # type: ignore[arg-type]
 
 
+class _TruthfulRobot(SimulatedRobot):
+    """The simulated base whose camera renders nothing: the state machine's own tests see the true pose.
+
+    A frame's "image" is empty; ``perceive_truth`` turns its stamp into the exact DockPose at that exposure and
+    the number of markers wholly in the image (none: no pose). The base, its odometry, latency and the face
+    are the simulator's as usual; only the vision, tested elsewhere, is left out, which makes a mission seconds.
+    """
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.exposed: dict[float, Pose2D] = {}
+
+    def render(self, stamp: float, pose: Pose2D) -> np.ndarray:
+        self.exposed[stamp] = pose
+        self.frames_rendered += 1
+        return np.zeros((1, 1), np.uint8)
+
+    def perceive_truth(self, stamp: float, _image: np.ndarray) -> Observation:
+        dock = self.dock_pose(self.exposed[stamp])
+        markers = sum(self.sim.in_view(quad) for quad in self.sim.true_corners(dock).values())
+        return Observation(stamp, dock if markers else None, markers)
+
+
+def _truthful_robot(start: Pose2D) -> _TruthfulRobot:
+    return _TruthfulRobot(
+        Simulator(nuisances=Nuisances.clean(), seed=1), start, DiffDriveConfig(), np.random.default_rng(3)
+    )
+
+
 def test_ideal_base_drives_as_commanded_and_odometry_is_exact() -> None:
     robot = _robot(Pose2D(-2.0, 0.0, 0.0), wheel_scale_sd=0.0, wheel_noise_sd=0.0)
     robot.send_velocity(0.2, 0.0)
@@ -212,6 +242,7 @@ def test_each_case_docks_from_a_hand_placed_start(case: int) -> None:
     mission = _mission(robot)
     result = run_mission(robot, make_perceive(_board(robot), "board"), mission)
     assert result.state is State.DOCKED, result.log
+    assert (result.failure, result.reason) == (None, "")
     assert result.case == case
     p = robot.pose
     assert abs(p.y) < 0.01  # lateral, metres
@@ -242,6 +273,7 @@ def test_markers_hidden_mid_approach_stop_the_robot_within_the_timeout() -> None
     mission = _mission(robot)
     result = run_mission(robot, make_perceive(_board(robot), "board"), mission)
     assert result.state is State.FAILED
+    assert result.failure is FailureReason.MARKERS_LOST
     assert "markers lost" in result.reason
     assert hidden_from
     # Stopped: the last commanded and measured speeds are zero, and it did so within the timeout, plus the
@@ -261,6 +293,8 @@ def test_estimator_with_nothing_means_no_motion() -> None:
     robot = _robot(Pose2D(-1.5, 0.1, 0.0))
     result = run_mission(robot, _nothing, _mission(robot, acquire=False))
     assert result.state is State.FAILED
+    assert result.failure is FailureReason.NOT_IN_VIEW
+    assert "acquire is off" in result.reason
     path = np.array([s.pose for s in robot.truth])
     assert np.ptp(path[:, 0]) == 0.0
     assert np.ptp(path[:, 1]) == 0.0
@@ -273,6 +307,7 @@ def test_acquire_gives_up_cleanly_after_a_full_turn() -> None:
     mission = _mission(robot, acquire_turn_rate=0.8)  # faster than the default 0.3 rad/s, to keep the test short
     result = run_mission(robot, _nothing, mission)
     assert result.state is State.FAILED
+    assert result.failure is FailureReason.NOT_FOUND
     assert "full turn" in result.reason
     headings = np.unwrap([s.pose.theta for s in robot.truth])
     assert headings[-1] - headings[0] > math.radians(350)
@@ -289,6 +324,85 @@ def test_acquire_finds_a_dock_out_of_view_and_docks() -> None:
     result = run_mission(robot, make_perceive(_board(robot), "board"), _mission(robot))
     assert any("markers in view" in entry for _, entry in result.log)
     assert result.state is State.DOCKED, result.log
+    assert abs(robot.pose.y) < 0.01
+    assert abs(math.degrees(robot.pose.theta)) < 1.5
+
+
+def test_mission_time_out_stops_the_robot_and_says_so() -> None:
+    """Still searching when the mission's time is up: a zero command and ``TIMEOUT``, not a silent hang."""
+    robot = _truthful_robot(Pose2D(-1.5, 0.1, 0.0))
+    mission = _mission(robot, mission_timeout=2.0)
+    result = run_mission(robot, _nothing, mission)
+    assert result.state is State.FAILED
+    assert result.failure is FailureReason.TIMEOUT
+    assert result.reason == "mission took longer than 2 s"
+    assert result.duration == pytest.approx(2.0, abs=2 * mission.config.control_period)
+    headings = np.unwrap([s.pose.theta for s in robot.truth])
+    assert headings[-1] - headings[0] > math.radians(10)  # it was turning to look when the time ran out
+    robot.sleep(0.5)
+    assert abs(robot.odometry().angular) < 1e-3
+
+
+def test_final_pose_outside_the_tolerances_fails_after_the_retries() -> None:
+    """A tolerance nothing meets: one retry from Point A, then ``OUTSIDE_TOLERANCES``, stopped at the face."""
+    robot = _truthful_robot(Pose2D(-1.6, 0.0, 0.0))
+    result = run_mission(robot, robot.perceive_truth, _mission(robot, tolerance_lateral=0.0, max_retries=1))
+    assert result.state is State.FAILED, result.log
+    assert result.failure is FailureReason.OUTSIDE_TOLERANCES
+    assert result.reason.startswith("final pose outside the tolerances: lateral ")
+    assert result.retries == 1
+    states = [entry.split(":")[0] for _, entry in result.log]
+    assert states.count(State.SETTLE.value) == 2
+    assert states[-2:] == [State.SETTLE.value, State.FAILED.value]
+    # By the truth it is at the face and still: the judgement failed, not the driving.
+    assert robot.front_gap() < 0.01
+    robot.sleep(0.5)
+    assert abs(robot.odometry().linear) < 1e-3
+
+
+def test_failure_reasons_map_to_nav2_docking_error_codes() -> None:
+    """Each reason has the nearest ``nav2_msgs/action/DockRobot`` result code (904 detect, 905 control, 907 time)."""
+    codes = {reason: reason.nav2_error_code for reason in FailureReason}
+    assert codes == {
+        FailureReason.NOT_IN_VIEW: 904,
+        FailureReason.NOT_FOUND: 904,
+        FailureReason.MARKERS_LOST: 904,
+        FailureReason.OUTSIDE_TOLERANCES: 905,
+        FailureReason.TIMEOUT: 907,
+    }
+
+
+def test_every_state_has_its_own_handler() -> None:
+    """The dispatch table covers every state; each state that is not final has a handler of its own."""
+    mission = DockingMission(MissionConfig(), RobotConfig.default(), 0.1)
+    handlers = mission._handlers
+    assert set(handlers) == set(State)
+    working = [s for s in State if not s.final]
+    assert {s for s in State if s.final} == {State.DOCKED, State.FAILED}
+    assert len({handlers[s].__name__ for s in working}) == len(working)
+    for s in working:
+        assert handlers[s].__name__ == f"_on_{s.name.lower()}"
+
+
+def test_a_docking_with_a_retry_goes_through_every_state() -> None:
+    """From a start with the dock out of view and a checkpoint nothing passes (one retry allowed), the log of a
+    successful docking visits every state that is not final, in the order the handlers hand over."""
+    robot = _truthful_robot(Pose2D(-1.8, -0.1, math.radians(-60)))  # the dock out of view, to the left
+    mission = _mission(robot, retry_lateral=0.0, max_retries=1)
+    result = run_mission(robot, robot.perceive_truth, mission)
+    assert result.state is State.DOCKED, result.log
+    assert (result.failure, result.retries) == (None, 1)
+    states = [State(entry.split(":")[0]) for _, entry in result.log]
+    assert set(states) == set(State) - {State.FAILED}
+    assert states[:2] == [State.ACQUIRE, State.CALCULATE]
+    for before, after in (
+        (State.CENTER, State.CALCULATE),
+        (State.MOVING1_TURN, State.MOVING1_DRIVE),
+        (State.MOVING1_DRIVE, State.MOVING2),
+        (State.MOVING2, State.MOVING3),
+        (State.BACK_OFF, State.CALCULATE),
+    ):
+        assert all(states[i + 1] is after for i, s in enumerate(states) if s is before)
     assert abs(robot.pose.y) < 0.01
     assert abs(math.degrees(robot.pose.theta)) < 1.5
 

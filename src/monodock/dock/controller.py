@@ -11,7 +11,9 @@ see marker 2 whole, are driven on the filter and odometry alone (predict only), 
 
 Safety: accelerations and speeds are limited; the speed near the face is bounded by what can stop in the
 remaining distance; markers lost for longer than ``lost_timeout`` outside that blind zone stop the robot;
-the whole mission has a time limit. Every stop is a zero command, never a silent hang.
+the whole mission has a time limit. Every stop is a zero command, never a silent hang, and every failure
+says why as a ``FailureReason`` (the kind of error code Nav2's docking server reports), with the numbers in
+``MissionResult.reason``. ``State`` documents what the robot does in each state and what ends it.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from monodock.estimation.estimator import Estimator
 
 __all__ = [
     "DockingMission",
+    "FailureReason",
     "MissionConfig",
     "MissionResult",
     "Observation",
@@ -51,17 +54,119 @@ __all__ = [
 
 
 class State(StrEnum):
+    """The mission's states: what the robot does in each and what ends it.
+
+    Every state that is not final also ends in ``FAILED`` (``FailureReason.TIMEOUT``) when the mission has run
+    longer than ``MissionConfig.mission_timeout``. The values are what the mission's log and dock-sim's
+    ``runs.csv`` print.
+    """
+
     ACQUIRE = "acquire"
+    """Find the dock: stand still while the first frames arrive (``first_frame_wait``), then turn on the spot at
+    ``acquire_turn_rate``. Ends in ``CALCULATE`` when a frame gives the dock's pose; in ``FAILED`` when
+    ``acquire`` is off (``NOT_IN_VIEW``) or after ``acquire_max_turn_deg`` of turning (``NOT_FOUND``)."""
+
     CENTER = "center"
+    """Turn on the spot, on odometry, to face the dock, so that all three markers come into view. Ends in
+    ``CALCULATE`` when the heading is within ``turn_tolerance_deg`` and the robot has stopped turning."""
+
     CALCULATE = "calculate"
+    """Stand still (until the odometry reads still, at most ``settle_timeout``), then take the median of
+    ``calculate_frames`` frames (or of those that came within ``calculate_timeout``). Ends in ``CENTER`` when the
+    frames saw fewer than three markers and the dock is more than ``center_tolerance_deg`` off the heading (not
+    twice in a row); in ``MOVING1_TURN`` with the plan (the case, Point A, the targets in odometry; the dock filter
+    seeded); back in ``ACQUIRE`` when no frame came within ``calculate_timeout``."""
+
     MOVING1_TURN = "moving1-turn"
+    """Moving₁'s first part: turn on the spot, on odometry, to the heading of the straight leg to Point A. Ends in
+    ``MOVING1_DRIVE`` when there and still."""
+
     MOVING1_DRIVE = "moving1-drive"
+    """Moving₁: drive straight to Point A on odometry (backwards in the cases past A), steering on the bearing.
+    Ends in ``MOVING2`` on arrival (within ``arrive_tolerance``)."""
+
     MOVING2 = "moving2"
+    """Moving₂: turn on the spot, on odometry, to face the charger square from Point A. Ends in ``MOVING3`` when
+    there and still; the lost-markers clock starts then."""
+
     MOVING3 = "moving3"
+    """Moving₃: straight at the face; every frame refines the dock filter, a P-controller steers the lateral and
+    heading errors, the speed falls towards the face, and the blind zone is driven on the filter alone at creep
+    speed. Ends in ``SETTLE`` on contact or at the face by the estimate; in ``BACK_OFF`` at the checkpoint
+    (``checkpoint_gap``) when off the axis or the heading reference with retries left; in ``FAILED``
+    (``MARKERS_LOST``) when no frame updated the filter for ``lost_timeout`` outside the blind zone."""
+
     SETTLE = "settle"
+    """Stand still at the face (until the odometry reads still, at most ``settle_timeout``), then judge the robot's
+    own estimate of its pose. Ends in ``DOCKED`` inside the tolerances; outside them in ``BACK_OFF`` with retries
+    left, else in ``FAILED`` (``OUTSIDE_TOLERANCES``)."""
+
     BACK_OFF = "back-off"
+    """A retry: reverse straight to Point A (placed again from the filter's dock pose) on odometry. Ends in
+    ``CALCULATE`` on arrival, with the dock filter reset."""
+
     DOCKED = "docked"
+    """Final: at the face inside the tolerances by the robot's own estimate; every command is zero."""
+
     FAILED = "failed"
+    """Final: the mission gave up (``DockingMission.failure`` says why); every command is zero."""
+
+    @property
+    def final(self) -> bool:
+        """Whether the mission has ended in this state."""
+        return self in (State.DOCKED, State.FAILED)
+
+
+class FailureReason(StrEnum):
+    """Why a mission failed, one member per way it can; the nearest error code of Nav2's docking server.
+
+    Nav2's ``nav2_msgs/action/DockRobot`` reports a failure as an error code, raised in ``opennav_docking`` as an
+    exception type. Ours map onto them like this:
+
+    ======================  ==============================================================================
+    member                  Nav2 ``DockRobot`` result code (``opennav_docking_core`` exception)
+    ======================  ==============================================================================
+    ``NOT_IN_VIEW``         ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, initial perception)
+    ``NOT_FOUND``           ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, initial perception)
+    ``MARKERS_LOST``        ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, during the approach)
+    ``OUTSIDE_TOLERANCES``  ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, all retries used)
+    ``TIMEOUT``             ``TIMEOUT`` = 907
+    ======================  ==============================================================================
+
+    Nav2's ``FAILED_TO_CHARGE`` (906) has no counterpart: the mission ends at the face and does not wait for the
+    charger. ``MissionResult.reason`` carries the human detail (the numbers) next to the member.
+    """
+
+    NOT_IN_VIEW = "not-in-view"
+    """No markers in view at the start, and ``acquire`` is off (the robot does not turn to look)."""
+
+    NOT_FOUND = "not-found"
+    """No markers in view after turning ``acquire_max_turn_deg`` on the spot."""
+
+    MARKERS_LOST = "markers-lost"
+    """No frame updated the dock filter for ``lost_timeout`` during Moving₃, outside the blind zone."""
+
+    OUTSIDE_TOLERANCES = "outside-tolerances"
+    """At the face, the robot's own estimate of its final pose is outside the tolerances after ``max_retries``."""
+
+    TIMEOUT = "timeout"
+    """The mission ran longer than ``mission_timeout``."""
+
+    @property
+    def nav2_error_code(self) -> int:
+        """The nearest ``DockRobot.Result`` error code of Nav2's docking server (see the table above)."""
+        return _NAV2_ERROR_CODE[self]
+
+
+# nav2_msgs/action/DockRobot.action's result codes.
+_FAILED_TO_DETECT_DOCK, _FAILED_TO_CONTROL, _TIMEOUT = 904, 905, 907
+_NAV2_ERROR_CODE = {
+    FailureReason.NOT_IN_VIEW: _FAILED_TO_DETECT_DOCK,
+    FailureReason.NOT_FOUND: _FAILED_TO_DETECT_DOCK,
+    FailureReason.MARKERS_LOST: _FAILED_TO_DETECT_DOCK,
+    FailureReason.OUTSIDE_TOLERANCES: _FAILED_TO_CONTROL,
+    FailureReason.TIMEOUT: _TIMEOUT,
+}
 
 
 @dataclass(frozen=True)
@@ -154,7 +259,8 @@ class MissionResult:
     """How a mission ended, as the robot itself sees it (the simulator's truth is not in here)."""
 
     state: State
-    reason: str
+    failure: FailureReason | None  # why it failed; None when docked
+    reason: str  # the human detail, with the numbers (empty when docked)
     case: int | None
     retries: int
     duration: float
@@ -238,8 +344,25 @@ class _Targets:
     reverse: bool
 
 
+@dataclass(frozen=True)
+class _Tick:
+    """What a state's handler gets each control tick: the time, the odometry and the contact switch, if any."""
+
+    now: float
+    odom: Odometry
+    contact: bool | None
+
+
+# One state's work for one tick: the desired velocity command (m/s, rad/s), before the limits.
+_Handler = Callable[[_Tick], tuple[float, float]]
+
+
 class DockingMission:
-    """The state machine; ``step`` turns odometry and the latest observation into a velocity command."""
+    """The state machine; ``step`` turns odometry and the latest observation into a velocity command.
+
+    Each state has one handler (``_on_<state>``), looked up in a table keyed by ``State``; a handler returns the
+    desired command and moves to the next state with ``_enter`` or ``_fail``.
+    """
 
     def __init__(self, config: MissionConfig, robot: RobotConfig, blind: float) -> None:
         self.config = config
@@ -250,6 +373,7 @@ class DockingMission:
         self.track = DockFilter(config.track)
         self.history = _OdomHistory()
         self.state = State.ACQUIRE
+        self.failure: FailureReason | None = None
         self.reason = ""
         self.case: int | None = None
         self.manoeuvre: Manoeuvre | None = None
@@ -269,12 +393,25 @@ class DockingMission:
         self._last_odom: Pose2D | None = None
         self._last_stamp = 0.0
         self._targets = _Targets(Pose2D(0.0, 0.0, 0.0), 0.0, 0.0, False)
+        self._handlers: dict[State, _Handler] = {
+            State.ACQUIRE: self._on_acquire,
+            State.CENTER: self._on_center,
+            State.CALCULATE: self._on_calculate,
+            State.MOVING1_TURN: self._on_moving1_turn,
+            State.MOVING1_DRIVE: self._on_moving1_drive,
+            State.MOVING2: self._on_moving2,
+            State.MOVING3: self._on_moving3,
+            State.SETTLE: self._on_settle,
+            State.BACK_OFF: self._on_back_off,
+            State.DOCKED: self._on_final,
+            State.FAILED: self._on_final,
+        }
 
     # --- bookkeeping ------------------------------------------------------------------------
 
     @property
     def finished(self) -> bool:
-        return self.state in (State.DOCKED, State.FAILED)
+        return self.state.final
 
     @property
     def wants_frames(self) -> bool:
@@ -288,8 +425,9 @@ class DockingMission:
         self.state, self.state_since = state, now
         self.log.append((now, state.value + (f": {note}" if note else "")))
 
-    def _fail(self, now: float, reason: str) -> tuple[float, float]:
-        self.reason = reason
+    def _fail(self, now: float, failure: FailureReason, reason: str) -> tuple[float, float]:
+        """End the mission in ``FAILED``: why (the enum) and the detail (the log's text), and a zero command."""
+        self.failure, self.reason = failure, reason
         self._enter(now, State.FAILED, reason)
         self.command = (0.0, 0.0)
         return self.command
@@ -322,8 +460,10 @@ class DockingMission:
         if self.finished:
             return (0.0, 0.0)
         if now - self.start_time > self.config.mission_timeout:
-            return self._fail(now, f"mission took longer than {self.config.mission_timeout:.0f} s")
-        v, w = self._desired(now, odom, contact)
+            return self._fail(
+                now, FailureReason.TIMEOUT, f"mission took longer than {self.config.mission_timeout:.0f} s"
+            )
+        v, w = self._handlers[self.state](_Tick(now, odom, contact))
         if self.finished:
             return (0.0, 0.0)
         self.command = self._limit(v, w)
@@ -358,100 +498,139 @@ class DockingMission:
     def _stopped(self, odom: Odometry) -> bool:
         return abs(odom.linear) < self.config.settle_speed and abs(odom.angular) < 5 * self.config.settle_speed
 
-    def _gap(self, odom: Pose2D) -> float:
-        """The front edge's distance from the face by the robot's estimate."""
-        return -self.track.robot_in_dock(odom).x - self.robot.front_offset
+    # --- the states: one handler each, in the order a mission meets them ----------------------------
 
-    # --- the states -------------------------------------------------------------------------
-
-    def _desired(self, now: float, odom: Odometry, contact: bool | None) -> tuple[float, float]:
+    def _on_acquire(self, tick: _Tick) -> tuple[float, float]:
+        """``ACQUIRE``: stand while the first frames arrive, then turn on the spot until a frame gives the dock."""
         c = self.config
         assert self.start_time is not None
-        pose = odom.pose
-        if self.state is State.ACQUIRE:
-            if self.track.mean is not None:
-                self._enter(now, State.CALCULATE, "markers in view")
-                self.track.reset()
-                return (0.0, 0.0)
-            if now - self.start_time < c.first_frame_wait:
-                return (0.0, 0.0)  # the first frames are still on their way
-            if not c.acquire:
-                return self._fail(now, "no markers in view (acquire is off)")
-            if self.turned >= math.radians(c.acquire_max_turn_deg):
-                return self._fail(now, "no markers in view after a full turn")
-            self.turned += abs(odom.angular) * c.control_period
-            return (0.0, c.acquire_turn_rate)
-
-        if self.state is State.CALCULATE:
-            # Stand still, then take the median of a few frames: motion blur, latency and a wild frame stay
-            # out of the plan. (A base whose odometry never reads still is taken as still after settle_timeout.)
-            if not self._stopped(odom) and now - self.state_since < c.settle_timeout:
-                self.calc_samples.clear()
-                return (0.0, 0.0)
-            n = len(self.calc_samples)
-            if n >= c.calculate_frames or (now - self.state_since > c.calculate_timeout and n > 0):
-                x = float(np.median([e.x for _, e, _ in self.calc_samples]))
-                y = float(np.median([e.y for _, e, _ in self.calc_samples]))
-                bearing = math.atan2(y, x)
-                # Fewer than three markers: the heading of a lone, small marker can flip sign (the planar pose
-                # ambiguity); turn to face the dock so that all three are in view, then calculate again.
-                if (
-                    not self.centered
-                    and float(np.median(self.calc_markers)) < 3
-                    and abs(bearing) > math.radians(c.center_tolerance_deg)
-                ):
-                    self.center_heading = wrap_angle(pose.theta + bearing)
-                    self._enter(
-                        now, State.CENTER, f"fewer than three markers; turning {math.degrees(bearing):+.1f} deg"
-                    )
-                    return (0.0, 0.0)
-                self.track.seed(self.calc_samples)
-                return self._plan(now, pose)
-            if now - self.state_since > c.calculate_timeout:
-                self.turned = 0.0
-                self._enter(now, State.ACQUIRE, "markers lost while calculating")
+        if self.track.mean is not None:
+            self._enter(tick.now, State.CALCULATE, "markers in view")
+            self.track.reset()
             return (0.0, 0.0)
+        if tick.now - self.start_time < c.first_frame_wait:
+            return (0.0, 0.0)  # the first frames are still on their way
+        if not c.acquire:
+            return self._fail(tick.now, FailureReason.NOT_IN_VIEW, "no markers in view (acquire is off)")
+        if self.turned >= math.radians(c.acquire_max_turn_deg):
+            return self._fail(tick.now, FailureReason.NOT_FOUND, "no markers in view after a full turn")
+        self.turned += abs(tick.odom.angular) * c.control_period
+        return (0.0, c.acquire_turn_rate)
 
-        if self.state is State.CENTER:
-            done, w = self._turn_to(self.center_heading, pose, odom)
-            if done:
-                self._enter(now, State.CALCULATE, "dock centred")
-            return (0.0, w)
-
-        if self.state is State.MOVING1_TURN:
-            done, w = self._turn_to(self._targets.drive_heading, pose, odom)
-            if done:
-                self._enter(now, State.MOVING1_DRIVE)
-            return (0.0, w)
-
-        if self.state in (State.MOVING1_DRIVE, State.BACK_OFF):
-            reverse = self._targets.reverse if self.state is State.MOVING1_DRIVE else True
-            v, w, arrived = self._drive_to(self._targets.a, pose, reverse)
-            if arrived:
-                if self.state is State.BACK_OFF:
-                    self._enter(now, State.CALCULATE, "back at Point A")
-                    self.track.reset()
-                else:
-                    self._enter(now, State.MOVING2)
+    def _on_calculate(self, tick: _Tick) -> tuple[float, float]:
+        """``CALCULATE``: stand still, take the median of a few frames, and plan (or centre the dock first)."""
+        c = self.config
+        now, odom = tick.now, tick.odom
+        # Stand still, then take the median of a few frames: motion blur, latency and a wild frame stay
+        # out of the plan. (A base whose odometry never reads still is taken as still after settle_timeout.)
+        if not self._stopped(odom) and now - self.state_since < c.settle_timeout:
+            self.calc_samples.clear()
+            return (0.0, 0.0)
+        n = len(self.calc_samples)
+        if n >= c.calculate_frames or (now - self.state_since > c.calculate_timeout and n > 0):
+            x = float(np.median([e.x for _, e, _ in self.calc_samples]))
+            y = float(np.median([e.y for _, e, _ in self.calc_samples]))
+            bearing = math.atan2(y, x)
+            # Fewer than three markers: the heading of a lone, small marker can flip sign (the planar pose
+            # ambiguity); turn to face the dock so that all three are in view, then calculate again.
+            if (
+                not self.centered
+                and float(np.median(self.calc_markers)) < 3
+                and abs(bearing) > math.radians(c.center_tolerance_deg)
+            ):
+                self.center_heading = wrap_angle(odom.pose.theta + bearing)
+                self._enter(now, State.CENTER, f"fewer than three markers; turning {math.degrees(bearing):+.1f} deg")
                 return (0.0, 0.0)
-            return (v, w)
+            self.track.seed(self.calc_samples)
+            return self._plan(now, odom.pose)
+        if now - self.state_since > c.calculate_timeout:
+            self.turned = 0.0
+            self._enter(now, State.ACQUIRE, "markers lost while calculating")
+        return (0.0, 0.0)
 
-        if self.state is State.MOVING2:
-            done, w = self._turn_to(self._targets.final_heading, pose, odom)
-            if done:
-                self.checked = False
-                self.last_seen = max(self.last_seen, now)  # the lost-markers clock starts when Moving₃ does
-                self._enter(now, State.MOVING3)
-            return (0.0, w)
+    def _on_center(self, tick: _Tick) -> tuple[float, float]:
+        """``CENTER``: turn to face the dock, then calculate again."""
+        done, w = self._turn_to(self.center_heading, tick.odom)
+        if done:
+            self._enter(tick.now, State.CALCULATE, "dock centred")
+        return (0.0, w)
 
-        if self.state is State.MOVING3:
-            return self._approach(now, odom, contact)
+    def _on_moving1_turn(self, tick: _Tick) -> tuple[float, float]:
+        """``MOVING1_TURN``: turn to the heading of the straight leg to Point A."""
+        done, w = self._turn_to(self._targets.drive_heading, tick.odom)
+        if done:
+            self._enter(tick.now, State.MOVING1_DRIVE)
+        return (0.0, w)
 
-        if self.state is State.SETTLE:
-            if not self._stopped(odom) and now - self.state_since < c.settle_timeout:
-                return (0.0, 0.0)
-            return self._judge(now, pose)
-        raise AssertionError(self.state)  # pragma: no cover
+    def _on_moving1_drive(self, tick: _Tick) -> tuple[float, float]:
+        """``MOVING1_DRIVE``: drive straight to Point A, backwards when the plan says so."""
+        v, w, arrived = self._drive_to(self._targets.a, tick.odom.pose, self._targets.reverse)
+        if arrived:
+            self._enter(tick.now, State.MOVING2)
+            return (0.0, 0.0)
+        return (v, w)
+
+    def _on_moving2(self, tick: _Tick) -> tuple[float, float]:
+        """``MOVING2``: turn to face the charger square, then start the approach."""
+        done, w = self._turn_to(self._targets.final_heading, tick.odom)
+        if done:
+            self.checked = False
+            self.last_seen = max(self.last_seen, tick.now)  # the lost-markers clock starts when Moving₃ does
+            self._enter(tick.now, State.MOVING3)
+        return (0.0, w)
+
+    def _on_moving3(self, tick: _Tick) -> tuple[float, float]:
+        """``MOVING3``: straight at the face under P-control on the lateral and heading errors."""
+        c = self.config
+        now, odom = tick.now, tick.odom
+        robot = self.track.robot_in_dock(odom.pose)
+        gap = -robot.x - self.robot.front_offset
+        lateral, heading = robot.y, robot.theta
+        if gap > self.blind and now - self.last_seen > c.lost_timeout:
+            return self._fail(
+                now, FailureReason.MARKERS_LOST, f"markers lost for {now - self.last_seen:.1f} s during the approach"
+            )
+        if tick.contact or gap <= abs(odom.linear) * c.stop_lead:
+            if self.impact_speed is None:
+                self.impact_speed = abs(odom.linear)
+            self._enter(now, State.SETTLE, "contact" if tick.contact else "at the face by the estimate")
+            return (0.0, 0.0)
+        # Heading reference that closes the lateral error, faded out near the face so the robot arrives square.
+        fade = min(1.0, max(0.0, (gap - 0.5 * c.heading_only_gap) / (0.5 * c.heading_only_gap)))
+        ref = -math.atan(c.k_lateral * lateral) * fade
+        ref = float(np.clip(ref, -math.radians(c.max_correction_deg), math.radians(c.max_correction_deg)))
+        if not self.checked and gap <= c.checkpoint_gap:
+            # The end of the early part: too far off the axis, or not following the reference, to finish well.
+            self.checked = True
+            off = abs(lateral) > c.retry_lateral or abs(wrap_angle(heading - ref)) > math.radians(c.retry_heading_deg)
+            if off and self.retries < c.max_retries:
+                return self._retry(now, f"lateral {lateral * 100:+.1f} cm, heading {math.degrees(heading):+.1f} deg")
+        w = c.k_heading * wrap_angle(ref - heading)
+        v = min(c.approach_speed, math.sqrt(2 * c.linear_accel * 0.5 * max(gap - c.creep_distance, 0.0)) + c.min_speed)
+        if gap <= c.creep_distance:
+            v = c.min_speed
+        return v, w
+
+    def _on_settle(self, tick: _Tick) -> tuple[float, float]:
+        """``SETTLE``: stand still at the face, then judge the final pose."""
+        if not self._stopped(tick.odom) and tick.now - self.state_since < self.config.settle_timeout:
+            return (0.0, 0.0)
+        return self._judge(tick.now, tick.odom.pose)
+
+    def _on_back_off(self, tick: _Tick) -> tuple[float, float]:
+        """``BACK_OFF``: reverse straight to Point A, then calculate afresh."""
+        v, w, arrived = self._drive_to(self._targets.a, tick.odom.pose, reverse=True)
+        if arrived:
+            self._enter(tick.now, State.CALCULATE, "back at Point A")
+            self.track.reset()
+            return (0.0, 0.0)
+        return (v, w)
+
+    def _on_final(self, _tick: _Tick) -> tuple[float, float]:
+        """``DOCKED`` and ``FAILED``: stand still (``step`` stops before it asks, this keeps the table whole)."""
+        return (0.0, 0.0)
+
+    # --- what the handlers share ----------------------------------------------------------------
 
     def _plan(self, now: float, pose: Pose2D) -> tuple[float, float]:
         """Calculate: the robot's pose in the dock frame, its case, Point A and the targets in odometry."""
@@ -476,10 +655,10 @@ class DockingMission:
         self._enter(now, State.MOVING1_TURN, note)
         return (0.0, 0.0)
 
-    def _turn_to(self, heading: float, pose: Pose2D, odom: Odometry) -> tuple[bool, float]:
+    def _turn_to(self, heading: float, odom: Odometry) -> tuple[bool, float]:
         """Turn in place towards ``heading`` (odometry frame): (there and still, turn rate)."""
         c = self.config
-        err = wrap_angle(heading - pose.theta)
+        err = wrap_angle(heading - odom.pose.theta)
         if abs(err) < math.radians(c.turn_tolerance_deg):
             return abs(odom.angular) < 0.05, 0.0
         # Decelerate so as to stop on the target: w <= sqrt(2 a |err|).
@@ -500,36 +679,8 @@ class DockingMission:
         w = c.k_bearing * bearing if along > 0.05 else 0.0
         return (-speed if reverse else speed), w, False
 
-    def _approach(self, now: float, odom: Odometry, contact: bool | None) -> tuple[float, float]:
-        """Moving₃: straight at the face under P-control on the lateral and heading errors."""
-        c = self.config
-        robot = self.track.robot_in_dock(odom.pose)
-        gap = -robot.x - self.robot.front_offset
-        lateral, heading = robot.y, robot.theta
-        if gap > self.blind and now - self.last_seen > c.lost_timeout:
-            return self._fail(now, f"markers lost for {now - self.last_seen:.1f} s during the approach")
-        if contact or gap <= abs(odom.linear) * c.stop_lead:
-            if self.impact_speed is None:
-                self.impact_speed = abs(odom.linear)
-            self._enter(now, State.SETTLE, "contact" if contact else "at the face by the estimate")
-            return (0.0, 0.0)
-        # Heading reference that closes the lateral error, faded out near the face so the robot arrives square.
-        fade = min(1.0, max(0.0, (gap - 0.5 * c.heading_only_gap) / (0.5 * c.heading_only_gap)))
-        ref = -math.atan(c.k_lateral * lateral) * fade
-        ref = float(np.clip(ref, -math.radians(c.max_correction_deg), math.radians(c.max_correction_deg)))
-        if not self.checked and gap <= c.checkpoint_gap:
-            # The end of the early part: too far off the axis, or not following the reference, to finish well.
-            self.checked = True
-            off = abs(lateral) > c.retry_lateral or abs(wrap_angle(heading - ref)) > math.radians(c.retry_heading_deg)
-            if off and self.retries < c.max_retries:
-                return self._back_off(now, f"lateral {lateral * 100:+.1f} cm, heading {math.degrees(heading):+.1f} deg")
-        w = c.k_heading * wrap_angle(ref - heading)
-        v = min(c.approach_speed, math.sqrt(2 * c.linear_accel * 0.5 * max(gap - c.creep_distance, 0.0)) + c.min_speed)
-        if gap <= c.creep_distance:
-            v = c.min_speed
-        return v, w
-
-    def _back_off(self, now: float, why: str) -> tuple[float, float]:
+    def _retry(self, now: float, why: str) -> tuple[float, float]:
+        """Start a retry: ``BACK_OFF`` to Point A, placed again from the filter's current dock pose."""
         assert self.track.mean is not None
         self.retries += 1
         self._targets.a = self.track.mean.compose(point_a(self.config.planner, self.robot.front_offset))
@@ -552,9 +703,9 @@ class DockingMission:
         if ok:
             self._enter(now, State.DOCKED, summary)
         elif self.retries < c.max_retries:
-            self._back_off(now, "final pose outside the tolerances: " + summary)
+            self._retry(now, "final pose outside the tolerances: " + summary)
         else:
-            self._fail(now, "final pose outside the tolerances: " + summary)
+            self._fail(now, FailureReason.OUTSIDE_TOLERANCES, "final pose outside the tolerances: " + summary)
         return (0.0, 0.0)
 
     def estimated_final(self) -> Pose2D | None:
@@ -590,6 +741,7 @@ def run_mission(
     robot.send_velocity(0.0, 0.0)
     return MissionResult(
         state=mission.state,
+        failure=mission.failure,
         reason=mission.reason,
         case=mission.case,
         retries=mission.retries,
