@@ -1,8 +1,16 @@
 """Docking: the eight cases and Point A (planner), the mission's state machine (controller), the dock's
-pose tracked in odometry (track), the robot interface, and the closed-loop simulation (closed_loop)."""
+pose tracked in odometry (pose_filter) and the robot interface: what runs on the robot (dock-sim lives in evaluation)."""
 
 from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import DockingMission, MissionConfig, MissionResult, Observation, State, run_mission
+from monodock.dock.controller import (
+    DockingMission,
+    FailureReason,
+    MissionConfig,
+    MissionResult,
+    Observation,
+    State,
+    run_mission,
+)
 from monodock.dock.interface import CameraFrame, Odometry, RobotInterface
 from monodock.dock.planner import CASES, CaseSpec, Manoeuvre, PlannerConfig, classify, plan, point_a
 
@@ -11,6 +19,7 @@ __all__ = [
     "CameraFrame",
     "CaseSpec",
     "DockingMission",
+    "FailureReason",
     "Manoeuvre",
     "MissionConfig",
     "MissionResult",

@@ -124,5 +124,6 @@ def run_dock(args: DockOptions, argv: Sequence[str]) -> int:
         rclpy.try_shutdown()
     for t, entry in result.log:
         print(f"{t:8.2f} {entry}")
-    print(f"monodock-dock-ros: {result.state.value} {result.reason}".rstrip())
+    failure = f" [{result.failure.value}, Nav2 error code {result.failure.nav2_error_code}]" if result.failure else ""
+    print(f"monodock-dock-ros: {result.state.value} {result.reason}{failure}".rstrip())
     return 0 if result.docked else 1
