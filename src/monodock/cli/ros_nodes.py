@@ -10,7 +10,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]
+from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]  # noqa: TID253
 
 from monodock.cli.options import add_estimator_options
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC

@@ -1,5 +1,5 @@
-"""Docking: the eight cases and Point A (planner), the mission's state machine (controller), the dock's
-pose tracked in odometry (pose_filter) and the robot interface: what runs on the robot (dock-sim lives in evaluation)."""
+"""Docking: the eight cases and Point A (planner), the mission's state machine (controller), the dock's pose
+tracked in odometry (pose_filter) and the robot interface; what runs on the robot (dock-sim is in evaluation)."""
 
 from monodock.core.pose2d import Pose2D
 from monodock.dock.controller import (

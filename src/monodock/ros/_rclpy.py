@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 try:
+    # The one module-level import of rclpy: the nodes import it from here (nothing else in monodock does).
     import rclpy  # type: ignore[import-not-found, unused-ignore]
     from rclpy.node import Node  # type: ignore[import-not-found, unused-ignore]
 except ImportError as _exc:  # the message should say what to do, not only what is missing
