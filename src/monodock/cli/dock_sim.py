@@ -118,7 +118,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
     from monodock.dock.controller import MissionConfig
     from monodock.dock.planner import PlannerConfig
     from monodock.evaluation.dock_sim import BUNDLE_METHODS, DockSimConfig, case_distances, run_dock_sim, summarize
-    from monodock.report.dock_report import console_table, write_dock_report
+    from monodock.report.docking import console_table, write_dock_report
     from monodock.sim.diffdrive import DiffDriveConfig
 
     if args.out:
@@ -156,11 +156,10 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     results = run_dock_sim(config)
     wall = time.perf_counter() - t0
+    summary = summarize(results, config)
     if args.out:
         with atomic_directory(args.out, force=args.force) as tmp:
-            summary = write_dock_report(tmp, results, config)
-    else:
-        summary = summarize(results, config)
+            write_dock_report(tmp, results, summary, config)
     print(console_table(summary))
     n = max(1, len(results))
     per_run = sum(r.wall_s for r in results) / n

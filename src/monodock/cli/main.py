@@ -531,7 +531,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     """``evaluate --robustness``: simulated test frames, one nuisance or calibration error at a time."""
     from monodock.core.atomic import atomic_directory, check_writable
     from monodock.errors import InputError
-    from monodock.evaluation.robustness import RobustnessConfig, run_robustness, write_robustness_report
+    from monodock.evaluation.robustness import RobustnessConfig, run_robustness
+    from monodock.report.robustness import write_robustness_report
 
     if args.recording is not None:
         raise InputError(f"--robustness simulates its own frames: drop the recording '{args.recording}'")
@@ -556,14 +557,13 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     )
     result = run_robustness(Path(args.model), camera, layout, robot, config)
     with atomic_directory(args.out, force=args.force) as out:
-        summary = write_robustness_report(result, out)
-    for row in summary["headline"]:
-        f = row["fused"]
-        b = row["board"]
+        write_robustness_report(result, out)
+    for row in result.summary().headline:
+        f, b = row.worst["fused"], row.worst["board"]
         print(
-            f"{row['axis']:12s} worst: fused {f['depth_mae_cm']:.2f} cm / {f['lateral_mae_cm']:.2f} cm / "
-            f"{f['yaw_mae_deg']:.2f} deg, board {b['depth_mae_cm']:.2f} cm / {b['lateral_mae_cm']:.2f} cm / "
-            f"{b['yaw_mae_deg']:.2f} deg"
+            f"{row.axis:12s} worst: fused {f.depth_mae_cm:.2f} cm / {f.lateral_mae_cm:.2f} cm / "
+            f"{f.yaw_mae_deg:.2f} deg, board {b.depth_mae_cm:.2f} cm / {b.lateral_mae_cm:.2f} cm / "
+            f"{b.yaw_mae_deg:.2f} deg"
         )
     print(f"report: {Path(args.out) / 'report.html'} ({result.runtime_s:.0f} s)")
     return 0
@@ -574,8 +574,9 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     from monodock.errors import InputError
     from monodock.estimation.fused import FusedEstimator, fusion_tables_of
     from monodock.estimation.regression import RegressionEstimator
-    from monodock.evaluation.heldout import evaluate_report
+    from monodock.evaluation.heldout import evaluate_heldout
     from monodock.learning.dataset import read_dataset
+    from monodock.report.evaluation import write_evaluation_report
 
     if args.robustness:
         return _cmd_robustness(args)
@@ -607,11 +608,13 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
     else:
         print("note: the bundle has no fusion tables (trained before the fused method); fused is left out")
     with atomic_directory(args.out, force=args.force) as out:
-        summary = evaluate_report(ds, regression, out, title=f"monodock evaluation: {args.recording}", fused=fused)
-    for method, row in summary["against_truth" if "against_truth" in summary else "against_lidar"].items():
+        result = evaluate_heldout(ds, regression, fused=fused)
+        summary = result.summary()
+        write_evaluation_report(out, result, summary, title=f"monodock evaluation: {args.recording}")
+    for method, row in summary.overall.items():
         print(
-            f"{method:10s} valid {row['valid']}/{row['frames']}  depth MAE {row['depth_mae_cm']:.2f} cm  "
-            f"lateral MAE {row['lateral_mae_cm']:.2f} cm  yaw MAE {row['yaw_mae_deg']:.2f} deg"
+            f"{method:10s} valid {row.valid}/{row.frames}  depth MAE {row.depth_mae_cm:.2f} cm  "
+            f"lateral MAE {row.lateral_mae_cm:.2f} cm  yaw MAE {row.yaw_mae_deg:.2f} deg"
         )
     print(f"report: {Path(args.out) / 'report.html'}")
     return 0
@@ -641,18 +644,18 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         jobs=_jobs(args.jobs),
         dock_trials=args.dock_trials,
     )
-    summary = run_demo(args.out, config, force=args.force)
-    for method, r in summary.get("against_truth", summary.get("against_lidar", {})).items():
+    demo = run_demo(args.out, config, force=args.force)
+    for method, r in demo.summary.overall.items():
         print(
-            f"{method:10s} valid {r['valid']}/{r['frames']}  depth MAE {r['depth_mae_cm']:.2f} cm  lateral MAE "
-            f"{r['lateral_mae_cm']:.2f} cm  yaw MAE {r['yaw_mae_deg']:.2f} deg  (against the simulator's truth)"
+            f"{method:10s} valid {r.valid}/{r.frames}  depth MAE {r.depth_mae_cm:.2f} cm  lateral MAE "
+            f"{r.lateral_mae_cm:.2f} cm  yaw MAE {r.yaw_mae_deg:.2f} deg  (against the simulator's truth)"
         )
-    for method, g in summary.get("docking", {}).items():
+    for method, g in (demo.summary.docking or {}).items():
         print(
-            f"docking {method:10s} {g['successes']}/{g['runs']} docked; median final lateral "
-            f"{g['final_lateral_cm']['median']:.2f} cm, heading {g['final_heading_deg']['median']:.2f} deg"
+            f"docking {method:10s} {g.successes}/{g.runs} docked; median final lateral "
+            f"{g.final_lateral_cm.median:.2f} cm, heading {g.final_heading_deg.median:.2f} deg"
         )
-    print(f"report: {Path(args.out) / 'report.html'}  ({summary['seconds']:.0f} s)")
+    print(f"report: {Path(args.out) / 'report.html'}  ({demo.seconds:.0f} s)")
     return 0
 
 
