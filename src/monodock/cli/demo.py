@@ -41,7 +41,7 @@ from monodock.report.training import write_training_report
 from monodock.sim import Nuisances, SimFrame, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
 
-__all__ = ["DemoConfig", "DemoResult", "run_demo"]
+__all__ = ["DemoConfig", "DemoResult", "demo_settings", "run_demo"]
 
 # The methods of the first screen's camera frame, and of the closed-loop docking.
 FRAME_METHODS = ("regression", "pnp", "board", "fused")
@@ -223,9 +223,8 @@ def _study(work: Path, config: DemoConfig, trained: _Trained, held: _HeldOut) ->
     return evaluate_heldout(held.dataset, held.regression, fused=held.fused, miscalibrated=miscalibrated)
 
 
-def _settings(config: DemoConfig, held: _HeldOut) -> dict[str, object]:
-    """What the demo ran, as a person would write it in a YAML file."""
-    sim = held.sim
+def demo_settings(config: DemoConfig, sim: Simulator, test_seed: int) -> dict[str, object]:
+    """What the demo ran, as a person would write it in a YAML file (``sim``: the held-out drive's simulator)."""
     return {
         "training drive": {
             "stops": config.train_stops,
@@ -235,7 +234,7 @@ def _settings(config: DemoConfig, held: _HeldOut) -> dict[str, object]:
             "lateral_cm": [-40, 40],
             "yaw_deg": [-30, 30],
         },
-        "held-out drive": {"stops": config.test_stops, "seed": held.seed, "nuisances": plain(sim.nuisances)},
+        "held-out drive": {"stops": config.test_stops, "seed": test_seed, "nuisances": plain(sim.nuisances)},
         "LiDAR": lidar_settings(sim.lidar),
         "camera": {"size_px": [sim.camera.width, sim.camera.height], "fx_px": sim.camera.fx},
         "layout": {
@@ -265,7 +264,7 @@ def _report(
         training=trained.result,
         label_run=trained.run,
         label_errors=tuple(label_errors(trained.dataset)),
-        settings=_settings(config, held),
+        settings=demo_settings(config, held.sim, held.seed),
         trials=config.trials,
         train_seconds=trained.seconds,
     )

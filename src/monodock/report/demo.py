@@ -113,7 +113,7 @@ class DemoPage:
         docking: the closed-loop docking runs (their files already written into the docking folder).
         frame: the first screen's camera frame, or None when the held-out drive had none to show.
         lidar_overlays: LiDAR points on the image at a few depths.
-        training: the training's result (the papers' Tables 1-3).
+        training: the training's result (the papers' Tables 1-3), or None to leave them out.
         label_run, label_errors: the training drive's labelling counts, and its labels against the truth.
         settings: what the demo ran, as plain values (rendered as YAML).
         trials: hyperparameter draws per model.
@@ -125,7 +125,7 @@ class DemoPage:
     docking: DockingRun
     frame: FrameView | None
     lidar_overlays: tuple[LidarOverlay, ...]
-    training: TrainingResult
+    training: TrainingResult | None
     label_run: LabelRun
     label_errors: tuple[LabelError, ...]
     settings: Mapping[str, object]
@@ -170,55 +170,89 @@ def _draw_dock(ax: Axes, view: FrameView, pose: DockPose, colour: str, *, ls: st
     ax.plot(*axis[0], "o", color=colour, ms=4)
 
 
-def estimates_figure(view: FrameView, path: Path, *, width_px: int = FRAME_WIDTH_PX) -> None:
-    """The camera frame, the detected markers (ids), and every method's dock drawn where it estimates it.
-
-    Each method's dock is its three markers' outlines and the approach axis on the floor, in the method's
-    colour; the truth is dashed black. The legend gives each estimate and its error against the truth.
-    """
-    h, w = view.image.shape[:2]
-    dpi = 100
-    legend_h = 0.22 * (len(view.estimates) + 2)
-    fig = plt.figure(figsize=(width_px / dpi, width_px / dpi * h / w + legend_h), dpi=dpi)
-    image_h = (width_px / dpi * h / w) / (width_px / dpi * h / w + legend_h)
-    ax = fig.add_axes((0.0, 1.0 - image_h, 1.0, image_h))
-    image = view.image if view.image.ndim == 2 else view.image[:, :, ::-1]
+def _draw_frame(ax: Axes, view: FrameView, image: NDArray[np.uint8], *, labels: bool) -> None:
+    """The image, the detected markers and every method's dock (and the truth's) on one axes."""
     ax.imshow(image, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
     for role, obs in view.detection.observations.items():
         c = np.vstack([obs.corners, obs.corners[:1]])
         ax.plot(*c.T, color="yellow", lw=0.8)
-        x, y = obs.corners.min(axis=0)
-        ax.text(x, y - 4, f"m{view.layout.marker(role).number}", color="yellow", fontsize=7)
-    handles = [Line2D([], [], color="yellow", lw=1.0, label="detected markers")]
+        if labels:
+            x, y = obs.corners.min(axis=0)
+            ax.text(x, y - 4, f"m{view.layout.marker(role).number}", color="yellow", fontsize=7)
     _draw_dock(ax, view, view.truth, "black", ls="--", lw=1.2)
+    for method, est in view.estimates.items():
+        if est.pose is not None:
+            _draw_dock(ax, view, est.pose, METHOD_COLOURS.get(method, "grey"))
+
+
+def _legend(view: FrameView) -> list[Line2D]:
+    """One entry per method: its error against the truth (or why it has no estimate); the truth itself."""
     t = view.truth
-    handles.append(
+    handles = [
+        Line2D([], [], color="yellow", lw=1.0, label="detected markers"),
         Line2D(
-            [], [], color="black", ls="--", label=f"truth: D {t.x:.3f} m, K {t.y * 100:+.1f} cm, θ {t.yaw_deg:+.2f}°"
-        )
-    )
+            [],
+            [],
+            color="black",
+            ls="--",
+            label=f"truth: depth {t.x:.3f} m, lateral {t.y * 100:+.1f} cm, yaw {t.yaw_deg:+.2f}°",
+        ),
+    ]
     for method, est in view.estimates.items():
         colour = METHOD_COLOURS.get(method, "grey")
         label = METHOD_LABELS.get(method, method)
         if est.pose is None:
-            handles.append(Line2D([], [], color=colour, label=f"{label}: no estimate ({est.reason})"))
+            handles.append(Line2D([], [], color=colour, lw=2, label=f"{label}: no estimate ({est.reason})"))
             continue
         p = est.pose
-        _draw_dock(ax, view, p, colour)
+        yaw = math.degrees(math.remainder(p.yaw - t.yaw, math.tau))
         handles.append(
             Line2D(
                 [],
                 [],
                 color=colour,
                 lw=2,
-                label=f"{label}: error D {(p.x - t.x) * 100:+.2f} cm, K {(p.y - t.y) * 100:+.2f} cm, "
-                f"θ {math.degrees(math.remainder(p.yaw - t.yaw, math.tau)):+.2f}°",
+                label=f"{label}: error depth {(p.x - t.x) * 100:+.2f} cm, lateral {(p.y - t.y) * 100:+.2f} cm, "
+                f"yaw {yaw:+.2f}°",
             )
         )
+    return handles
+
+
+def estimates_figure(view: FrameView, path: Path, *, width_px: int = FRAME_WIDTH_PX) -> None:
+    """The camera frame, the detected markers (ids), and every method's dock drawn where it estimates it.
+
+    Each method's dock is its three markers' outlines and the approach axis on the floor, in the method's
+    colour; the truth is dashed black. An inset magnifies the centre marker, where the estimates part; the
+    legend gives each estimate's error against the truth.
+    """
+    h, w = view.image.shape[:2]
+    dpi = 100
+    image_h = width_px / dpi * h / w
+    legend_h = 0.19 * (len(view.estimates) + 2) + 0.1
+    fig = plt.figure(figsize=(width_px / dpi, image_h + legend_h), dpi=dpi)
+    ax = fig.add_axes((0.0, legend_h / (image_h + legend_h), 1.0, image_h / (image_h + legend_h)))
+    image = view.image if view.image.ndim == 2 else view.image[:, :, ::-1]
+    _draw_frame(ax, view, image, labels=True)
     ax.set_xlim(-0.5, w - 0.5)
     ax.set_ylim(h - 0.5, -0.5)
     ax.axis("off")
-    fig.legend(handles=handles, loc="lower left", fontsize=7.5, frameon=False, ncol=1, bbox_to_anchor=(0.0, 0.0))
+    centre = view.detection.observations.get("center")
+    if centre is not None:
+        # The estimates differ by a few pixels: magnify the centre marker ~3x in the lower right corner.
+        (x0, y0), (x1, y1) = centre.corners.min(axis=0), centre.corners.max(axis=0)
+        half = 0.5 * max(x1 - x0, y1 - y0) * 1.3
+        cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+        inset = ax.inset_axes((0.64, 0.02, 0.34, 0.34 * w / h))
+        _draw_frame(inset, view, image, labels=False)
+        inset.set_xlim(cx - half, cx + half)
+        inset.set_ylim(cy + half, cy - half)
+        inset.set_xticks([])
+        inset.set_yticks([])
+        for spine in inset.spines.values():
+            spine.set_edgecolor("white")
+        ax.indicate_inset_zoom(inset, edgecolor="white", alpha=0.9)
+    fig.legend(handles=_legend(view), loc="lower left", fontsize=7.5, frameon=False, bbox_to_anchor=(0.0, 0.0))
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
@@ -319,6 +353,8 @@ def write_demo_report(out: Path, page: DemoPage) -> None:
 
 def _training_sections(report: HtmlReport, page: DemoPage) -> None:
     """The teacher's (LiDAR labels') error, and the papers' Tables 1-3 for the trained models (collapsed)."""
+    if page.training is None:
+        return
     report.heading("The teacher: LiDAR label error against the simulator's truth (training drive)")
     report.table(label_error_table(list(page.label_errors)), wrap=True)
     run = page.label_run

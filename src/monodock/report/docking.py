@@ -31,7 +31,7 @@ from monodock.evaluation.dock_sim import (
     runs_csv,
 )
 from monodock.report.html import HtmlReport, plain
-from monodock.report.plotting import plt
+from monodock.report.plotting import METHOD_COLOURS, plt
 from monodock.sim.diffdrive import DiffDriveConfig
 from monodock.sim.world import ChargerGeometry
 
@@ -237,7 +237,8 @@ def final_error_plot(
     methods = sorted({r[0] for r in results})
     for i, m in enumerate(methods):
         pts = [(r[1], r[2]) for r in results if r[0] == m]
-        ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=12, alpha=0.7, label=m, color=f"C{i}")
+        colour = METHOD_COLOURS.get(m, f"C{i}")
+        ax.scatter([p[0] for p in pts], [p[1] for p in pts], s=12, alpha=0.7, label=m, color=colour)
     lat, head = tolerances
     ax.add_patch(Rectangle((-lat, -head), 2 * lat, 2 * head, fill=False, ls="--", ec="0.3"))
     ax.set_xlabel("final lateral error, cm (+ left of the axis)")
@@ -309,17 +310,18 @@ def _fmt_stats(s: AbsStats) -> str:
     return " / ".join("–" if v is None else f"{v:.2f}" for v in (s.median, s.p95, s.max))
 
 
-def comparison_table(summary: DockSimSummary) -> str:
+def comparison_table(summary: DockSimSummary, *, cases: bool = True, overall: bool = True) -> str:
     """Markdown: per case and overall, each method's success and median / p95 / max final errors."""
     head = (
         "| case | method | success | lateral cm (median / p95 / max) | gap cm (median / p95 / max) "
         "| heading ° (median / p95 / max) | time s (median) | retries |"
     )
     lines = [head, "|---|---|---:|---:|---:|---:|---:|---:|"]
-    groups: list[tuple[str, str, RunGroup]] = [
-        (str(case), m, block.cases[case]) for case in summary.cases for m, block in summary.methods.items()
-    ]
-    groups += [("all", m, block.overall) for m, block in summary.methods.items()]
+    groups: list[tuple[str, str, RunGroup]] = []
+    if cases:
+        groups += [(str(case), m, block.cases[case]) for case in summary.cases for m, block in summary.methods.items()]
+    if overall:
+        groups += [("all", m, block.overall) for m, block in summary.methods.items()]
     for case, m, g in groups:
         time_med = g.time_s.median
         lines.append(
@@ -449,7 +451,9 @@ def dock_section(
     """
     with report.details("Settings of the docking runs"):
         report.settings(dock_settings(config))
-    report.table(comparison_table(summary))
+    report.table(comparison_table(summary, cases=False))
+    with report.details("Every case"):
+        report.table(comparison_table(summary))
     report.paragraph(
         "Errors are absolute values against the simulator's truth at the end of each run: lateral is base_link's "
         "distance from the approach axis, gap the front edge's distance from the face when it stopped short, or "

@@ -240,7 +240,10 @@ def miscalibration_plot(rows: Sequence[MiscalibrationRow], path: Path) -> None:
 
 def reasons_bullets(reasons: Mapping[str, Mapping[str, int]]) -> list[str]:
     """One line per method: how many frames had no estimate, by reason."""
-    return [f"{m}: {dict(c) or 'none'}" for m, c in reasons.items()]
+    return [
+        f"{m}: " + (", ".join(f"{reason} ({n} frames)" for reason, n in c.items()) if c else "none")
+        for m, c in reasons.items()
+    ]
 
 
 def headline_note() -> str:

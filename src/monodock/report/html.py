@@ -34,6 +34,7 @@ img{max-width:100%;height:auto}
 figure{display:inline-block;margin:0.4em 0.4em 0.4em 0;max-width:100%;vertical-align:top}
 figcaption{font-size:85%;color:#444}
 pre.settings{background:#f6f8fa;border:1px solid #ddd;padding:8px 12px;font-size:0.85em;white-space:pre-wrap}
+pre.long{column-count:2;column-gap:2em}
 details{margin:0.5em 0;border:1px solid #ddd;border-radius:4px;padding:0.3em 0.8em}
 details>summary{cursor:pointer;font-weight:600}
 .first-screen{display:grid;grid-template-columns:minmax(0,560px) minmax(0,1fr);gap:12px 20px;align-items:start}
@@ -62,9 +63,22 @@ def plain(value: object) -> object:
     return str(value)
 
 
+class _SettingsDumper(yaml.SafeDumper):
+    """YAML with lists on one line ("range_m: [0.12, 12.0]" reads better than a column) and mappings in blocks."""
+
+
+def _flow_list(dumper: yaml.SafeDumper, data: list[object]) -> yaml.Node:
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=True)
+
+
+_SettingsDumper.add_representer(list, _flow_list)
+
+
 def settings_yaml(values: Mapping[str, object]) -> str:
     """Settings as a YAML document, keys in the given order."""
-    return yaml.safe_dump(plain(values), sort_keys=False, allow_unicode=True, default_flow_style=False, width=110)
+    return yaml.dump(
+        plain(values), Dumper=_SettingsDumper, sort_keys=False, allow_unicode=True, default_flow_style=False, width=100
+    )
 
 
 def _cells(line: str) -> list[str]:
@@ -111,7 +125,9 @@ class HtmlReport:
     def settings(self, values: Mapping[str, object]) -> None:
         """Settings as a YAML block (nested mappings allowed)."""
         text = settings_yaml(values)
-        self._html.append(f'<pre class="settings">{html.escape(text)}</pre>')
+        # A long block reads in two columns rather than down a whole screen.
+        css = "settings long" if text.count("\n") > 24 else "settings"
+        self._html.append(f'<pre class="{css}">{html.escape(text)}</pre>')
         self._md.append(f"```yaml\n{text}```\n")
 
     def table(self, markdown: str, *, wrap: bool = False) -> None:
