@@ -24,9 +24,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
+from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
@@ -45,6 +47,9 @@ from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise, OdometryNoise
 from monodock.errors import InputError
 from monodock.estimation.estimator import METHODS, Estimator
+from monodock.estimation.fused import FusedEstimator, fusion_tables_of
+from monodock.estimation.regression import RegressionEstimator
+from monodock.evaluation.selftrain import load_bundle
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances
 from monodock.sim.simulator import Simulator
@@ -213,10 +218,6 @@ def _environment(config: DockSimConfig) -> _Environment:
         extra: dict[str, Callable[[Any], Any]] = {}
         fused = None
         if any(m in BUNDLE_METHODS for m in config.methods):
-            from monodock.estimation.fused import FusedEstimator, fusion_tables_of
-            from monodock.estimation.regression import RegressionEstimator
-            from monodock.evaluation.selftrain import load_bundle
-
             assert config.bundle is not None
             bundle = load_bundle(config.bundle)
             regression = RegressionEstimator(bundle, sim.camera, sim.robot)
@@ -356,10 +357,6 @@ def _filter_frame(mission: DockingMission, robot: SimulatedRobot, observation: O
 
 def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialResult]:
     """Every case × trial × method, in ``config.jobs`` worker processes; results in a fixed order."""
-    from tqdm import tqdm
-
-    from monodock.core.parallel import map_with_state
-
     if any(m in BUNDLE_METHODS for m in config.methods) and config.bundle is None:
         raise InputError("the regression and fused methods need a model bundle")
     sim = config.simulator(config.seed)

@@ -9,6 +9,7 @@ frame's y (left) to the left. A dock-frame point (x, y) is drawn at (-y, x).
 from __future__ import annotations
 
 import math
+import sys
 import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -505,7 +506,5 @@ def write_dock_report(
 
 
 if __name__ == "__main__":  # python -m monodock.report.docking docs/dock_cases
-    import sys
-
     for p in write_case_diagrams(Path(sys.argv[1] if len(sys.argv) > 1 else "docs/dock_cases")):
         print(p)

@@ -14,8 +14,14 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.evaluation.heldout import PAPERS, HeldoutResult, HeldoutSummary, MiscalibrationRow, PaperSamples
-from monodock.evaluation.heldout import mean_abs_error as _mean_abs
+from monodock.evaluation.heldout import (
+    PAPERS,
+    HeldoutResult,
+    HeldoutSummary,
+    MiscalibrationRow,
+    PaperSamples,
+    mean_abs_error,
+)
 from monodock.evaluation.metrics import BandRow
 from monodock.report.html import HtmlReport
 from monodock.report.limit import limit_section
@@ -23,12 +29,16 @@ from monodock.report.plotting import METHOD_COLOURS, METHOD_LABELS, plt
 
 __all__ = [
     "band_markdown",
+    "band_sections",
     "error_plot",
     "figure_errors",
+    "headline_note",
     "headline_table",
     "heldout_sections",
     "miscalibration_plot",
+    "miscalibration_section",
     "miscalibration_table",
+    "paper_sections",
     "paper_tables",
     "reasons_bullets",
     "write_evaluation_report",
@@ -68,31 +78,6 @@ def headline_table(result: HeldoutResult) -> str:
         f"| {p.method} | their LiDAR | {p.samples} | {p.depth_mae_cm:.2f} | — | {p.yaw_mae_deg:.2f} | — | — |"
         for p in PAPERS
     ]
-    return head + "\n".join(lines) + "\n"
-
-
-def compact_headline_table(summary: HeldoutSummary) -> str:
-    """Markdown for a first screen: each method's depth and angle MAE against the truth (when known) and the
-    LiDAR labels, then the papers' own figures against their LiDAR."""
-    truth = summary.against_truth
-    head = "| method | valid | depth MAE cm | angle MAE ° | vs LiDAR: depth cm | angle ° |\n"
-    if truth is None:
-        head = "| method | valid | depth MAE cm | angle MAE ° |\n"
-    head += "|---|---:|---:|---:|" + ("---:|---:|\n" if truth is not None else "\n")
-    lines = []
-    for method, lidar in summary.against_lidar.items():
-        main = truth[method] if truth is not None and method in truth else lidar
-        line = f"| {method} | {main.valid}/{main.frames} | {main.depth_mae_cm:.2f} | {main.yaw_mae_deg:.2f} |"
-        if truth is not None:
-            line += f" {lidar.depth_mae_cm:.2f} | {lidar.yaw_mae_deg:.2f} |"
-        lines.append(line)
-    for p in PAPERS:
-        line = f"| {p.method} | {p.samples} | — | — |" if truth is not None else ""
-        if truth is not None:
-            line += f" {p.depth_mae_cm:.2f} | {p.yaw_mae_deg:.2f} |"
-        else:
-            line = f"| {p.method} | {p.samples} | {p.depth_mae_cm:.2f} | {p.yaw_mae_deg:.2f} |"
-        lines.append(line)
     return head + "\n".join(lines) + "\n"
 
 
@@ -179,7 +164,7 @@ def figure_errors(result: HeldoutResult, out: Path) -> list[Path]:
             refs.append(("vs simulator truth", truth, 0.45))
         width = 0.8 / len(refs)
         for j, (label, ref, alpha) in enumerate(refs):
-            means = [_mean_abs(r.poses, ref, col, scale) for r in results.values()]
+            means = [mean_abs_error(r.poses, ref, col, scale) for r in results.values()]
             bars = ax_b.bar(
                 x + (j - (len(refs) - 1) / 2) * width,
                 means,
