@@ -13,7 +13,14 @@ import numpy as np
 
 from monodock.core.pose2d import Pose2D
 from monodock.evaluation.dock_sim import DockSimConfig, DockSimSummary, FilterFrame, TrialResult, summarize
-from monodock.evaluation.heldout import HeldoutResult, MethodResult, band_rows, invalid_reasons, paper_samples
+from monodock.evaluation.heldout import (
+    HeldoutResult,
+    MethodResult,
+    Reference,
+    band_rows,
+    invalid_reasons,
+    paper_samples,
+)
 
 
 def _trial(case: int, method: str, *, success: bool, lateral: float, frames: tuple[FilterFrame, ...]) -> TrialResult:
@@ -99,7 +106,7 @@ def test_heldout_summary_has_the_contract_keys() -> None:
     truth = np.column_stack([np.linspace(0.5, 2.5, rows), rng.uniform(-0.3, 0.3, rows), np.zeros(rows)])
     lidar = truth + 0.01
     results = {m: MethodResult(m, truth + 0.002, ("",) * rows) for m in ("regression", "pnp", "board")}
-    refs = {"truth": truth, "lidar": lidar}
+    refs = {Reference.TRUTH: truth, Reference.LIDAR: lidar}
     depth = truth[:, 0] - 0.17
     result = HeldoutResult(
         rows=rows,

@@ -22,6 +22,7 @@ from monodock.evaluation.heldout import (
     HeldoutResult,
     MethodResult,
     MiscalibrationRow,
+    Reference,
     band_rows,
     invalid_reasons,
     paper_samples,
@@ -50,7 +51,7 @@ def _heldout(rows: int = 80) -> HeldoutResult:
             poses[i] = np.nan
             reasons[i] = "no marker 2 (saw left)"
         results[m] = MethodResult(m, poses, tuple(reasons))
-    refs = {"truth": truth, "lidar": lidar}
+    refs = {Reference.TRUTH: truth, Reference.LIDAR: lidar}
     study = tuple(
         MiscalibrationRow(q, f, m, 1.0 * f, 100 * (f - 1), 0.1)
         for q in ("marker size", "focal length")

@@ -12,6 +12,7 @@ the marker size at all and absorbs a focal-length error it was trained with.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -42,6 +43,7 @@ __all__ = [
     "MiscalibrationRow",
     "PaperFigure",
     "PaperSamples",
+    "Reference",
     "RowInput",
     "band_rows",
     "errors",
@@ -56,6 +58,18 @@ __all__ = [
     "reference_poses",
     "regression_method",
 ]
+
+
+class Reference(enum.StrEnum):
+    """What the estimates are compared with: the LiDAR labels (the papers' reference), or the simulator's truth."""
+
+    TRUTH = "truth"
+    LIDAR = "lidar"
+
+    @property
+    def label(self) -> str:
+        """The reference's name in a table."""
+        return "simulator truth" if self is Reference.TRUTH else "LiDAR labels"
 
 
 @dataclass(frozen=True)
@@ -130,19 +144,19 @@ def estimate_dataset(dataset: Dataset, methods: Mapping[str, FrameMethod]) -> di
     return {name: _collect(name, [f(row) for row in rows]) for name, f in methods.items()}
 
 
-def reference_poses(dataset: Dataset) -> dict[str, NDArray[np.float64]]:
+def reference_poses(dataset: Dataset) -> dict[Reference, NDArray[np.float64]]:
     """The references, (n, 3) x m, y m, yaw rad: "lidar" (labels; NaN where invalid) and "truth" if present."""
     ok = np.asarray(dataset["label_valid"], dtype=bool)
     lidar = np.column_stack(
         [dataset["label_x_m"], dataset["label_y_m"], np.radians(np.asarray(dataset["label_yaw_deg"], dtype=float))]
     ).astype(np.float64)
     lidar[~ok] = np.nan
-    out = {"lidar": lidar}
+    out = {Reference.LIDAR: lidar}
     truth = np.column_stack(
         [dataset["truth_x_m"], dataset["truth_y_m"], np.radians(np.asarray(dataset["truth_yaw_deg"], dtype=float))]
     ).astype(np.float64)
     if np.isfinite(truth[:, 0]).any():
-        out["truth"] = truth
+        out[Reference.TRUTH] = truth
     return out
 
 
@@ -419,9 +433,9 @@ class HeldoutResult:
 
     rows: int
     results: Mapping[str, MethodResult]
-    references: Mapping[str, NDArray[np.float64]]
+    references: Mapping[Reference, NDArray[np.float64]]
     depth: NDArray[np.float64]
-    bands: Mapping[str, tuple[BandRow, ...]]
+    bands: Mapping[Reference, tuple[BandRow, ...]]
     samples: PaperSamples
     miscalibration: tuple[MiscalibrationRow, ...]
     limit: PhysicalLimit | None
@@ -430,10 +444,10 @@ class HeldoutResult:
 
     @property
     def has_truth(self) -> bool:
-        return "truth" in self.references
+        return Reference.TRUTH in self.references
 
-    def overall(self, reference: str) -> dict[str, BandRow]:
-        """Per method its row over all depths against one reference ("truth" or "lidar")."""
+    def overall(self, reference: Reference) -> dict[str, BandRow]:
+        """Per method its row over all depths against one reference."""
         return {r.method: r for r in self.bands[reference] if r.band == "all"}
 
     def summary(self, *, docking: Mapping[str, RunGroup] | None = None) -> HeldoutSummary:
@@ -441,8 +455,8 @@ class HeldoutResult:
         return HeldoutSummary(
             rows=self.rows,
             has_truth=self.has_truth,
-            against_truth=self.overall("truth") if self.has_truth else None,
-            against_lidar=self.overall("lidar"),
+            against_truth=self.overall(Reference.TRUTH) if self.has_truth else None,
+            against_lidar=self.overall(Reference.LIDAR),
             physical_limit=self.limit,
             limit_studied=self.limit_studied,
             miscalibration=self.miscalibration,
@@ -476,17 +490,14 @@ def evaluate_heldout(
         methods.update(fused_method(fused))
     results = estimate_dataset(dataset, methods)
     refs = reference_poses(dataset)
-    ref_depth = refs["truth"][:, 0] if "truth" in refs else refs["lidar"][:, 0]
-    depth = ref_depth - robot.camera_mount.x
-    bands: dict[str, tuple[BandRow, ...]] = {
-        name: tuple(band_rows(depth, refs[name], results)) for name in ("truth", "lidar") if name in refs
-    }
-    studied = "truth" in refs and fused is not None
+    best = refs.get(Reference.TRUTH, refs[Reference.LIDAR])
+    depth = best[:, 0] - robot.camera_mount.x
+    # The truth first when known: it is the headline's reference.
+    bands = {r: tuple(band_rows(depth, refs[r], results)) for r in (Reference.TRUTH, Reference.LIDAR) if r in refs}
+    studied = Reference.TRUTH in refs and fused is not None
     limit = physical_limit(dataset, {m: r.poses for m, r in results.items()}) if studied else None
-    samples = paper_samples(refs["lidar"], results, truth=refs.get("truth"))
-    study = miscalibration_study(
-        dataset, refs.get("truth", refs["lidar"]), regression=_regression_for_study(regression, miscalibrated)
-    )
+    samples = paper_samples(refs[Reference.LIDAR], results, truth=refs.get(Reference.TRUTH))
+    study = miscalibration_study(dataset, best, regression=_regression_for_study(regression, miscalibrated))
     return HeldoutResult(
         rows=len(dataset),
         results=results,

@@ -21,6 +21,7 @@ the nuisance alone. Frames are rendered and estimated in worker processes (``mon
 from __future__ import annotations
 
 import dataclasses
+import enum
 import json
 import math
 import time
@@ -59,6 +60,7 @@ __all__ = [
     "STALE",
     "STATS",
     "Axis",
+    "AxisKind",
     "AxisResult",
     "Calibration",
     "HeadlineRow",
@@ -97,6 +99,13 @@ CALIBRATION_SUPERSAMPLE = 4
 _DEFAULT = Nuisances()
 
 
+class AxisKind(enum.StrEnum):
+    """What an axis changes: the pixels (IMAGE), or the files the methods are given (CALIBRATION)."""
+
+    IMAGE = "image"
+    CALIBRATION = "calibration"
+
+
 @dataclass(frozen=True)
 class Axis:
     """One nuisance swept on its own: its levels (in ``unit``) and the default level."""
@@ -106,32 +115,33 @@ class Axis:
     unit: str
     levels: tuple[float, ...]
     default: float
-    kind: str  # "image": the pixels change; "calibration": the files the methods are given change
+    kind: AxisKind
 
 
+_IMAGE, _CALIBRATION = AxisKind.IMAGE, AxisKind.CALIBRATION
 AXES: tuple[Axis, ...] = (
-    Axis("noise", "sensor noise (read noise; shot noise scaled alike)", "DN", (0.0, 1.5, 4.0, 8.0), 1.5, "image"),
-    Axis("defocus", "defocus blur (Gaussian sigma)", "px", (0.3, 0.6, 1.5, 2.5), _DEFAULT.defocus_px, "image"),
-    Axis("motion_blur", "motion blur (streak length)", "px", (0.0, 2.0, 4.0, 6.0), _DEFAULT.motion_blur_px, "image"),
+    Axis("noise", "sensor noise (read noise; shot noise scaled alike)", "DN", (0.0, 1.5, 4.0, 8.0), 1.5, _IMAGE),
+    Axis("defocus", "defocus blur (Gaussian sigma)", "px", (0.3, 0.6, 1.5, 2.5), _DEFAULT.defocus_px, _IMAGE),
+    Axis("motion_blur", "motion blur (streak length)", "px", (0.0, 2.0, 4.0, 6.0), _DEFAULT.motion_blur_px, _IMAGE),
     Axis(
-        "exposure", "exposure (gain; 1 = white near 85 % of full scale)", "x", (0.35, 0.6, 1.0, 1.6, 2.5), 1.0, "image"
+        "exposure", "exposure (gain; 1 = white near 85 % of full scale)", "x", (0.35, 0.6, 1.0, 1.6, 2.5), 1.0, _IMAGE
     ),
-    Axis("occlusion", "partial occlusion of one marker", "% of its area", (0.0, 10.0, 25.0, 40.0), 0.0, "image"),
-    Axis("focal", "focal length error", "%", (-3.0, -1.5, 0.0, 1.5, 3.0), 0.0, "calibration"),
+    Axis("occlusion", "partial occlusion of one marker", "% of its area", (0.0, 10.0, 25.0, 40.0), 0.0, _IMAGE),
+    Axis("focal", "focal length error", "%", (-3.0, -1.5, 0.0, 1.5, 3.0), 0.0, _CALIBRATION),
     Axis(
         "marker_size",
         "marker size error (layout file vs printed)",
         "%",
         (-5.0, -2.5, 0.0, 2.5, 5.0),
         0.0,
-        "calibration",
+        _CALIBRATION,
     ),
-    Axis("mount_x", "camera mount x error", "cm", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_y", "camera mount y error", "cm", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_z", "camera mount z error", "cm", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_roll", "camera mount roll error", "°", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_pitch", "camera mount pitch error", "°", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_yaw", "camera mount yaw error", "°", (-1.0, 0.0, 1.0), 0.0, "calibration"),
+    Axis("mount_x", "camera mount x error", "cm", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_y", "camera mount y error", "cm", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_z", "camera mount z error", "cm", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_roll", "camera mount roll error", "°", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_pitch", "camera mount pitch error", "°", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_yaw", "camera mount yaw error", "°", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
 )
 
 
@@ -743,13 +753,13 @@ def axis_stats(
         truth: the true poses (frames, 3).
         depth: each frame's true depth from the camera, m.
     """
-    methods = METHODS + ((STALE,) if axis.kind == "calibration" else ())
+    methods = METHODS + ((STALE,) if axis.kind is AxisKind.CALIBRATION else ())
     curves = {}
     for m in methods:
         per_level = []
         for level in axis.levels:
             key = _level_key(axis, level)
-            cond = key if axis.kind == "image" else f"calibration:{key}"
+            cond = key if axis.kind is AxisKind.IMAGE else f"calibration:{key}"
             per_level.append(_stats(_errors(estimates[cond][m], truth), depth))
         curves[m] = MethodCurve.of(per_level)
     return AxisResult(axis, len(truth), curves)
@@ -801,7 +811,7 @@ def _conditions(
     calibrations: dict[str, Calibration] = {}
     for axis in config.axes:
         for level in axis.levels:
-            if axis.kind == "image":
+            if axis.kind is AxisKind.IMAGE:
                 cond = image_condition(axis, level)
                 images.setdefault(cond.key, cond)
             else:

@@ -20,6 +20,7 @@ from monodock.evaluation.heldout import (
     HeldoutSummary,
     MiscalibrationRow,
     PaperSamples,
+    Reference,
     mean_abs_error,
 )
 from monodock.evaluation.metrics import BandRow
@@ -44,8 +45,6 @@ __all__ = [
     "write_evaluation_report",
 ]
 
-_REFERENCE = {"truth": "simulator truth", "lidar": "LiDAR labels"}
-
 
 def band_markdown(rows: Sequence[BandRow]) -> str:
     """Rows by depth band as a GitHub-flavoured markdown table."""
@@ -67,7 +66,7 @@ def headline_table(result: HeldoutResult) -> str:
     head = "| method | reference | valid | depth MAE cm | lateral MAE cm | angle MAE ° | depth p95 cm | angle p95 ° |\n"
     head += "|---|---|---:|---:|---:|---:|---:|---:|\n"
     lines = [
-        f"| {r.method} | {_REFERENCE[ref]} | {r.valid}/{r.frames} "
+        f"| {r.method} | {ref.label} | {r.valid}/{r.frames} "
         f"| {r.depth_mae_cm:.2f} | {r.lateral_mae_cm:.2f} | {r.yaw_mae_deg:.2f} | {r.depth_p95_cm:.2f} "
         f"| {r.yaw_p95_deg:.2f} |"
         for ref, rows in result.bands.items()
@@ -136,8 +135,8 @@ def paper_tables(samples: PaperSamples) -> tuple[str, str]:
 def figure_errors(result: HeldoutResult, out: Path) -> list[Path]:
     """Figs. 12 and 13 of the paper: depth and angle per sample (a) and the mean absolute error by method (b),
     against the LiDAR labels as the paper plots them and, when known, against the truth as well."""
-    reference, results, rows = result.references["lidar"], result.results, result.samples.rows
-    truth = result.references.get("truth")
+    reference, results, rows = result.references[Reference.LIDAR], result.results, result.samples.rows
+    truth = result.references.get(Reference.TRUTH)
     written = []
     for col, name, unit, scale, fig_no in (
         (0, "depth", "m", 1.0, 12),
@@ -243,7 +242,7 @@ def headline_note() -> str:
 def band_sections(report: HtmlReport, result: HeldoutResult) -> None:
     """Per reference, every method by 25 cm depth band, each in a collapsed section."""
     for ref_name, rows in result.bands.items():
-        what = "the simulator truth" if ref_name == "truth" else "the LiDAR labels"
+        what = "the simulator truth" if ref_name is Reference.TRUTH else "the LiDAR labels"
         with report.details(f"By 25 cm depth band, against {what}"):
             report.table(band_markdown(rows))
 

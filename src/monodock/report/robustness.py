@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib import ticker
 
-from monodock.evaluation.robustness import METHODS, STALE, AxisResult, HeadlineRow, RobustnessResult
+from monodock.evaluation.robustness import METHODS, STALE, AxisKind, AxisResult, HeadlineRow, RobustnessResult
 from monodock.report.html import HtmlReport
 from monodock.report.plotting import METHOD_COLOURS, METHOD_LABELS, plt
 
@@ -126,8 +126,8 @@ def _occlusion_text(result: RobustnessResult) -> str:
     )
 
 
-def _axes_of(axes: Mapping[str, AxisResult], kind: str) -> list[tuple[str, AxisResult]]:
-    return [(k, a) for k, a in axes.items() if a.axis.kind == kind]
+def _axes_of(axes: Mapping[str, AxisResult], kind: AxisKind) -> list[tuple[str, AxisResult]]:
+    return [(k, a) for k, a in axes.items() if a.axis.kind is kind]
 
 
 def write_robustness_report(result: RobustnessResult, out: Path) -> None:
@@ -169,7 +169,7 @@ def write_robustness_report(result: RobustnessResult, out: Path) -> None:
             "may then miss that marker: the valid rates count it.",
         ]
     )
-    for kind, title in (("image", "Image nuisances"), ("calibration", "Calibration errors")):
+    for kind, title in ((AxisKind.IMAGE, "Image nuisances"), (AxisKind.CALIBRATION, "Calibration errors")):
         report.heading(title)
         for key, a in _axes_of(result.axes, kind):
             report.heading(f"{a.axis.title} ({a.axis.unit})", 3)
