@@ -46,8 +46,10 @@ __all__ = ["DemoConfig", "DemoResult", "demo_settings", "run_demo"]
 # The methods of the first screen's camera frame, and of the closed-loop docking.
 FRAME_METHODS = ("regression", "pnp", "board", "fused")
 DOCK_METHODS = ("regression", "board", "fused")
-# Depths from the camera (m) of the LiDAR overlays; the "mid" one is also the first screen's frame.
+# Depths from the camera (m) of the LiDAR overlays.
 OVERLAY_DEPTHS = (("near", 0.4), ("mid", 1.2), ("far", 2.3))
+# The first screen's frame: the most square-on stop within 20 cm of this depth from the camera (m).
+FRAME_DEPTH = 1.2
 
 
 @dataclass(frozen=True)
@@ -155,17 +157,21 @@ def _held_out_drive(tmp: Path, work: Path, config: DemoConfig, trained: _Trained
     )
     depth = np.array([s.pose.x - sim.robot.camera_mount.x for s in stops])
     picks = {int(np.argmin(np.abs(depth - d))): name for name, d in OVERLAY_DEPTHS}
+    # Square on: off the axis and turned away as little as possible (30 cm weighs as much as 30 degrees).
+    off_axis = np.array([abs(s.pose.y) / 0.3 + abs(s.pose.yaw_deg) / 30.0 for s in stops])
+    front = int(np.argmin(np.where(np.abs(depth - FRAME_DEPTH) < 0.2, off_axis, np.inf)))
     overlays: list[LidarOverlay] = []
     views: list[FrameView] = []
 
     def on_frame(index: int, frame: SimFrame) -> None:
-        if index not in picks:
+        if index not in picks and index != front:
             return
-        name = picks[index]
-        estimates = estimator.estimate(name, 0.0, frame.image)
-        caption = f"{name}: depth {depth[index]:.2f} m from the camera; truth {frame.truth.pose}"
-        overlays.append(LidarOverlay(f"overlay_{name}.png", caption, _lidar_overlay(frame, sim, estimates)))
-        if name == "mid" and estimates.detection is not None:
+        estimates = estimator.estimate(str(index), 0.0, frame.image)
+        if index in picks:
+            name = picks[index]
+            caption = f"{name}: depth {depth[index]:.2f} m from the camera; truth {frame.truth.pose}"
+            overlays.append(LidarOverlay(f"overlay_{name}.png", caption, _lidar_overlay(frame, sim, estimates)))
+        if index == front and estimates.detection is not None:
             views.append(
                 FrameView(
                     frame.image,

@@ -219,40 +219,54 @@ def _legend(view: FrameView) -> list[Line2D]:
     return handles
 
 
+def _error_inset(ax: Axes, view: FrameView) -> None:
+    """Where each method puts the dock against the truth, seen from above: depth and lateral error in cm."""
+    t = view.truth
+    errors = {
+        m: ((e.pose.y - t.y) * 100, (e.pose.x - t.x) * 100) for m, e in view.estimates.items() if e.pose is not None
+    }
+    reach = max([1.0, *(1.25 * max(abs(a), abs(b)) for a, b in errors.values())])
+    ax.axhline(0, color="0.6", lw=0.6)
+    ax.axvline(0, color="0.6", lw=0.6)
+    ax.plot(0, 0, "+", color="black", ms=8, mew=1.2)
+    for m, (lateral, depth) in errors.items():
+        # Drawn as seen from behind the robot: the charger ahead (up), the robot's left to the left.
+        ax.plot(-lateral, depth, "o", color=METHOD_COLOURS.get(m, "grey"), ms=5, mec="black", mew=0.4)
+    ax.set_xlim(-reach, reach)
+    ax.set_ylim(-reach, reach)
+    ticks = [-round(reach * 0.8, 1), 0.0, round(reach * 0.8, 1)]
+    ax.set_xticks(ticks, [f"{v:g}" for v in ticks])
+    ax.set_yticks(ticks, [f"{v:g}" for v in ticks])
+    ax.set_aspect("equal")
+    ax.tick_params(labelsize=6, pad=1, length=2)
+    ax.set_title("error from the truth, cm", fontsize=7, pad=2)
+    ax.set_xlabel("← left   lateral   right →", fontsize=6, labelpad=1)
+    ax.set_ylabel("depth (+: too far)", fontsize=6, labelpad=1)
+
+
 def estimates_figure(view: FrameView, path: Path, *, width_px: int = FRAME_WIDTH_PX) -> None:
     """The camera frame, the detected markers (ids), and every method's dock drawn where it estimates it.
 
     Each method's dock is its three markers' outlines and the approach axis on the floor, in the method's
-    colour; the truth is dashed black. An inset magnifies the centre marker, where the estimates part; the
-    legend gives each estimate's error against the truth.
+    colour; the truth is dashed black. The estimates part by millimetres to centimetres, too little to see on
+    the image: an inset shows each one's depth and lateral error from above, and the legend gives the numbers.
     """
     h, w = view.image.shape[:2]
     dpi = 100
-    image_h = width_px / dpi * h / w
-    legend_h = 0.19 * (len(view.estimates) + 2) + 0.1
-    fig = plt.figure(figsize=(width_px / dpi, image_h + legend_h), dpi=dpi)
-    ax = fig.add_axes((0.0, legend_h / (image_h + legend_h), 1.0, image_h / (image_h + legend_h)))
+    width, image_h = width_px / dpi, width_px / dpi * h / w
+    # Below the image: the legend on the left, the error inset (1.3 in square) on the right.
+    below = 1.75
+    fig = plt.figure(figsize=(width, image_h + below), dpi=dpi)
+    height = image_h + below
+    ax = fig.add_axes((0.0, below / height, 1.0, image_h / height))
     image = view.image if view.image.ndim == 2 else view.image[:, :, ::-1]
     _draw_frame(ax, view, image, labels=True)
     ax.set_xlim(-0.5, w - 0.5)
     ax.set_ylim(h - 0.5, -0.5)
     ax.axis("off")
-    centre = view.detection.observations.get("center")
-    if centre is not None:
-        # The estimates differ by a few pixels: magnify the centre marker ~3x in the lower right corner.
-        (x0, y0), (x1, y1) = centre.corners.min(axis=0), centre.corners.max(axis=0)
-        half = 0.5 * max(x1 - x0, y1 - y0) * 1.3
-        cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-        inset = ax.inset_axes((0.64, 0.02, 0.34, 0.34 * w / h))
-        _draw_frame(inset, view, image, labels=False)
-        inset.set_xlim(cx - half, cx + half)
-        inset.set_ylim(cy + half, cy - half)
-        inset.set_xticks([])
-        inset.set_yticks([])
-        for spine in inset.spines.values():
-            spine.set_edgecolor("white")
-        ax.indicate_inset_zoom(inset, edgecolor="white", alpha=0.9)
-    fig.legend(handles=_legend(view), loc="lower left", fontsize=7.5, frameon=False, bbox_to_anchor=(0.0, 0.0))
+    side = 1.2
+    _error_inset(fig.add_axes(((width - side - 0.08) / width, 0.3 / height, side / width, side / height)), view)
+    fig.legend(handles=_legend(view), loc="upper left", fontsize=7, frameon=False, bbox_to_anchor=(0.0, below / height))
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
