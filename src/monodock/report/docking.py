@@ -277,7 +277,9 @@ def trajectory_overview(
     methods = list(config.methods)
     dpi = 100
     width = max(panel_px * len(methods), 280) / dpi
-    fig, axes = plt.subplots(1, len(methods), figsize=(width, 3.4), squeeze=False, sharey=True)
+    # Panels of equal aspect over 2.6 m x 3.3 m of floor, plus room for the titles and labels.
+    height = 0.85 * panel_px / dpi * 3.3 / 2.6 + 0.6
+    fig, axes = plt.subplots(1, len(methods), figsize=(width, height), squeeze=False, sharey=True)
     a = point_a(config.mission.planner, config.robot.front_offset)
     for ax, method in zip(axes[0], methods, strict=True):
         draw_dock(ax, config.layout, a)

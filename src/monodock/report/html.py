@@ -24,7 +24,7 @@ __all__ = ["HtmlReport", "plain", "settings_yaml"]
 _STYLE = """body{font-family:system-ui,sans-serif;max-width:1240px;margin:1em auto;padding:0 12px;line-height:1.4;
 color:#1b1b1b}
 h1{font-size:1.5em;margin:0.2em 0 0.1em}h2{font-size:1.25em;margin-top:1.4em}h3{font-size:1.05em}
-p.lead{margin:0 0 0.6em;color:#444}
+p.lead{margin:0 0 0.6em;color:#444}p.note{font-size:85%;color:#444;margin:0.2em 0 0.8em}
 table{border-collapse:collapse;margin:0.6em 0;font-size:0.9em}
 td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}th{background:#f4f4f4;font-weight:600}
 td:first-child,th:first-child{text-align:left}tr.all{font-weight:bold;background:#eef}tr.paper{color:#555;
@@ -120,6 +120,11 @@ class HtmlReport:
 
     def paragraph(self, text: str) -> None:
         self._html.append(f"<p>{html.escape(text)}</p>")
+        self._md.append(text + "\n")
+
+    def note(self, text: str) -> None:
+        """A short paragraph in small print, e.g. under a table."""
+        self._html.append(f'<p class="note">{html.escape(text)}</p>')
         self._md.append(text + "\n")
 
     def settings(self, values: Mapping[str, object]) -> None:
