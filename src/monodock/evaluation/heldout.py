@@ -84,8 +84,8 @@ class PaperFigure:
 
 # Oh & Kim (Sensors 2025), Tables 4-5: their regression and their SolvePnP (given a wrong calibration).
 PAPERS = (
-    PaperFigure("regression (papers, Tables 4-5)", 28, 1.18, 3.11),
-    PaperFigure("SolvePnP (papers, Tables 4-5)", 28, 58.54, 6.64),
+    PaperFigure("regression", 28, 1.18, 3.11),
+    PaperFigure("SolvePnP", 28, 58.54, 6.64),
 )
 
 

@@ -288,7 +288,7 @@ def papers_table(summary: HeldoutSummary) -> str:
         cells += [f"{row.depth_mae_cm:.2f}", f"{row.yaw_mae_deg:.2f}"]
         lines.append("| " + " | ".join(cells) + " |")
     for p in PAPERS:
-        cells = [p.method.replace(" (papers, Tables 4-5)", " (papers)"), str(p.samples)]
+        cells = [f"{p.method} (papers)", str(p.samples)]
         if truth is not None:
             cells += ["—", "—"]
         cells += [f"{p.depth_mae_cm:.2f}", f"{p.yaw_mae_deg:.2f}"]

@@ -26,7 +26,7 @@ color:#1b1b1b}
 h1{font-size:1.5em;margin:0.2em 0 0.1em}h2{font-size:1.25em;margin-top:1.4em}h3{font-size:1.05em}
 p.lead{margin:0 0 0.6em;color:#444}p.note{font-size:85%;color:#444;margin:0.2em 0 0.8em}
 table{border-collapse:collapse;margin:0.6em 0;font-size:0.9em}
-td,th{border:1px solid #ccc;padding:2px 6px;text-align:right}th{background:#f4f4f4;font-weight:600}
+td,th{border:1px solid #ccc;padding:2px 5px;text-align:right}th{background:#f4f4f4;font-weight:600}
 td:first-child,th:first-child{text-align:left}tr.all{font-weight:bold;background:#eef}tr.paper{color:#555;
 background:#fafafa}
 td{white-space:nowrap}table.wrap td{white-space:normal}

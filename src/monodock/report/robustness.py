@@ -141,7 +141,7 @@ def write_robustness_report(result: RobustnessResult, out: Path) -> None:
         "fused stays within 1 cm depth, 1 cm lateral and 1° yaw at every level (on calibration axes: fused "
         "with re-learned tables); 'yes, board not': where board does not."
     )
-    report.table(headline_table(summary.headline), wrap=True)
+    report.table(headline_table(summary.headline))
     report.heading("Settings")
     report.settings(result.settings.to_dict())
     report.paragraph(
