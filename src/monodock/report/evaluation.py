@@ -74,7 +74,8 @@ def headline_table(result: HeldoutResult) -> str:
         if r.band == "all"
     ]
     lines += [
-        f"| {p.method} (papers, Tables 4-5) | their LiDAR | {p.samples} | {p.depth_mae_cm:.2f} | — | {p.yaw_mae_deg:.2f} | — | — |"
+        f"| {p.method} (papers, Tables 4-5) | their LiDAR | {p.samples} | {p.depth_mae_cm:.2f} | — "
+        f"| {p.yaw_mae_deg:.2f} | — | — |"
         for p in PAPERS
     ]
     return head + "\n".join(lines) + "\n"
