@@ -36,9 +36,9 @@ import numpy as np
 from _common import bench_parser, chunk_seed, emit, environment, simulate_chunks
 from monodock.core.pose import DockPose
 from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
-from monodock.evaluation.metrics import markdown_table, pose_errors
+from monodock.evaluation.metrics import method_tables, pose_errors
 from monodock.perception.detect import MarkerDetector
-from monodock.report.html import error_plot, method_tables
+from monodock.report.evaluation import band_markdown, error_plot
 from monodock.sim import Simulator
 
 METHODS: tuple[str, ...] = ("pnp", "board")
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{env['date_utc']} UTC, OpenCV {env['opencv']}. Depth band = true DockPose.x - camera_mount.x "
         f"(cm); errors over valid estimates; all 3 markers detected in {seen3} of {len(records)} frames.",
         "",
-        markdown_table(rows),
+        band_markdown(rows),
         "",
         PAPERS_NOTE,
     ]

@@ -1,45 +1,60 @@
 """``monodock demo``: the whole pipeline on the simulator, as a report.
 
 simulate a data-collection drive (rosbag2) → label it with the LiDAR → train the papers' models → simulate a
-held-out drive (another seed, default nuisances) → evaluate every method against the LiDAR labels and the
-simulator's truth, and reproduce the papers' SolvePnP failure with a wrong marker size and focal length.
+held-out drive (another seed, default nuisances) → dock in closed loop → evaluate every method against the LiDAR
+labels and the simulator's truth, and reproduce the papers' SolvePnP failure with a wrong marker size and focal
+length → the report. ``run_demo`` runs one function per stage.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
-from monodock.core.atomic import atomic_directory
+from monodock.cli.options import SubParsers, jobs
+from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.projection import project_to_image, scan_in_base
+from monodock.errors import MonodockError
 from monodock.estimation.bundle import Bundle, load_bundle
-from monodock.estimation.estimator import Estimator
+from monodock.estimation.estimator import Estimator, FrameEstimates
 from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.regression import RegressionEstimator
-from monodock.evaluation.dock_sim import DockSimConfig, run_dock_sim
-from monodock.evaluation.heldout import FrameMethod, evaluate_report, regression_method
-from monodock.evaluation.selftrain import SelfTrainConfig, simulate_and_train, train_bundle
-from monodock.learning.dataset import label_error_table, label_errors, label_recording, write_dataset
+from monodock.evaluation.dock_sim import DockSimConfig, run_dock_sim, summarize
+from monodock.evaluation.heldout import FrameMethod, HeldoutResult, HeldoutSummary, evaluate_heldout, regression_method
+from monodock.evaluation.selftrain import SelfTrainConfig, simulate_and_train
+from monodock.learning.dataset import Dataset, LabelRun, label_errors, label_recording, write_dataset
 from monodock.learning.label import points_across_marker
+from monodock.learning.pipeline import TrainOptions, train_bundle
+from monodock.learning.train import TrainingResult
 from monodock.perception.features import DEFAULT_MARKER_SETS
-from monodock.report.dock_report import dock_section, write_dock_files
-from monodock.report.html import HtmlReport
+from monodock.report.demo import DemoPage, DockingRun, FrameView, LidarOverlay, lidar_settings, write_demo_report
+from monodock.report.docking import write_dock_files
+from monodock.report.html import plain
 from monodock.report.overlay import draw_overlay
-from monodock.report.training import training_tables, write_training_report
+from monodock.report.training import write_training_report
 from monodock.sim import Nuisances, SimFrame, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
 from monodock.sim.recording import write_recording
 
-__all__ = ["DemoConfig", "run_demo"]
+__all__ = ["DemoConfig", "DemoResult", "demo_settings", "run_demo"]
+
+# The methods of the first screen's camera frame, and of the closed-loop docking.
+FRAME_METHODS = ("regression", "pnp", "board", "fused")
+DOCK_METHODS = ("regression", "board", "fused")
+# Depths from the camera (m) of the LiDAR overlays.
+OVERLAY_DEPTHS = (("near", 0.4), ("mid", 1.2), ("far", 2.3))
+# The first screen's frame: the most square-on stop within 20 cm of this depth from the camera (m).
+FRAME_DEPTH = 1.2
 
 
 @dataclass(frozen=True)
@@ -58,14 +73,45 @@ class DemoConfig:
     dock_trials: int = 1  # closed-loop docking runs per case and method
 
 
+@dataclass(frozen=True)
+class DemoResult:
+    """What ``run_demo`` returns: the evaluation's summary (as written to summary.json) and the wall time."""
+
+    summary: HeldoutSummary
+    seconds: float
+
+
+@dataclass(frozen=True)
+class _Trained:
+    """The training stage's products: the labelled training drive, its counts, the trained bundle."""
+
+    dataset: Dataset
+    run: LabelRun
+    result: TrainingResult
+    bundle: Bundle
+    seconds: float
+
+
+@dataclass(frozen=True)
+class _HeldOut:
+    """The held-out drive: its simulator and seed, its labelled dataset, the methods and the pictures."""
+
+    sim: Simulator
+    seed: int
+    dataset: Dataset
+    regression: RegressionEstimator
+    fused: FusedEstimator
+    frame: FrameView | None
+    overlays: tuple[LidarOverlay, ...]
+
+
 def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def _lidar_overlay(frame: SimFrame, sim: Simulator, estimator: Estimator, regression: RegressionEstimator) -> bytes:
+def _lidar_overlay(frame: SimFrame, sim: Simulator, estimates: FrameEstimates) -> bytes:
     """The papers' Fig. 8c/9: LiDAR points projected on the image, the label's points across marker 2."""
-    result = estimator.estimate("", 0.0, frame.image)
-    det = result.detection
+    det = estimates.detection
     assert det is not None
     pts = scan_in_base(frame.scan, sim.robot)
     px = project_to_image(pts, sim.camera, sim.robot)
@@ -80,7 +126,7 @@ def _lidar_overlay(frame: SimFrame, sim: Simulator, estimator: Estimator, regres
         sim.layout,
         sim.camera,
         sim.robot,
-        regression.estimate(det),
+        estimates.estimates["regression"],
         frame.truth.corners,
         lidar_px=px,
         lidar_selected=sel,
@@ -90,141 +136,216 @@ def _lidar_overlay(frame: SimFrame, sim: Simulator, estimator: Estimator, regres
     return bytes(buf.tobytes())
 
 
-def run_demo(out: str | Path, config: DemoConfig, *, force: bool = False) -> dict[str, Any]:
-    """Run the demo into ``out`` (atomically); returns the evaluation summary."""
+def _simulate_and_train(tmp: Path, work: Path, config: DemoConfig) -> _Trained:
+    """Stages 1-3: the data-collection drive, its LiDAR labels and the papers' models, into tmp/bundle."""
+    selftrain = SelfTrainConfig(config.train_stops, config.trials, config.seed, config.train_supersample)
+    started = time.perf_counter()
+    dataset, run, result = simulate_and_train(
+        work, tmp / "bundle", Simulator(seed=config.seed), selftrain, jobs=config.jobs, steps="[1-3/6] "
+    )
+    seconds = time.perf_counter() - started
+    write_dataset(tmp / "train.parquet", dataset)
+    write_training_report(tmp / "bundle" / "report", result, title="monodock demo: training report")
+    return _Trained(dataset, run, result, load_bundle(tmp / "bundle"), seconds)
+
+
+def _held_out_drive(tmp: Path, work: Path, config: DemoConfig, trained: _Trained) -> _HeldOut:
+    """Stage 4: a drive of another seed with the default nuisances, labelled; the pictures of a few frames."""
+    _log(f"[4/6] simulating a held-out drive: {config.test_stops} stops, another seed, default nuisances ...")
+    seed = config.seed + 1000
+    sim = Simulator(nuisances=Nuisances(), seed=seed)
+    stops = plan_drive(sim, DriveConfig(stops=config.test_stops), np.random.default_rng([seed, 2]))
+    regression = RegressionEstimator(trained.bundle, sim.camera, sim.robot)
+    fused = FusedEstimator(sim.camera, sim.layout, sim.robot, trained.bundle.fusion_tables(), regression)
+    estimator = Estimator(
+        sim.camera, sim.layout, sim.robot, FRAME_METHODS, extra={"regression": regression.estimate}, fused=fused
+    )
+    depth = np.array([s.pose.x - sim.robot.camera_mount.x for s in stops])
+    picks = {int(np.argmin(np.abs(depth - d))): name for name, d in OVERLAY_DEPTHS}
+    # Square on: off the axis and turned away as little as possible (30 cm weighs as much as 30 degrees).
+    off_axis = np.array([abs(s.pose.y) / 0.3 + abs(s.pose.yaw_deg) / 30.0 for s in stops])
+    front = int(np.argmin(np.where(np.abs(depth - FRAME_DEPTH) < 0.2, off_axis, np.inf)))
+    overlays: list[LidarOverlay] = []
+    views: list[FrameView] = []
+
+    def on_frame(index: int, frame: SimFrame) -> None:
+        if index not in picks and index != front:
+            return
+        estimates = estimator.estimate(str(index), 0.0, frame.image)
+        if index in picks:
+            name = picks[index]
+            caption = f"{name}: depth {depth[index]:.2f} m from the camera; truth {frame.truth.pose}"
+            overlays.append(LidarOverlay(f"overlay_{name}.png", caption, _lidar_overlay(frame, sim, estimates)))
+        if index == front and estimates.detection is not None:
+            views.append(
+                FrameView(
+                    frame.image,
+                    estimates.detection,
+                    estimates.estimates,
+                    frame.truth.pose,
+                    frame.truth.corners,
+                    sim.camera,
+                    sim.layout,
+                    sim.robot,
+                )
+            )
+
+    write_recording(work / "test_drive", sim, stops, seed=seed, jobs=config.jobs, on_frame=on_frame)
+    dataset, _, _ = label_recording(work / "test_drive", sim.layout)
+    write_dataset(tmp / "test.parquet", dataset)
+    return _HeldOut(sim, seed, dataset, regression, fused, views[0] if views else None, tuple(overlays))
+
+
+def _docking(tmp: Path, config: DemoConfig) -> DockingRun:
+    """Stage 5: closed-loop docking from every case with the regression, board PnP and fused; files in docking/."""
+    _log(f"[5/6] closed-loop docking: {config.dock_trials} start(s) per case, regression, board PnP, fused ...")
+    dock_config = DockSimConfig(
+        trials=config.dock_trials, methods=DOCK_METHODS, seed=config.seed, jobs=config.jobs, bundle=tmp / "bundle"
+    )
+    (tmp / "docking").mkdir()
+    results = tuple(run_dock_sim(dock_config))
+    write_dock_files(tmp / "docking", results, dock_config)
+    return DockingRun(dock_config, results, summarize(results, dock_config))
+
+
+def _focal_error_bundles(
+    work: Path, config: DemoConfig, trained: _Trained, held: _HeldOut
+) -> dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]]:
+    """The regression trained through a camera file whose focal length is off, per factor of the study."""
+    out: dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] = {}
+    camera = trained.dataset.camera()
+    for f in config.focal_errors:
+        wrong_camera = dataclasses.replace(camera, K=tuple(k * f if i in (0, 4) else k for i, k in enumerate(camera.K)))
+        path = work / f"bundle_focal_{f:g}"
+        options = TrainOptions(
+            trials=2, seed=config.seed, jobs=config.jobs, camera=wrong_camera, source="simulated training drive"
+        )
+        wrong = load_bundle(train_bundle(trained.dataset, path, options).path)
+
+        def factory(c: CameraModel, b: Bundle = wrong) -> dict[str, FrameMethod]:
+            return regression_method(RegressionEstimator(b, c, held.sim.robot))
+
+        out[("focal length", f)] = factory
+    return out
+
+
+def _study(work: Path, config: DemoConfig, trained: _Trained, held: _HeldOut) -> HeldoutResult:
+    """Stage 6: every method on the held-out drive, the physical limit and the SolvePnP-failure study."""
+    _log("[6/6] evaluating; training the focal-length-error bundles for the SolvePnP-failure study ...")
+    miscalibrated = _focal_error_bundles(work, config, trained, held)
+    return evaluate_heldout(held.dataset, held.regression, fused=held.fused, miscalibrated=miscalibrated)
+
+
+def demo_settings(config: DemoConfig, sim: Simulator, test_seed: int) -> dict[str, object]:
+    """What the demo ran, as a person would write it in a YAML file (``sim``: the held-out drive's simulator)."""
+    return {
+        "training drive": {
+            "stops": config.train_stops,
+            "seed": config.seed,
+            "edge supersampling": f"{config.train_supersample}x{config.train_supersample}",
+            "depth_cm": [25, 250],
+            "lateral_cm": [-40, 40],
+            "yaw_deg": [-30, 30],
+        },
+        "held-out drive": {"stops": config.test_stops, "seed": test_seed, "nuisances": plain(sim.nuisances)},
+        "LiDAR": lidar_settings(sim.lidar),
+        "camera": {"size_px": [sim.camera.width, sim.camera.height], "fx_px": sim.camera.fx},
+        "layout": {
+            "dictionary": sim.layout.dictionary,
+            "marker_size_cm": round(sim.layout.marker_size * 100, 6),
+            "ids": [m.id for m in sim.layout.markers],
+        },
+        "training": {
+            "hyperparameter draws per model": config.trials,
+            "split": "80/20, best by test MSE",
+            "marker sets": list(DEFAULT_MARKER_SETS),
+        },
+    }
+
+
+def _report(
+    tmp: Path, config: DemoConfig, trained: _Trained, held: _HeldOut, docking: DockingRun, result: HeldoutResult
+) -> HeldoutSummary:
+    """The report, its figures and summary.json into ``tmp``; returns the summary."""
+    summary = result.summary(docking={m: b.overall for m, b in docking.summary.methods.items()})
+    page = DemoPage(
+        heldout=result,
+        summary=summary,
+        docking=docking,
+        frame=held.frame,
+        lidar_overlays=held.overlays,
+        training=trained.result,
+        label_run=trained.run,
+        label_errors=tuple(label_errors(trained.dataset)),
+        settings=demo_settings(config, held.sim, held.seed),
+        trials=config.trials,
+        train_seconds=trained.seconds,
+    )
+    write_demo_report(tmp, page)
+    return summary
+
+
+def run_demo(out: str | Path, config: DemoConfig, *, force: bool = False) -> DemoResult:
+    """Run the demo into ``out`` (atomically): train, a held-out drive, docking, the study, the report."""
     t0 = time.perf_counter()
     with atomic_directory(out, force=force) as tmp:
         work = tmp / "recordings"
         work.mkdir()
-        selftrain = SelfTrainConfig(config.train_stops, config.trials, config.seed, config.train_supersample)
-        t_train = time.perf_counter()
-        ds_train, run, result = simulate_and_train(
-            work, tmp / "bundle", Simulator(seed=config.seed), selftrain, jobs=config.jobs, steps="[1-3/6] "
-        )
-        t_train = time.perf_counter() - t_train
-        write_dataset(tmp / "train.parquet", ds_train)
-        write_training_report(tmp / "bundle" / "report", result, title="monodock demo: training report")
-        bundle = load_bundle(tmp / "bundle")
-
-        _log(f"[4/6] simulating a held-out drive: {config.test_stops} stops, another seed, default nuisances ...")
-        test_seed = config.seed + 1000
-        sim_test = Simulator(nuisances=Nuisances(), seed=test_seed)
-        test_stops = plan_drive(sim_test, DriveConfig(stops=config.test_stops), np.random.default_rng([test_seed, 2]))
-        regression = RegressionEstimator(bundle, sim_test.camera, sim_test.robot)
-        estimator = Estimator(sim_test.camera, sim_test.layout, sim_test.robot, ("board",))
-        depth = np.array([s.pose.x - sim_test.robot.camera_mount.x for s in test_stops])
-        picks = {int(np.argmin(np.abs(depth - d))): name for name, d in (("near", 0.4), ("mid", 1.2), ("far", 2.3))}
-        overlays: list[tuple[str, str, bytes]] = []
-
-        def overlay(index: int, frame: SimFrame) -> None:
-            if index in picks:
-                name = picks[index]
-                caption = f"{name}: depth {depth[index]:.2f} m from the camera; truth {frame.truth.pose}"
-                overlays.append(
-                    (f"overlay_{name}.png", caption, _lidar_overlay(frame, sim_test, estimator, regression))
-                )
-
-        write_recording(work / "test_drive", sim_test, test_stops, seed=test_seed, jobs=config.jobs, on_frame=overlay)
-        ds_test, _, _ = label_recording(work / "test_drive", sim_test.layout)
-        write_dataset(tmp / "test.parquet", ds_test)
-
-        _log(f"[5/6] closed-loop docking: {config.dock_trials} start(s) per case, regression, board PnP, fused ...")
-        dock_config = DockSimConfig(
-            trials=config.dock_trials,
-            methods=("regression", "board", "fused"),
-            seed=config.seed,
-            jobs=config.jobs,
-            bundle=tmp / "bundle",
-        )
-        (tmp / "docking").mkdir()
-        dock_summary = write_dock_files(tmp / "docking", run_dock_sim(dock_config), dock_config)
-
-        _log("[6/6] evaluating; training the focal-length-error bundles for the SolvePnP-failure study ...")
-        miscalibrated: dict[tuple[str, float], Any] = {}
-        for f in config.focal_errors:
-            cam = dataclasses.replace(
-                ds_train.camera(), K=tuple(k * f if i in (0, 4) else k for i, k in enumerate(ds_train.camera().K))
-            )
-            train_bundle(
-                ds_train, work / f"bundle_focal_{f:g}", trials=2, seed=config.seed, jobs=config.jobs, camera=cam
-            )
-            wrong = load_bundle(work / f"bundle_focal_{f:g}")
-
-            def factory(c: CameraModel, b: Bundle = wrong) -> dict[str, FrameMethod]:
-                return regression_method(RegressionEstimator(b, c, sim_test.robot))
-
-            miscalibrated[("focal length", f)] = factory
-
-        for name, _, png in overlays:
-            (tmp / name).write_bytes(png)
-        tables = training_tables(result)
-        label_md = label_error_table(label_errors(ds_train))
-
-        def extra(report: HtmlReport) -> None:
-            report.heading("Closed-loop docking, camera in the loop (monodock dock-sim)")
-            report.paragraph(
-                "The papers' eight docking cases from random starts 1-2.5 m away, the robot seeing only rendered "
-                "frames and its odometry, with the bundle trained above, with board PnP, and with the fused method "
-                "through the EKF. A longer run: monodock dock-sim --method regression,board,fused --out DIR. "
-                "Files: docking/."
-            )
-            dock_section(report, dock_summary, dock_config, folder="docking/")
-            report.heading("The teacher: LiDAR label error against the simulator's truth (training drive)")
-            report.table(label_md)
-            report.paragraph(
-                f"Training drive: {run.images} images, {run.paired} paired with a scan, {run.labelled} labelled. "
-                "The regression learns these labels; their noise averages out over many frames, their bias does not."
-            )
-            report.heading("Training (Tables 1-3 of the paper; full report in bundle/report/training.md)")
-            report.paragraph(
-                f"{config.trials} hyperparameter draws per model; drive, labels and training took {t_train:.0f} s."
-            )
-            for title, md in tables.items():
-                report.paragraph(title)
-                report.table(md)
-            report.heading("Overlays: LiDAR points on the image (papers' Fig. 8c, 9)")
-            report.paragraph(
-                "Blue: every LiDAR return projected through the calibrated mounts; magenta: the points across "
-                "marker 2 that make the label. Green: detected corners; red crosses: true corners; arrows: dock axes."
-            )
-            for name, caption, _ in sorted(overlays):
-                report.image(name, caption, width=640)
-
-        def intro(report: HtmlReport) -> None:
-            report.paragraph(
-                "The whole pipeline on the simulator: a stop-and-go data-collection drive recorded as a rosbag2 "
-                "bag, LiDAR labels, the papers' seven regressors per 5 cm segment, an ONNX model bundle, and a "
-                "held-out drive of another seed on which every method is compared with the LiDAR labels (the "
-                "papers' reference) and with the simulator's exact truth. Files beside this page: train.parquet and "
-                "test.parquet (the datasets), bundle/ (the models; bundle/report/training.md is the training report)."
-            )
-            report.settings(
-                {
-                    "training drive": f"{config.train_stops} stops, seed {config.seed}, edge supersampling "
-                    f"{config.train_supersample}x{config.train_supersample}, depth 25-250 cm, lateral ±40 cm, yaw ±30°",
-                    "held-out drive": f"{config.test_stops} stops, seed {test_seed}, default nuisances",
-                    "nuisances (held-out)": str(sim_test.nuisances),
-                    "LiDAR": str(sim_test.lidar),
-                    "camera": f"{sim_test.camera.width}x{sim_test.camera.height}, fx {sim_test.camera.fx:g} px",
-                    "layout": f"{sim_test.layout.dictionary}, {sim_test.layout.marker_size * 100:g} cm markers, ids "
-                    + "/".join(str(m.id) for m in sim_test.layout.markers),
-                    "training": f"{config.trials} hyperparameter draws per model, 80/20 split, best by test MSE; "
-                    f"marker sets {', '.join(DEFAULT_MARKER_SETS)}",
-                }
-            )
-
-        fused = FusedEstimator(sim_test.camera, sim_test.layout, sim_test.robot, bundle.fusion_tables(), regression)
-        summary = evaluate_report(
-            ds_test,
-            regression,
-            tmp,
-            fused=fused,
-            title="monodock demo: the papers' regression against SolvePnP, on the simulator",
-            intro=intro,
-            extra_sections=extra,
-            extra_summary={"docking": {m: b["overall"] for m, b in dock_summary["methods"].items()}},
-            miscalibrated=miscalibrated,
-        )
+        trained = _simulate_and_train(tmp, work, config)
+        held = _held_out_drive(tmp, work, config, trained)
+        docking = _docking(tmp, config)
+        result = _study(work, config, trained, held)
+        summary = _report(tmp, config, trained, held, docking, result)
         shutil.rmtree(work)
-    summary["seconds"] = time.perf_counter() - t0
-    return summary
+    return DemoResult(summary, time.perf_counter() - t0)
+
+
+# --- the command ---------------------------------------------------------------------------------------
+
+
+def add_parser(subparsers: SubParsers) -> None:
+    """Add ``demo``."""
+    d = subparsers.add_parser("demo", help="simulate, label, train, evaluate every method, and write the report")
+    d.add_argument("--out", default="demo_report", help="report folder (default: demo_report)")
+    d.add_argument("--train-stops", type=int, default=3000, help="stops of the data-collection drive (3000)")
+    d.add_argument("--test-stops", type=int, default=500, help="stops of the held-out drive (500)")
+    d.add_argument("--trials", type=int, default=4, help="hyperparameter draws per model (4)")
+    d.add_argument("--dock-trials", type=int, default=1, help="closed-loop docking starts per case and method (1)")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--jobs", type=int)
+    d.add_argument("--force", action="store_true", help="replace an existing report folder")
+    d.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``monodock demo``: the whole pipeline on the simulator, and a summary of its report."""
+    for flag, value in (
+        ("--train-stops", args.train_stops),
+        ("--test-stops", args.test_stops),
+        ("--trials", args.trials),
+        ("--dock-trials", args.dock_trials),
+    ):
+        if value < 1:
+            raise MonodockError(f"{flag} must be at least 1")
+    check_writable(args.out, force=args.force)
+    config = DemoConfig(
+        train_stops=args.train_stops,
+        test_stops=args.test_stops,
+        trials=args.trials,
+        seed=args.seed,
+        jobs=jobs(args.jobs),
+        dock_trials=args.dock_trials,
+    )
+    demo = run_demo(args.out, config, force=args.force)
+    for method, r in demo.summary.overall.items():
+        print(
+            f"{method:10s} valid {r.valid}/{r.frames}  depth MAE {r.depth_mae_cm:.2f} cm  lateral MAE "
+            f"{r.lateral_mae_cm:.2f} cm  yaw MAE {r.yaw_mae_deg:.2f} deg  (against the simulator's truth)"
+        )
+    for method, g in (demo.summary.docking or {}).items():
+        print(
+            f"docking {method:10s} {g.successes}/{g.runs} docked; median final lateral "
+            f"{g.final_lateral_cm.median:.2f} cm, heading {g.final_heading_deg.median:.2f} deg"
+        )
+    print(f"report: {Path(args.out) / 'report.html'}  ({demo.seconds:.0f} s)")
+    return 0

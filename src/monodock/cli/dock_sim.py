@@ -9,13 +9,30 @@ import time
 from pathlib import Path
 from typing import Any
 
+from monodock.core.atomic import atomic_directory, check_writable
+from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout
+from monodock.core.robot import RobotConfig
+from monodock.dock.controller import MissionConfig
+from monodock.dock.planner import CASES, PlannerConfig
 from monodock.errors import InputError
+from monodock.estimation.bundle import load_bundle
+from monodock.evaluation.dock_sim import (
+    ALL_METHODS,
+    BUNDLE_METHODS,
+    DockSimConfig,
+    case_distances,
+    run_dock_sim,
+    summarize,
+)
+from monodock.evaluation.selftrain import SelfTrainConfig, cached_bundle
+from monodock.report.docking import console_table, write_dock_report
+from monodock.sim.diffdrive import DiffDriveConfig
 
 __all__ = ["add_parser"]
 
 
 def _cases(value: str) -> tuple[int, ...]:
-    from monodock.dock.planner import CASES
 
     if value == "all":
         return tuple(CASES)
@@ -32,7 +49,6 @@ def _cases(value: str) -> tuple[int, ...]:
 
 
 def _methods(value: str) -> tuple[str, ...]:
-    from monodock.evaluation.dock_sim import ALL_METHODS
 
     methods = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
     bad = [m for m in methods if m not in ALL_METHODS]
@@ -111,15 +127,6 @@ def add_parser(subparsers: Any) -> None:
 
 
 def _cmd_dock_sim(args: argparse.Namespace) -> int:
-    from monodock.core.atomic import atomic_directory, check_writable
-    from monodock.core.camera import CameraModel
-    from monodock.core.layout import DockLayout
-    from monodock.core.robot import RobotConfig
-    from monodock.dock.controller import MissionConfig
-    from monodock.dock.planner import PlannerConfig
-    from monodock.evaluation.dock_sim import BUNDLE_METHODS, DockSimConfig, case_distances, run_dock_sim, summarize
-    from monodock.report.dock_report import console_table, write_dock_report
-    from monodock.sim.diffdrive import DiffDriveConfig
 
     if args.out:
         check_writable(args.out, force=args.force)
@@ -156,11 +163,10 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     results = run_dock_sim(config)
     wall = time.perf_counter() - t0
+    summary = summarize(results, config)
     if args.out:
         with atomic_directory(args.out, force=args.force) as tmp:
-            summary = write_dock_report(tmp, results, config)
-    else:
-        summary = summarize(results, config)
+            write_dock_report(tmp, results, summary, config)
     print(console_table(summary))
     n = max(1, len(results))
     per_run = sum(r.wall_s for r in results) / n
@@ -177,8 +183,6 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
 
 def _regression_bundle(args: argparse.Namespace, config: Any, jobs: int) -> Path:
     """The --model bundle (checked against the simulated layout), or the cached self-trained one."""
-    from monodock.estimation.bundle import load_bundle
-    from monodock.evaluation.selftrain import SelfTrainConfig, cached_bundle
 
     if args.model:
         bundle = load_bundle(Path(args.model))

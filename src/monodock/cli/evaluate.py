@@ -13,9 +13,11 @@ from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.regression import RegressionEstimator
-from monodock.evaluation.heldout import evaluate_report
-from monodock.evaluation.robustness import RobustnessConfig, run_robustness, write_robustness_report
+from monodock.evaluation.heldout import evaluate_heldout
+from monodock.evaluation.robustness import RobustnessConfig, run_robustness
 from monodock.learning.dataset import read_dataset
+from monodock.report.evaluation import write_evaluation_report
+from monodock.report.robustness import write_robustness_report
 
 __all__ = ["add_parser", "run"]
 
@@ -83,14 +85,13 @@ def _robustness(args: argparse.Namespace) -> int:
     )
     result = run_robustness(Path(args.model), camera, layout, robot, config)
     with atomic_directory(args.out, force=args.force) as out:
-        summary = write_robustness_report(result, out)
-    for row in summary["headline"]:
-        f = row["fused"]
-        b = row["board"]
+        write_robustness_report(result, out)
+    for row in result.summary().headline:
+        f, b = row.worst["fused"], row.worst["board"]
         print(
-            f"{row['axis']:12s} worst: fused {f['depth_mae_cm']:.2f} cm / {f['lateral_mae_cm']:.2f} cm / "
-            f"{f['yaw_mae_deg']:.2f} deg, board {b['depth_mae_cm']:.2f} cm / {b['lateral_mae_cm']:.2f} cm / "
-            f"{b['yaw_mae_deg']:.2f} deg"
+            f"{row.axis:12s} worst: fused {f.depth_mae_cm:.2f} cm / {f.lateral_mae_cm:.2f} cm / "
+            f"{f.yaw_mae_deg:.2f} deg, board {b.depth_mae_cm:.2f} cm / {b.lateral_mae_cm:.2f} cm / "
+            f"{b.yaw_mae_deg:.2f} deg"
         )
     print(f"report: {Path(args.out) / 'report.html'} ({result.runtime_s:.0f} s)")
     return 0
@@ -128,11 +129,13 @@ def run(args: argparse.Namespace) -> int:
     else:
         print("note: the bundle has no fusion tables (trained before the fused method); fused is left out")
     with atomic_directory(args.out, force=args.force) as out:
-        summary = evaluate_report(ds, regression, out, title=f"monodock evaluation: {args.recording}", fused=fused)
-    for method, row in summary["against_truth" if "against_truth" in summary else "against_lidar"].items():
+        result = evaluate_heldout(ds, regression, fused=fused)
+        summary = result.summary()
+        write_evaluation_report(out, result, summary, title=f"monodock evaluation: {args.recording}")
+    for method, row in summary.overall.items():
         print(
-            f"{method:10s} valid {row['valid']}/{row['frames']}  depth MAE {row['depth_mae_cm']:.2f} cm  "
-            f"lateral MAE {row['lateral_mae_cm']:.2f} cm  yaw MAE {row['yaw_mae_deg']:.2f} deg"
+            f"{method:10s} valid {row.valid}/{row.frames}  depth MAE {row.depth_mae_cm:.2f} cm  "
+            f"lateral MAE {row.lateral_mae_cm:.2f} cm  yaw MAE {row.yaw_mae_deg:.2f} deg"
         )
     print(f"report: {Path(args.out) / 'report.html'}")
     return 0

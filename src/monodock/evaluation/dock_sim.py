@@ -14,18 +14,21 @@ import csv
 import dataclasses
 import io
 import itertools
+import json
 import math
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
+from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
@@ -43,18 +46,35 @@ from monodock.dock.interface import Odometry
 from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise, OdometryNoise
 from monodock.errors import InputError
+from monodock.estimation.bundle import load_bundle
 from monodock.estimation.estimator import METHODS, Estimator
+from monodock.estimation.fused import FusedEstimator
+from monodock.estimation.regression import RegressionEstimator
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances
 from monodock.sim.simulator import Simulator
 
 __all__ = [
+    "ALL_METHODS",
+    "BUNDLE_METHODS",
+    "AbsStats",
     "DockSimConfig",
+    "DockSimSettings",
+    "DockSimSummary",
+    "FilterAccuracy",
+    "FilterBand",
+    "FilterBlock",
     "FilterFrame",
+    "MethodRuns",
+    "PoseMae",
+    "RunGroup",
+    "RunSpeed",
     "TrialResult",
+    "case_distances",
     "filter_accuracy",
     "make_perceive",
     "run_dock_sim",
+    "runs_csv",
     "sample_start",
     "summarize",
 ]
@@ -198,10 +218,6 @@ def _environment(config: DockSimConfig) -> _Environment:
         extra: dict[str, Callable[[Any], Any]] = {}
         fused = None
         if any(m in BUNDLE_METHODS for m in config.methods):
-            from monodock.estimation.bundle import load_bundle
-            from monodock.estimation.fused import FusedEstimator
-            from monodock.estimation.regression import RegressionEstimator
-
             assert config.bundle is not None
             bundle = load_bundle(config.bundle)
             regression = RegressionEstimator(bundle, sim.camera, sim.robot)
@@ -341,10 +357,6 @@ def _filter_frame(mission: DockingMission, robot: SimulatedRobot, observation: O
 
 def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialResult]:
     """Every case × trial × method, in ``config.jobs`` worker processes; results in a fixed order."""
-    from tqdm import tqdm
-
-    from monodock.core.parallel import map_with_state
-
     if any(m in BUNDLE_METHODS for m in config.methods) and config.bundle is None:
         raise InputError("the regression and fused methods need a model bundle")
     sim = config.simulator(config.seed)
@@ -360,73 +372,261 @@ def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialR
     return list(bar)
 
 
-# --- the numbers ---------------------------------------------------------------------------------------
+# --- the numbers: summary.json -------------------------------------------------------------------------
 
 
-def _stats(values: Sequence[float]) -> dict[str, float | None]:
-    """mean, median, p95 and max of absolute values (None when there are none)."""
-    a = np.abs(np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=np.float64))
-    if a.size == 0:
-        return {"mean": None, "median": None, "p95": None, "max": None}
-    return {
-        "mean": float(a.mean()),
-        "median": float(np.median(a)),
-        "p95": float(np.percentile(a, 95)),
-        "max": float(a.max()),
-    }
+def _number(value: Any) -> float | None:
+    return None if value is None else float(value)
 
 
-def _group(results: Sequence[TrialResult]) -> dict[str, Any]:
-    runs = len(results)
-    successes = sum(r.success for r in results)
-    failures = Counter(
-        (r.reason.split(":")[0] if r.state == "failed" else "docked outside the tolerances")
-        for r in results
-        if not r.success
-    )
-    return {
-        "runs": runs,
-        "successes": successes,
-        "success_rate": successes / runs if runs else None,
-        "final_lateral_cm": _stats([r.lateral_cm for r in results]),
-        "final_longitudinal_cm": _stats([r.longitudinal_cm for r in results]),
-        "final_heading_deg": _stats([r.heading_deg for r in results]),
-        "time_s": _stats([r.time_s for r in results]),
-        "retries": {"total": sum(r.retries for r in results), "max": max((r.retries for r in results), default=0)},
-        "impact_speed_mps": _stats([r.impact_speed for r in results if r.impact_speed is not None]),
-        "case_agreement": sum(r.classified_case == r.case for r in results) / runs if runs else None,
-        "failures": dict(failures),
-    }
+@dataclass(frozen=True)
+class AbsStats:
+    """Mean, median, 95th percentile and maximum of absolute values (None when there were none)."""
+
+    mean: float | None
+    median: float | None
+    p95: float | None
+    max: float | None
+
+    @classmethod
+    def of(cls, values: Sequence[float | None]) -> AbsStats:
+        """The statistics of the finite values' absolute values."""
+        a = np.abs(np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=np.float64))
+        if a.size == 0:
+            return cls(None, None, None, None)
+        return cls(float(a.mean()), float(np.median(a)), float(np.percentile(a, 95)), float(a.max()))
+
+    def to_dict(self) -> dict[str, float | None]:
+        return {"mean": self.mean, "median": self.median, "p95": self.p95, "max": self.max}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> AbsStats:
+        return cls(_number(d["mean"]), _number(d["median"]), _number(d["p95"]), _number(d["max"]))
+
+
+@dataclass(frozen=True)
+class RunGroup:
+    """A group of runs (one method overall, or one case of it): successes, final errors, time, retries.
+
+    Attributes:
+        failures: per failure, runs; a failed mission by its reason up to the first colon, a mission that
+            docked outside the tolerances as "docked outside the tolerances".
+        case_agreement: the share of runs whose mission classified the start as the case it was drawn in.
+    """
+
+    runs: int
+    successes: int
+    success_rate: float | None
+    final_lateral_cm: AbsStats
+    final_longitudinal_cm: AbsStats
+    final_heading_deg: AbsStats
+    time_s: AbsStats
+    retries_total: int
+    retries_max: int
+    impact_speed_mps: AbsStats
+    case_agreement: float | None
+    failures: Mapping[str, int]
+
+    @classmethod
+    def of(cls, results: Sequence[TrialResult]) -> RunGroup:
+        runs = len(results)
+        successes = sum(r.success for r in results)
+        failures = Counter(
+            (r.reason.split(":")[0] if r.state == "failed" else "docked outside the tolerances")
+            for r in results
+            if not r.success
+        )
+        return cls(
+            runs=runs,
+            successes=successes,
+            success_rate=successes / runs if runs else None,
+            final_lateral_cm=AbsStats.of([r.lateral_cm for r in results]),
+            final_longitudinal_cm=AbsStats.of([r.longitudinal_cm for r in results]),
+            final_heading_deg=AbsStats.of([r.heading_deg for r in results]),
+            time_s=AbsStats.of([r.time_s for r in results]),
+            retries_total=sum(r.retries for r in results),
+            retries_max=max((r.retries for r in results), default=0),
+            impact_speed_mps=AbsStats.of([r.impact_speed for r in results if r.impact_speed is not None]),
+            case_agreement=sum(r.classified_case == r.case for r in results) / runs if runs else None,
+            failures=dict(failures),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "runs": self.runs,
+            "successes": self.successes,
+            "success_rate": self.success_rate,
+            "final_lateral_cm": self.final_lateral_cm.to_dict(),
+            "final_longitudinal_cm": self.final_longitudinal_cm.to_dict(),
+            "final_heading_deg": self.final_heading_deg.to_dict(),
+            "time_s": self.time_s.to_dict(),
+            "retries": {"total": self.retries_total, "max": self.retries_max},
+            "impact_speed_mps": self.impact_speed_mps.to_dict(),
+            "case_agreement": self.case_agreement,
+            "failures": dict(self.failures),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> RunGroup:
+        return cls(
+            runs=int(d["runs"]),
+            successes=int(d["successes"]),
+            success_rate=_number(d["success_rate"]),
+            final_lateral_cm=AbsStats.from_dict(d["final_lateral_cm"]),
+            final_longitudinal_cm=AbsStats.from_dict(d["final_longitudinal_cm"]),
+            final_heading_deg=AbsStats.from_dict(d["final_heading_deg"]),
+            time_s=AbsStats.from_dict(d["time_s"]),
+            retries_total=int(d["retries"]["total"]),
+            retries_max=int(d["retries"]["max"]),
+            impact_speed_mps=AbsStats.from_dict(d["impact_speed_mps"]),
+            case_agreement=_number(d["case_agreement"]),
+            failures={str(k): int(v) for k, v in d["failures"].items()},
+        )
+
+
+@dataclass(frozen=True)
+class MethodRuns:
+    """One method's runs: every run together, and per case (in the order of the config's cases)."""
+
+    overall: RunGroup
+    cases: Mapping[int, RunGroup]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"overall": self.overall.to_dict(), "cases": {str(c): g.to_dict() for c, g in self.cases.items()}}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> MethodRuns:
+        return cls(RunGroup.from_dict(d["overall"]), {int(c): RunGroup.from_dict(g) for c, g in d["cases"].items()})
 
 
 FILTER_BANDS_CM = tuple(range(25, 251, 25))  # camera depth band edges of the filter figures
 
 
-def _mae(frames: Sequence[FilterFrame], which: str) -> dict[str, float] | None:
-    """Mean absolute errors of the filtered or raw DockPoses: depth and lateral in cm, yaw in degrees."""
-    pairs = [(getattr(f, which), f.truth) for f in frames if getattr(f, which) is not None]
-    if not pairs:
-        return None
-    err = np.array([[e[0] - t[0], e[1] - t[1], wrap_angle(e[2] - t[2])] for e, t in pairs])
-    mae = np.abs(err).mean(axis=0)
-    return {"depth_cm": float(mae[0] * 100), "lateral_cm": float(mae[1] * 100), "yaw_deg": math.degrees(mae[2])}
+@dataclass(frozen=True)
+class PoseMae:
+    """Mean absolute errors of DockPoses: depth (x) and lateral (y) in cm, yaw in degrees."""
+
+    depth_cm: float
+    lateral_cm: float
+    yaw_deg: float
+
+    @classmethod
+    def of(cls, frames: Sequence[FilterFrame], which: str) -> PoseMae | None:
+        """The errors of the frames' ``which`` ("filtered" or "raw") poses against their truth; None if none."""
+        pairs = [(getattr(f, which), f.truth) for f in frames if getattr(f, which) is not None]
+        if not pairs:
+            return None
+        err = np.array([[e[0] - t[0], e[1] - t[1], wrap_angle(e[2] - t[2])] for e, t in pairs])
+        mae = np.abs(err).mean(axis=0)
+        return cls(float(mae[0] * 100), float(mae[1] * 100), math.degrees(mae[2]))
+
+    def to_dict(self) -> dict[str, float]:
+        return {"depth_cm": self.depth_cm, "lateral_cm": self.lateral_cm, "yaw_deg": self.yaw_deg}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any] | None) -> PoseMae | None:
+        return None if d is None else cls(float(d["depth_cm"]), float(d["lateral_cm"]), float(d["yaw_deg"]))
 
 
-def _filter_block(frames: Sequence[FilterFrame]) -> dict[str, Any]:
-    seen = [f for f in frames if f.raw is not None]
-    coasting = [f for f in frames if f.raw is None]
-    nees = [f.nees for f in frames if math.isfinite(f.nees)]
-    return {
-        "frames": len(seen),
-        "filtered": _mae(seen, "filtered"),
-        "single_frame": _mae(seen, "raw"),
-        "coasting_frames": len(coasting),
-        "coasting": _mae(coasting, "filtered"),
-        "nees_mean": float(np.mean(nees)) if nees else None,
-    }
+def _optional(mae: PoseMae | None) -> dict[str, float] | None:
+    return None if mae is None else mae.to_dict()
 
 
-def filter_accuracy(results: Sequence[TrialResult], camera_x: float) -> dict[str, Any]:
+@dataclass(frozen=True)
+class FilterBlock:
+    """The dock filter against single frames over a set of frames.
+
+    Attributes:
+        frames: frames that had an estimate (filtered and single-frame compare over these).
+        filtered, single_frame: their MAE (None without frames).
+        coasting_frames: frames without an estimate (the filter alone); coasting: its MAE there.
+        nees_mean: the filter's mean normalised estimation error squared against the truth (3: consistent).
+    """
+
+    frames: int
+    filtered: PoseMae | None
+    single_frame: PoseMae | None
+    coasting_frames: int
+    coasting: PoseMae | None
+    nees_mean: float | None
+
+    @classmethod
+    def of(cls, frames: Sequence[FilterFrame]) -> FilterBlock:
+        seen = [f for f in frames if f.raw is not None]
+        coasting = [f for f in frames if f.raw is None]
+        nees = [f.nees for f in frames if math.isfinite(f.nees)]
+        return cls(
+            frames=len(seen),
+            filtered=PoseMae.of(seen, "filtered"),
+            single_frame=PoseMae.of(seen, "raw"),
+            coasting_frames=len(coasting),
+            coasting=PoseMae.of(coasting, "filtered"),
+            nees_mean=float(np.mean(nees)) if nees else None,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "frames": self.frames,
+            "filtered": _optional(self.filtered),
+            "single_frame": _optional(self.single_frame),
+            "coasting_frames": self.coasting_frames,
+            "coasting": _optional(self.coasting),
+            "nees_mean": self.nees_mean,
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> FilterBlock:
+        return cls(
+            frames=int(d["frames"]),
+            filtered=PoseMae.from_dict(d["filtered"]),
+            single_frame=PoseMae.from_dict(d["single_frame"]),
+            coasting_frames=int(d["coasting_frames"]),
+            coasting=PoseMae.from_dict(d["coasting"]),
+            nees_mean=_number(d["nees_mean"]),
+        )
+
+
+@dataclass(frozen=True)
+class FilterBand:
+    """One band of the true depth from the camera, [low, high) cm, and the filter's block there."""
+
+    depth_cm: tuple[int, int]
+    block: FilterBlock
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"depth_cm": list(self.depth_cm), **self.block.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> FilterBand:
+        lo, hi = d["depth_cm"]
+        return cls((int(lo), int(hi)), FilterBlock.from_dict(d))
+
+
+@dataclass(frozen=True)
+class FilterAccuracy:
+    """The dock filter against single frames: by 25 cm band, pooled over 25-250 cm, and in the blind zone."""
+
+    bands: tuple[FilterBand, ...]
+    all: FilterBlock
+    under_25cm: FilterBlock
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "bands": [b.to_dict() for b in self.bands],
+            "all": self.all.to_dict(),
+            "under_25cm": self.under_25cm.to_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> FilterAccuracy:
+        return cls(
+            tuple(FilterBand.from_dict(b) for b in d["bands"]),
+            FilterBlock.from_dict(d["all"]),
+            FilterBlock.from_dict(d["under_25cm"]),
+        )
+
+
+def filter_accuracy(results: Sequence[TrialResult], camera_x: float) -> FilterAccuracy:
     """The dock filter against single frames, by 25 cm band of the true depth from the camera (25-250 cm).
 
     ``camera_x`` is the camera mount's x in base_link: the depth from the camera is DockPose.x minus it.
@@ -440,59 +640,198 @@ def filter_accuracy(results: Sequence[TrialResult], camera_x: float) -> dict[str
         return (f.truth[0] - camera_x) * 100
 
     edges = FILTER_BANDS_CM
-    bands = []
-    for lo, hi in itertools.pairwise(edges):
-        block = _filter_block([f for f in frames if lo <= depth_cm(f) < hi])
-        bands.append({"depth_cm": [lo, hi], **block})
-    return {
-        "bands": bands,
-        "all": _filter_block([f for f in frames if edges[0] <= depth_cm(f) < edges[-1]]),
-        "under_25cm": _filter_block([f for f in frames if depth_cm(f) < edges[0]]),
-    }
+    bands = tuple(
+        FilterBand((lo, hi), FilterBlock.of([f for f in frames if lo <= depth_cm(f) < hi]))
+        for lo, hi in itertools.pairwise(edges)
+    )
+    return FilterAccuracy(
+        bands,
+        FilterBlock.of([f for f in frames if edges[0] <= depth_cm(f) < edges[-1]]),
+        FilterBlock.of([f for f in frames if depth_cm(f) < edges[0]]),
+    )
 
 
-def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> dict[str, Any]:
-    """The summary.json contract: ``overall`` and ``cases`` of the first method; every method under ``methods``."""
-    methods: dict[str, Any] = {}
+@dataclass(frozen=True)
+class DockSimSettings:
+    """What a dock-sim run was: starts, Point A, the success tolerances, the camera and the renderer."""
+
+    trials_per_case: int
+    seed: int
+    distance_m: tuple[float, float]
+    max_heading_deg: float
+    standoff_m: float
+    tolerance_lateral_cm: float
+    tolerance_longitudinal_cm: float
+    tolerance_heading_deg: float
+    camera_rate_hz: float
+    supersample: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "trials_per_case": self.trials_per_case,
+            "seed": self.seed,
+            "distance_m": list(self.distance_m),
+            "max_heading_deg": self.max_heading_deg,
+            "standoff_m": self.standoff_m,
+            "tolerances": {
+                "lateral_cm": self.tolerance_lateral_cm,
+                "longitudinal_cm": self.tolerance_longitudinal_cm,
+                "heading_deg": self.tolerance_heading_deg,
+            },
+            "camera_rate_hz": self.camera_rate_hz,
+            "supersample": self.supersample,
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> DockSimSettings:
+        t = d["tolerances"]
+        lo, hi = d["distance_m"]
+        return cls(
+            trials_per_case=int(d["trials_per_case"]),
+            seed=int(d["seed"]),
+            distance_m=(float(lo), float(hi)),
+            max_heading_deg=float(d["max_heading_deg"]),
+            standoff_m=float(d["standoff_m"]),
+            tolerance_lateral_cm=float(t["lateral_cm"]),
+            tolerance_longitudinal_cm=float(t["longitudinal_cm"]),
+            tolerance_heading_deg=float(t["heading_deg"]),
+            camera_rate_hz=float(d["camera_rate_hz"]),
+            supersample=int(d["supersample"]),
+        )
+
+
+@dataclass(frozen=True)
+class RunSpeed:
+    """Means per run: wall seconds of one core, of which rendering and estimation, and camera frames."""
+
+    runs: int
+    wall_s_per_run: float | None
+    render_s_per_run: float | None
+    perceive_s_per_run: float | None
+    frames_per_run: float | None
+
+    @classmethod
+    def of(cls, results: Sequence[TrialResult]) -> RunSpeed:
+        def mean(values: list[float]) -> float | None:
+            return float(np.mean(values)) if results else None
+
+        return cls(
+            runs=len(results),
+            wall_s_per_run=mean([r.wall_s for r in results]),
+            render_s_per_run=mean([r.render_s for r in results]),
+            perceive_s_per_run=mean([r.perceive_s for r in results]),
+            frames_per_run=mean([r.frames for r in results]),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "runs": self.runs,
+            "wall_s_per_run": self.wall_s_per_run,
+            "render_s_per_run": self.render_s_per_run,
+            "perceive_s_per_run": self.perceive_s_per_run,
+            "frames_per_run": self.frames_per_run,
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> RunSpeed:
+        return cls(
+            int(d["runs"]),
+            _number(d["wall_s_per_run"]),
+            _number(d["render_s_per_run"]),
+            _number(d["perceive_s_per_run"]),
+            _number(d["frames_per_run"]),
+        )
+
+
+@dataclass(frozen=True)
+class DockSimSummary:
+    """dock-sim's summary.json: per method its runs overall and per case, the filter's accuracy, the settings.
+
+    In the file, ``overall`` and ``cases`` at the top are the first method's (``method``), and every method is
+    under ``methods``; ``to_json`` writes and ``from_json`` reads that layout.
+    """
+
+    method: str
+    methods: Mapping[str, MethodRuns]
+    filter: Mapping[str, FilterAccuracy]
+    settings: DockSimSettings
+    speed: RunSpeed
+
+    @property
+    def overall(self) -> RunGroup:
+        """The first method's runs, all together."""
+        return self.methods[self.method].overall
+
+    @property
+    def cases(self) -> Mapping[int, RunGroup]:
+        """The first method's runs, per case."""
+        return self.methods[self.method].cases
+
+    def to_dict(self) -> dict[str, Any]:
+        first = self.methods[self.method].to_dict()
+        return {
+            "method": self.method,
+            "overall": first["overall"],
+            "cases": first["cases"],
+            "methods": {m: b.to_dict() for m, b in self.methods.items()},
+            "filter": {m: f.to_dict() for m, f in self.filter.items()},
+            "settings": self.settings.to_dict(),
+            "speed": self.speed.to_dict(),
+        }
+
+    def to_json(self) -> str:
+        """summary.json's text."""
+        return json.dumps(self.to_dict(), indent=2, default=str)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> DockSimSummary:
+        return cls(
+            method=str(d["method"]),
+            methods={str(m): MethodRuns.from_dict(b) for m, b in d["methods"].items()},
+            filter={str(m): FilterAccuracy.from_dict(f) for m, f in d["filter"].items()},
+            settings=DockSimSettings.from_dict(d["settings"]),
+            speed=RunSpeed.from_dict(d["speed"]),
+        )
+
+    @classmethod
+    def from_json(cls, text: str) -> DockSimSummary:
+        """Read summary.json's text back."""
+        return cls.from_dict(json.loads(text))
+
+    @classmethod
+    def read(cls, path: Path) -> DockSimSummary:
+        """Read a summary.json file back."""
+        return cls.from_json(path.read_text(encoding="utf-8"))
+
+
+def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> DockSimSummary:
+    """The summary.json contract: per method its runs overall and per case, the filter's accuracy, the settings."""
+    methods: dict[str, MethodRuns] = {}
     for m in config.methods:
         rs = [r for r in results if r.method == m]
-        methods[m] = {
-            "overall": _group(rs),
-            "cases": {str(c): _group([r for r in rs if r.case == c]) for c in config.cases},
-        }
-    first = methods[config.methods[0]]
+        methods[m] = MethodRuns(RunGroup.of(rs), {c: RunGroup.of([r for r in rs if r.case == c]) for c in config.cases})
     c = config.mission
-    return {
-        "method": config.methods[0],
-        "overall": first["overall"],
-        "cases": first["cases"],
-        "methods": methods,
-        "filter": {
+    return DockSimSummary(
+        method=config.methods[0],
+        methods=methods,
+        filter={
             m: filter_accuracy([r for r in results if r.method == m], config.robot.camera_mount.x)
             for m in config.methods
         },
-        "settings": {
-            "trials_per_case": config.trials,
-            "seed": config.seed,
-            "distance_m": list(config.distance),
-            "max_heading_deg": config.max_heading_deg,
-            "standoff_m": c.planner.standoff,
-            "tolerances": {
-                "lateral_cm": c.tolerance_lateral * 100,
-                "longitudinal_cm": c.tolerance_longitudinal * 100,
-                "heading_deg": c.tolerance_heading_deg,
-            },
-            "camera_rate_hz": config.drive.camera_rate,
-            "supersample": config.supersample,
-        },
-        "speed": {
-            "runs": len(results),
-            "wall_s_per_run": float(np.mean([r.wall_s for r in results])) if results else None,
-            "render_s_per_run": float(np.mean([r.render_s for r in results])) if results else None,
-            "perceive_s_per_run": float(np.mean([r.perceive_s for r in results])) if results else None,
-            "frames_per_run": float(np.mean([r.frames for r in results])) if results else None,
-        },
-    }
+        settings=DockSimSettings(
+            trials_per_case=config.trials,
+            seed=config.seed,
+            distance_m=config.distance,
+            max_heading_deg=config.max_heading_deg,
+            standoff_m=c.planner.standoff,
+            tolerance_lateral_cm=c.tolerance_lateral * 100,
+            tolerance_longitudinal_cm=c.tolerance_longitudinal * 100,
+            tolerance_heading_deg=c.tolerance_heading_deg,
+            camera_rate_hz=config.drive.camera_rate,
+            supersample=config.supersample,
+        ),
+        speed=RunSpeed.of(results),
+    )
 
 
 def runs_csv(results: Sequence[TrialResult]) -> str:
@@ -549,58 +888,3 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
             ]
         )
     return buf.getvalue()
-
-
-def filter_table(summary: dict[str, Any]) -> str:
-    """Markdown: per method and depth band, the filter's MAE against single frames'."""
-    lines = [
-        "| method | depth from camera cm | frames | depth MAE cm (filtered / frame) "
-        "| lateral MAE cm (filtered / frame) | yaw MAE ° (filtered / frame) "
-        "| coasting frames (MAE depth / lateral / yaw) | NEES |",
-        "|---|---|---:|---:|---:|---:|---:|---:|",
-    ]
-
-    def pair(block: dict[str, Any], key: str) -> str:
-        f, r = block["filtered"], block["single_frame"]
-        return "–" if f is None or r is None else f"{f[key]:.2f} / {r[key]:.2f}"
-
-    for m, acc in summary.get("filter", {}).items():
-        rows = [(f"{b['depth_cm'][0]}-{b['depth_cm'][1]}", b) for b in acc["bands"]]
-        rows += [("25-250 (all)", acc["all"]), ("under 25 (blind)", acc["under_25cm"])]
-        for name, b in rows:
-            if not b["frames"] and not b["coasting_frames"]:
-                continue
-            c = b["coasting"]
-            coast = f"{b['coasting_frames']}" + (
-                "" if c is None else f" ({c['depth_cm']:.2f} / {c['lateral_cm']:.2f} / {c['yaw_deg']:.2f})"
-            )
-            nees = "–" if b["nees_mean"] is None else f"{b['nees_mean']:.1f}"
-            lines.append(
-                f"| {m} | {name} | {b['frames']} | {pair(b, 'depth_cm')} | {pair(b, 'lateral_cm')} | "
-                f"{pair(b, 'yaw_deg')} | {coast} | {nees} |"
-            )
-    return "\n".join(lines) + "\n"
-
-
-def comparison_table(summary: dict[str, Any]) -> str:
-    """Markdown: per case and overall, each method's success and median / p95 / max final errors."""
-    methods = list(summary["methods"])
-    head = (
-        "| case | method | success | lateral cm (median / p95 / max) | gap cm (median / p95 / max) "
-        "| heading ° (median / p95 / max) | time s (median) | retries |"
-    )
-    lines = [head, "|---|---|---:|---:|---:|---:|---:|---:|"]
-
-    def fmt(s: dict[str, float | None]) -> str:
-        return " / ".join("–" if s[k] is None else f"{s[k]:.2f}" for k in ("median", "p95", "max"))
-
-    for case in [*summary["cases"], "all"]:
-        for m in methods:
-            g = summary["methods"][m]["overall"] if case == "all" else summary["methods"][m]["cases"][case]
-            time_med = g["time_s"]["median"]
-            lines.append(
-                f"| {case} | {m} | {g['successes']}/{g['runs']} | {fmt(g['final_lateral_cm'])} | "
-                f"{fmt(g['final_longitudinal_cm'])} | {fmt(g['final_heading_deg'])} | "
-                f"{'–' if time_med is None else f'{time_med:.1f}'} | {g['retries']['total']} |"
-            )
-    return "\n".join(lines) + "\n"

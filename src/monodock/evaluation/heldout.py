@@ -4,77 +4,98 @@ against the LiDAR labels (the papers' reference) and the simulator's truth when 
 Also the papers' SolvePnP failure, reproduced on purpose: PnP given a marker size or focal length that is off
 scales its depth by the same factor, while the regression, which learned depth from the LiDAR, does not use
 the marker size at all and absorbs a focal-length error it was trained with.
+
+``evaluate_heldout`` computes everything into a ``HeldoutResult``; ``monodock.report.evaluation`` draws it, and
+``HeldoutResult.summary()`` is the summary.json contract.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import enum
+import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
-from monodock.evaluation.metrics import BandRow, band_table, markdown_table
+from monodock.estimation.regression import RegressionEstimator
+from monodock.evaluation.dock_sim import RunGroup
+from monodock.evaluation.limit import PhysicalLimit, physical_limit
+from monodock.evaluation.metrics import BandRow, band_table
 from monodock.learning.dataset import Dataset
 from monodock.perception.detect import Detection
 from monodock.perception.features import detection_from_features, refined_detection_from_row
-from monodock.report.html import HtmlReport
 
 __all__ = [
+    "PAPERS",
+    "HeldoutResult",
+    "HeldoutSummary",
     "MethodResult",
     "MiscalibrationRow",
+    "PaperFigure",
+    "PaperSamples",
+    "Reference",
     "RowInput",
     "band_rows",
     "errors",
     "estimate_dataset",
-    "evaluate_report",
-    "figure_errors",
+    "evaluate_heldout",
     "fused_method",
     "geometric_methods",
-    "miscalibration_plot",
+    "invalid_reasons",
+    "mean_abs_error",
     "miscalibration_study",
-    "miscalibration_table",
-    "paper_sample_tables",
+    "paper_samples",
     "reference_poses",
     "regression_method",
-    "summary_dict",
 ]
 
-_COLOURS = {
-    "lidar": "tab:blue",
-    "regression": "tab:red",
-    "pnp": "tab:green",
-    "board": "tab:purple",
-    "fused": "tab:orange",
-}
-_LABELS = {
-    "lidar": "LiDAR label",
-    "regression": "regression (papers)",
-    "pnp": "SolvePnP, marker 2",
-    "board": "board PnP",
-    "fused": "fused",
-}
+
+class Reference(enum.StrEnum):
+    """What the estimates are compared with: the LiDAR labels (the papers' reference), or the simulator's truth."""
+
+    TRUTH = "truth"
+    LIDAR = "lidar"
+
+    @property
+    def label(self) -> str:
+        """The reference's name in a table."""
+        return "simulator truth" if self is Reference.TRUTH else "LiDAR labels"
 
 
-@dataclass
+@dataclass(frozen=True)
+class PaperFigure:
+    """One of the papers' headline figures: a method's mean errors against their LiDAR, Tables 4-5 (28 samples)."""
+
+    method: str
+    samples: int
+    depth_mae_cm: float
+    yaw_mae_deg: float
+
+
+# Oh & Kim (Sensors 2025), Tables 4-5: their regression and their SolvePnP (given a wrong calibration).
+PAPERS = (
+    PaperFigure("regression", 28, 1.18, 3.11),
+    PaperFigure("SolvePnP", 28, 58.54, 6.64),
+)
+
+
+@dataclass(frozen=True)
 class MethodResult:
     """One method over a dataset: poses (n, 3) as x m, y m, yaw rad (NaN rows invalid) and the reasons."""
 
     method: str
     poses: NDArray[np.float64]
-    reasons: list[str]
+    reasons: tuple[str, ...]
 
     @property
     def valid(self) -> NDArray[np.bool_]:
@@ -98,7 +119,7 @@ def _collect(method: str, estimates: Sequence[PoseEstimate]) -> MethodResult:
     for i, e in enumerate(estimates):
         if e.pose is not None:
             poses[i] = (e.pose.x, e.pose.y, e.pose.yaw)
-    return MethodResult(method, poses, [e.reason for e in estimates])
+    return MethodResult(method, poses, tuple(e.reason for e in estimates))
 
 
 def geometric_methods(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> dict[str, FrameMethod]:
@@ -123,19 +144,19 @@ def estimate_dataset(dataset: Dataset, methods: Mapping[str, FrameMethod]) -> di
     return {name: _collect(name, [f(row) for row in rows]) for name, f in methods.items()}
 
 
-def reference_poses(dataset: Dataset) -> dict[str, NDArray[np.float64]]:
+def reference_poses(dataset: Dataset) -> dict[Reference, NDArray[np.float64]]:
     """The references, (n, 3) x m, y m, yaw rad: "lidar" (labels; NaN where invalid) and "truth" if present."""
     ok = np.asarray(dataset["label_valid"], dtype=bool)
     lidar = np.column_stack(
         [dataset["label_x_m"], dataset["label_y_m"], np.radians(np.asarray(dataset["label_yaw_deg"], dtype=float))]
     ).astype(np.float64)
     lidar[~ok] = np.nan
-    out = {"lidar": lidar}
+    out = {Reference.LIDAR: lidar}
     truth = np.column_stack(
         [dataset["truth_x_m"], dataset["truth_y_m"], np.radians(np.asarray(dataset["truth_yaw_deg"], dtype=float))]
     ).astype(np.float64)
     if np.isfinite(truth[:, 0]).any():
-        out["truth"] = truth
+        out[Reference.TRUTH] = truth
     return out
 
 
@@ -235,19 +256,6 @@ def miscalibration_study(
     return rows
 
 
-def miscalibration_table(rows: Sequence[MiscalibrationRow]) -> str:
-    """The study as a markdown table."""
-    head = (
-        "| calibration error | factor | method | depth MAE cm | depth bias % | yaw MAE ° |\n"
-        "|---|---:|---|---:|---:|---:|\n"
-    )
-    return head + "".join(
-        f"| {r.quantity} | ×{r.factor:.2f} | {r.method} | {r.depth_mae_cm:.2f} | {r.depth_bias_pct:+.1f} "
-        f"| {r.yaw_mae_deg:.2f} |\n"
-        for r in rows
-    )
-
-
 def _sample_rows(valid: NDArray[np.bool_], count: int) -> NDArray[np.int64]:
     idx = np.flatnonzero(valid)
     if len(idx) <= count:
@@ -255,203 +263,223 @@ def _sample_rows(valid: NDArray[np.bool_], count: int) -> NDArray[np.int64]:
     return idx[np.linspace(0, len(idx) - 1, count).round().astype(np.int64)]
 
 
-def paper_sample_tables(
-    reference: NDArray[np.float64],
-    results: Mapping[str, MethodResult],
-    *,
-    truth: NDArray[np.float64] | None = None,
-    count: int = 28,
-) -> tuple[str, str, NDArray[np.int64]]:
-    """Tables 4 and 5 of the paper: ``count`` samples spread over the recording, LiDAR (A), regression (B),
-    SolvePnP (C), |A-B| (D), |A-C| (E), and our extra columns (board PnP, the simulator's truth).
-    """
-    want = [m for m in ("regression", "pnp", "board") if m in results]
-    valid = np.isfinite(reference[:, 0])
-    for m in want:
-        valid &= results[m].valid
-    rows = _sample_rows(valid, count)
-    tables = []
-    for col, unit, scale, fmt in ((0, "m", 1.0, ".3f"), (2, "°", math.degrees(1.0), ".2f")):
-        head = ["idx", f"A: LiDAR ({unit})"]
-        if "regression" in results:
-            head += [f"B: regression ({unit})"]
-        if "pnp" in results:
-            head += [f"C: SolvePnP ({unit})"]
-        if "regression" in results:
-            head += ["D: \\|A-B\\|"]
-        if "pnp" in results:
-            head += ["E: \\|A-C\\|"]
-        if "board" in results:
-            head += [f"board PnP ({unit})"]
-        if truth is not None:
-            head += [f"truth ({unit})"]
-        lines = ["| " + " | ".join(head) + " |", "|" + "---:|" * len(head)]
-        sums: dict[str, list[float]] = {"D": [], "E": []}
-        for k, i in enumerate(rows, 1):
-            a = reference[i, col] * scale
-            cells = [str(k), format(a, fmt)]
-            b = results["regression"].poses[i, col] * scale if "regression" in results else math.nan
-            c = results["pnp"].poses[i, col] * scale if "pnp" in results else math.nan
-            if "regression" in results:
-                cells.append(format(b, fmt))
-            if "pnp" in results:
-                cells.append(format(c, fmt))
-            if "regression" in results:
-                cells.append(format(abs(a - b), fmt))
-                sums["D"].append(abs(a - b))
-            if "pnp" in results:
-                cells.append(format(abs(a - c), fmt))
-                sums["E"].append(abs(a - c))
-            if "board" in results:
-                cells.append(format(results["board"].poses[i, col] * scale, fmt))
-            if truth is not None:
-                cells.append(format(truth[i, col] * scale, fmt))
-            lines.append("| " + " | ".join(cells) + " |")
-        mean = ["mean", ""] + [""] * (("regression" in results) + ("pnp" in results))
-        if sums["D"]:
-            mean.append(format(float(np.mean(sums["D"])), fmt))
-        if sums["E"]:
-            mean.append(format(float(np.mean(sums["E"])), fmt))
-        mean += [""] * (len(head) - len(mean))
-        lines.append("| " + " | ".join(mean) + " |")
-        tables.append("\n".join(lines) + "\n")
-    return tables[0], tables[1], rows
-
-
-def _mean_abs(poses: NDArray[np.float64], reference: NDArray[np.float64], col: int, scale: float) -> float:
+def mean_abs_error(poses: NDArray[np.float64], reference: NDArray[np.float64], col: int, scale: float) -> float:
+    """Mean absolute error of one column (0 x, 1 y, 2 yaw, wrapped) times ``scale``, over the rows with both."""
     d = poses[:, col] - reference[:, col]
     e = np.abs(_wrap(d) if col == 2 else d) * scale
     e = e[np.isfinite(e)]
     return float(e.mean()) if e.size else math.nan
 
 
-def figure_errors(
-    reference: NDArray[np.float64],
-    results: Mapping[str, MethodResult],
-    rows: NDArray[np.int64],
-    out: Path,
-    *,
-    truth: NDArray[np.float64] | None = None,
-) -> list[Path]:
-    """Figs. 12 and 13 of the paper: depth and angle per sample (a) and the mean absolute error by method (b),
-    against the LiDAR labels as the paper plots them and, when known, against the truth as well."""
-    written = []
-    for col, name, unit, scale, fig_no in (
-        (0, "depth", "m", 1.0, 12),
-        (2, "angle", "°", math.degrees(1.0), 13),
-    ):
-        fig, (ax_a, ax_b) = plt.subplots(1, 2, figsize=(13, 4.2), gridspec_kw={"width_ratios": [2.2, 1]})
-        idx = np.arange(1, len(rows) + 1)
-        ax_a.plot(idx, reference[rows, col] * scale, "-o", color=_COLOURS["lidar"], label=_LABELS["lidar"], ms=4)
-        for m, r in results.items():
-            ax_a.plot(idx, r.poses[rows, col] * scale, "-o", color=_COLOURS.get(m), label=_LABELS.get(m, m), ms=3)
-        if truth is not None:
-            ax_a.plot(idx, truth[rows, col] * scale, "--", color="black", lw=1.2, label="simulator truth")
-        ax_a.set_xlabel("sample index")
-        ax_a.set_ylabel(f"{name} ({unit})")
-        ax_a.set_title(f"(a) {name} per sample")
-        ax_a.grid(alpha=0.3)
-        ax_a.legend(fontsize=8)
-        names = [_LABELS.get(m, m) for m in results]
-        x = np.arange(len(names))
-        refs = [("vs LiDAR labels", reference, 1.0)]
-        if truth is not None:
-            refs.append(("vs simulator truth", truth, 0.45))
-        width = 0.8 / len(refs)
-        for j, (label, ref, alpha) in enumerate(refs):
-            means = [_mean_abs(r.poses, ref, col, scale) for r in results.values()]
-            bars = ax_b.bar(
-                x + (j - (len(refs) - 1) / 2) * width,
-                means,
-                width,
-                color=[_COLOURS.get(m, "grey") for m in results],
-                alpha=alpha,
-                edgecolor="black",
-                label=label,
-            )
-            ax_b.bar_label(bars, fmt="%.3f" if col == 0 else "%.2f", fontsize=7)
-        ax_b.set_xticks(x, names)
-        ax_b.set_ylabel(f"mean |error| ({unit})")
-        ax_b.set_title("(b) mean absolute error, all valid frames")
-        ax_b.tick_params(axis="x", labelsize=8, rotation=15)
-        ax_b.legend(fontsize=7)
-        fig.suptitle(f"Fig. {fig_no} equivalent: {name} against the LiDAR labels (and the truth the paper lacked)")
-        fig.tight_layout()
-        path = out / f"fig{fig_no}_{name}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
-    return written
-
-
-def miscalibration_plot(rows: Sequence[MiscalibrationRow], path: Path) -> None:
-    """Depth MAE against the calibration error factor, per method and quantity."""
-    quantities = sorted({r.quantity for r in rows})
-    fig, axes = plt.subplots(1, len(quantities), figsize=(6 * len(quantities), 4), squeeze=False)
-    for ax, q in zip(axes[0], quantities, strict=True):
-        for m in sorted({r.method for r in rows if r.quantity == q}):
-            pts = sorted((r.factor, r.depth_mae_cm) for r in rows if r.quantity == q and r.method == m)
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], "-o", color=_COLOURS.get(m), label=_LABELS.get(m, m))
-        ax.set_xlabel(f"{q} given / true")
-        ax.set_ylabel("depth MAE (cm)")
-        ax.set_yscale("log")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=8)
-        ax.set_title(f"wrong {q}")
-    fig.suptitle("The papers' SolvePnP failure, reproduced: PnP depth scales with the calibration error")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def summary_dict(rows: Sequence[BandRow]) -> dict[str, Any]:
-    """Overall rows by method, for summary.json."""
-    return {
-        r.method: {
-            "frames": r.frames,
-            "valid": r.valid,
-            "depth_mae_cm": r.depth_mae_cm,
-            "depth_p95_cm": r.depth_p95_cm,
-            "lateral_mae_cm": r.lateral_mae_cm,
-            "lateral_p95_cm": r.lateral_p95_cm,
-            "yaw_mae_deg": r.yaw_mae_deg,
-            "yaw_p95_deg": r.yaw_p95_deg,
-        }
-        for r in rows
-        if r.band == "all"
-    }
-
-
-def regression_method(estimator: Any) -> dict[str, FrameMethod]:
+def regression_method(estimator: RegressionEstimator) -> dict[str, FrameMethod]:
     """The regression as a per-row method (it works on the raw features and the roles seen)."""
     return {"regression": lambda row: estimator.estimate_raw(row.raw, row.detection.roles_seen)}
 
 
-def fused_method(fused: Any) -> dict[str, FrameMethod]:
+def fused_method(fused: FusedEstimator) -> dict[str, FrameMethod]:
     """The fused method as a per-row method (refined corners and the regression's answer for the row)."""
 
     def run(row: RowInput) -> PoseEstimate:
         reg = fused.regression.estimate_raw(row.raw, row.detection.roles_seen) if fused.regression else None
-        return fused.estimate(row.detection, row.refined, reg)  # type: ignore[no-any-return]
+        return fused.estimate(row.detection, row.refined, reg)
 
     return {"fused": run}
 
 
-def evaluate_report(
-    dataset: Dataset,
-    regression: Any,
-    out: Path,
-    *,
-    title: str,
-    intro: Callable[[HtmlReport], None] | None = None,
-    extra_sections: Callable[[HtmlReport], None] | None = None,
-    extra_summary: Mapping[str, Any] | None = None,
-    miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None = None,
-    fused: Any | None = None,
-) -> dict[str, Any]:
-    """Run regression, single-marker PnP and board PnP on a labelled dataset; write the report into ``out``.
+def _regression_for_study(
+    regression: RegressionEstimator | None,
+    miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None,
+) -> dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]]:
+    out: dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] = dict(miscalibrated or {})
+    if regression is not None:
+        # The marker size is not an input of the regression: the same models answer whatever size is claimed.
+        for f in (1.0, 1.05, 1.5):
+            out.setdefault(("marker size", f), lambda _cam: regression_method(regression))
+        out.setdefault(("focal length", 1.0), lambda _cam: regression_method(regression))
+    return out
 
-    Returns the summary written to summary.json: overall rows against truth (when present) and LiDAR.
+
+@dataclass(frozen=True)
+class PaperSamples:
+    """Tables 4 and 5 of the papers, on this recording: rows spread over it where every compared method answered.
+
+    Attributes:
+        rows: the dataset rows sampled.
+        lidar: (k, 3) the LiDAR labels there (the papers' A), x m, y m, yaw rad.
+        estimates: per method of regression (B), pnp (C) and board that ran, (k, 3) its estimates there.
+        truth: (k, 3) the simulator's truth there, when known.
+    """
+
+    rows: NDArray[np.int64]
+    lidar: NDArray[np.float64]
+    estimates: Mapping[str, NDArray[np.float64]]
+    truth: NDArray[np.float64] | None
+
+
+def paper_samples(
+    reference: NDArray[np.float64],
+    results: Mapping[str, MethodResult],
+    *,
+    truth: NDArray[np.float64] | None = None,
+    count: int = 28,
+) -> PaperSamples:
+    """``count`` samples spread over the recording where the LiDAR, the regression and both PnPs all answered."""
+    want = [m for m in ("regression", "pnp", "board") if m in results]
+    valid = np.isfinite(reference[:, 0])
+    for m in want:
+        valid &= results[m].valid
+    rows = _sample_rows(valid, count)
+    return PaperSamples(
+        rows=rows,
+        lidar=reference[rows],
+        estimates={m: results[m].poses[rows] for m in want},
+        truth=None if truth is None else truth[rows],
+    )
+
+
+def invalid_reasons(results: Mapping[str, MethodResult]) -> dict[str, dict[str, int]]:
+    """Per method, how many frames had no estimate for each reason (its text up to the first bracket)."""
+    reasons: dict[str, dict[str, int]] = {}
+    for name, result in results.items():
+        counts: dict[str, int] = {}
+        for reason in result.reasons:
+            if reason:
+                counts[reason.split(" (")[0]] = counts.get(reason.split(" (")[0], 0) + 1
+        reasons[name] = counts
+    return reasons
+
+
+def _score(r: BandRow) -> dict[str, float | int]:
+    """A method's overall row as summary.json has it."""
+    return {
+        "frames": r.frames,
+        "valid": r.valid,
+        "depth_mae_cm": r.depth_mae_cm,
+        "depth_p95_cm": r.depth_p95_cm,
+        "lateral_mae_cm": r.lateral_mae_cm,
+        "lateral_p95_cm": r.lateral_p95_cm,
+        "yaw_mae_deg": r.yaw_mae_deg,
+        "yaw_p95_deg": r.yaw_p95_deg,
+    }
+
+
+@dataclass(frozen=True)
+class HeldoutSummary:
+    """The evaluation's summary.json: every method's overall errors, the studies, and (from the demo) docking.
+
+    Attributes:
+        rows: labelled rows of the held-out dataset.
+        has_truth: whether it has the simulator's truth.
+        against_truth: per method its overall row against the truth (None without truth).
+        against_lidar: per method its overall row against the LiDAR labels.
+        physical_limit: the Cramér–Rao study (None when not run, or without refined corners).
+        limit_studied: whether the study was run (with truth and the fused method); its block is then present,
+            empty when the dataset had no refined corners.
+        miscalibration: the wrong marker size / focal length study.
+        invalid_reasons: per method, frames without an estimate by reason.
+        docking: per method, the closed-loop docking's overall group (the demo's), or None.
+    """
+
+    rows: int
+    has_truth: bool
+    against_truth: Mapping[str, BandRow] | None
+    against_lidar: Mapping[str, BandRow]
+    physical_limit: PhysicalLimit | None
+    limit_studied: bool
+    miscalibration: tuple[MiscalibrationRow, ...]
+    invalid_reasons: Mapping[str, Mapping[str, int]]
+    docking: Mapping[str, RunGroup] | None = None
+
+    @property
+    def overall(self) -> Mapping[str, BandRow]:
+        """Per method the overall row against the best reference: the truth when known, else the LiDAR."""
+        return self.against_truth if self.against_truth is not None else self.against_lidar
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON object, keys and nesting as summary.json has them."""
+        out: dict[str, Any] = {"rows": self.rows, "has_truth": self.has_truth}
+        if self.against_truth is not None:
+            out["against_truth"] = {m: _score(r) for m, r in self.against_truth.items()}
+        out["against_lidar"] = {m: _score(r) for m, r in self.against_lidar.items()}
+        if self.limit_studied:
+            out["physical_limit"] = self.physical_limit.to_dict() if self.physical_limit is not None else {}
+        out["miscalibration"] = [dataclasses.asdict(r) for r in self.miscalibration]
+        out["invalid_reasons"] = {m: dict(c) for m, c in self.invalid_reasons.items()}
+        if self.docking is not None:
+            out["docking"] = {m: g.to_dict() for m, g in self.docking.items()}
+        return out
+
+    def to_json(self) -> str:
+        """summary.json's text."""
+        return json.dumps(self.to_dict(), indent=2, default=str)
+
+
+@dataclass(frozen=True)
+class HeldoutResult:
+    """Every method on one held-out dataset, against its references, and the studies on it.
+
+    Attributes:
+        rows: labelled rows of the dataset.
+        results: per method (regression, pnp, board, fused as run) its estimates of every row.
+        references: "lidar" (the labels; NaN where invalid) and, when known, "truth": (rows, 3) x m, y m, yaw rad.
+        depth: each row's depth from the camera, m, by the truth when known, else the labels.
+        bands: per reference ("truth" first when known, then "lidar") every method's rows by 25 cm band.
+        samples: the data of the papers' Tables 4 and 5.
+        miscalibration: the study of a wrong marker size or focal length.
+        limit: the physical limit (None without truth, the fused method or refined corners).
+        limit_studied: whether the physical limit was studied (truth and the fused method were there).
+        invalid_reasons: per method, frames without an estimate by reason.
+    """
+
+    rows: int
+    results: Mapping[str, MethodResult]
+    references: Mapping[Reference, NDArray[np.float64]]
+    depth: NDArray[np.float64]
+    bands: Mapping[Reference, tuple[BandRow, ...]]
+    samples: PaperSamples
+    miscalibration: tuple[MiscalibrationRow, ...]
+    limit: PhysicalLimit | None
+    limit_studied: bool
+    invalid_reasons: Mapping[str, Mapping[str, int]]
+
+    @property
+    def has_truth(self) -> bool:
+        return Reference.TRUTH in self.references
+
+    def overall(self, reference: Reference) -> dict[str, BandRow]:
+        """Per method its row over all depths against one reference."""
+        return {r.method: r for r in self.bands[reference] if r.band == "all"}
+
+    def summary(self, *, docking: Mapping[str, RunGroup] | None = None) -> HeldoutSummary:
+        """The summary.json contract; ``docking`` adds the closed-loop docking's groups (the demo's)."""
+        return HeldoutSummary(
+            rows=self.rows,
+            has_truth=self.has_truth,
+            against_truth=self.overall(Reference.TRUTH) if self.has_truth else None,
+            against_lidar=self.overall(Reference.LIDAR),
+            physical_limit=self.limit,
+            limit_studied=self.limit_studied,
+            miscalibration=self.miscalibration,
+            invalid_reasons=self.invalid_reasons,
+            docking=docking,
+        )
+
+
+def evaluate_heldout(
+    dataset: Dataset,
+    regression: RegressionEstimator | None,
+    *,
+    fused: FusedEstimator | None = None,
+    miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None = None,
+) -> HeldoutResult:
+    """Run the regression, single-marker PnP, board PnP and fused (when given) on a labelled dataset.
+
+    Args:
+        dataset: the held-out labelled dataset (its camera, layout and robot are the right calibration).
+        regression: the papers' regression, or None to leave it out.
+        fused: the fused method, or None; with the truth it also brings the physical-limit study.
+        miscalibrated: regression factories for the miscalibration study's wrong focal lengths (see
+            ``miscalibration_study``).
     """
     camera, layout, robot = dataset.camera(), dataset.layout(), dataset.robot()
     methods: dict[str, FrameMethod] = {}
@@ -462,95 +490,23 @@ def evaluate_report(
         methods.update(fused_method(fused))
     results = estimate_dataset(dataset, methods)
     refs = reference_poses(dataset)
-    ref_depth = refs["truth"][:, 0] if "truth" in refs else refs["lidar"][:, 0]
-    depth = ref_depth - robot.camera_mount.x
-    report = HtmlReport(title)
-    summary: dict[str, Any] = {"rows": len(dataset), "has_truth": "truth" in refs}
-    if intro is not None:
-        intro(report)
-
-    report.heading("Headline: mean absolute error over all depths")
-    head = "| method | reference | valid | depth MAE cm | lateral MAE cm | angle MAE ° | depth p95 cm | angle p95 ° |\n"
-    head += "|---|---|---:|---:|---:|---:|---:|---:|\n"
-    lines = []
-    tables = {}
-    for ref_name in ("truth", "lidar"):
-        if ref_name not in refs:
-            continue
-        rows = band_rows(depth, refs[ref_name], results)
-        tables[ref_name] = rows
-        summary[f"against_{ref_name}"] = summary_dict(rows)
-        for r in rows:
-            if r.band == "all":
-                what = "simulator truth" if ref_name == "truth" else "LiDAR labels"
-                lines.append(
-                    f"| {r.method} | {what} | {r.valid}/{r.frames} "
-                    f"| {r.depth_mae_cm:.2f} | {r.lateral_mae_cm:.2f} | {r.yaw_mae_deg:.2f} | {r.depth_p95_cm:.2f} "
-                    f"| {r.yaw_p95_deg:.2f} |"
-                )
-    lines += [
-        "| regression (papers, Tables 4-5) | their LiDAR | 28 | 1.18 | — | 3.11 | — | — |",
-        "| SolvePnP (papers, Tables 4-5) | their LiDAR | 28 | 58.54 | — | 6.64 | — | — |",
-    ]
-    report.table(head + "\n".join(lines) + "\n")
-    report.paragraph(
-        "Against the LiDAR labels every method inherits the labels' own error (see the label table); against "
-        "the simulator's truth it does not. The papers' SolvePnP was ~1.5x their LiDAR depth at every range, "
-        "a calibration error; here every method gets the same, correct calibration."
+    best = refs.get(Reference.TRUTH, refs[Reference.LIDAR])
+    depth = best[:, 0] - robot.camera_mount.x
+    # The truth first when known: it is the headline's reference.
+    bands = {r: tuple(band_rows(depth, refs[r], results)) for r in (Reference.TRUTH, Reference.LIDAR) if r in refs}
+    studied = Reference.TRUTH in refs and fused is not None
+    limit = physical_limit(dataset, {m: r.poses for m, r in results.items()}) if studied else None
+    samples = paper_samples(refs[Reference.LIDAR], results, truth=refs.get(Reference.TRUTH))
+    study = miscalibration_study(dataset, best, regression=_regression_for_study(regression, miscalibrated))
+    return HeldoutResult(
+        rows=len(dataset),
+        results=results,
+        references=refs,
+        depth=depth,
+        bands=bands,
+        samples=samples,
+        miscalibration=tuple(study),
+        limit=limit,
+        limit_studied=studied,
+        invalid_reasons=invalid_reasons(results),
     )
-    for ref_name, rows in tables.items():
-        report.heading(
-            f"By 25 cm depth band, against {'the simulator truth' if ref_name == 'truth' else 'the LiDAR labels'}"
-        )
-        report.table(markdown_table(rows))
-    if "truth" in refs and fused is not None:
-        from monodock.evaluation.limit import limit_section
-
-        summary["physical_limit"] = limit_section(report, dataset, {m: r.poses for m, r in results.items()}, out)
-    report.heading("Tables 4 and 5 of the paper, on this recording (28 samples spread over it)")
-    t4, t5, sample_rows = paper_sample_tables(refs["lidar"], results, truth=refs.get("truth"))
-    report.paragraph("Depth (Table 4 layout; A is the LiDAR label, metres):")
-    report.table(t4)
-    report.paragraph("Angle (Table 5 layout; degrees):")
-    report.table(t5)
-    for path in figure_errors(refs["lidar"], results, sample_rows, out, truth=refs.get("truth")):
-        report.image(path.name, "")
-    report.heading("The papers' SolvePnP failure, reproduced: a wrong marker size or focal length")
-    ref = refs.get("truth", refs["lidar"])
-    study = miscalibration_study(dataset, ref, regression=_regression_for_study(regression, miscalibrated))
-    summary["miscalibration"] = [dataclasses.asdict(r) for r in study]
-    report.table(miscalibration_table(study))
-    miscalibration_plot(study, out / "miscalibration.png")
-    report.image("miscalibration.png", "")
-    report.paragraph(
-        "PnP's depth scales with the marker size it is told and with the focal length. The regression never "
-        "reads the marker size, and learned its depth from the LiDAR through whatever camera file the robot "
-        "had: rows for a wrong focal length are a regression trained with that same wrong file, when given."
-    )
-    if extra_sections is not None:
-        extra_sections(report)
-    reasons: dict[str, dict[str, int]] = {}
-    for name, result in results.items():
-        counts: dict[str, int] = {}
-        for reason in result.reasons:
-            if reason:
-                counts[reason.split(" (")[0]] = counts.get(reason.split(" (")[0], 0) + 1
-        reasons[name] = counts
-    summary["invalid_reasons"] = reasons
-    report.heading("Why frames have no estimate")
-    report.bullets([f"{m}: {c or 'none'}" for m, c in reasons.items()])
-    summary.update(extra_summary or {})
-    report.write(out, summary)
-    return summary
-
-
-def _regression_for_study(
-    regression: Any, miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None
-) -> dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]]:
-    out: dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] = dict(miscalibrated or {})
-    if regression is not None:
-        # The marker size is not an input of the regression: the same models answer whatever size is claimed.
-        for f in (1.0, 1.05, 1.5):
-            out.setdefault(("marker size", f), lambda _cam: regression_method(regression))
-        out.setdefault(("focal length", 1.0), lambda _cam: regression_method(regression))
-    return out

@@ -24,9 +24,21 @@ from monodock.errors import InputError
 from monodock.estimation.corner_noise import CornerNoise, corner_sides_px
 from monodock.estimation.crlb import crlb
 from monodock.estimation.planar import planar_model
+from monodock.evaluation.what_if import WhatIfResult, what_if
+from monodock.learning.dataset import Dataset
 from monodock.perception.features import refined_detection_from_row
 
-__all__ = ["CornerNoiseFit", "LimitRow", "bounds_by_row", "limit_rows", "measure_corner_noise"]
+__all__ = [
+    "BANDS_M",
+    "SIDE_BINS_PX",
+    "CornerNoiseFit",
+    "LimitRow",
+    "PhysicalLimit",
+    "bounds_by_row",
+    "limit_rows",
+    "measure_corner_noise",
+    "physical_limit",
+]
 
 BANDS_M = tuple((0.25 + 0.25 * k, 0.5 + 0.25 * k) for k in range(9))
 
@@ -77,7 +89,7 @@ class CornerNoiseFit:
         return np.where(np.isfinite(binned), binned, self.noise.sigma(corners))
 
 
-def _refined_rows(dataset: Any) -> list[tuple[int, dict[str, NDArray[np.float64]]]]:
+def _refined_rows(dataset: Dataset) -> list[tuple[int, dict[str, NDArray[np.float64]]]]:
     """Per row with truth: the refined corners of the markers the refiner measured."""
     camera, layout = dataset.camera(), dataset.layout()
     raw, refined = dataset.raw_features(), dataset.refined_corners()
@@ -91,13 +103,13 @@ def _refined_rows(dataset: Any) -> list[tuple[int, dict[str, NDArray[np.float64]
     return out
 
 
-def _truth(dataset: Any, i: int) -> DockPose:
+def _truth(dataset: Dataset, i: int) -> DockPose:
     return DockPose(
         float(dataset["truth_x_m"][i]), float(dataset["truth_y_m"][i]), math.radians(float(dataset["truth_yaw_deg"][i]))
     )
 
 
-def measure_corner_noise(dataset: Any) -> CornerNoiseFit:
+def measure_corner_noise(dataset: Dataset) -> CornerNoiseFit:
     """The refined corners' noise, from every row with truth (see CornerNoiseFit)."""
     model = planar_model(dataset.camera(), dataset.layout(), dataset.robot())
     errs, inverse, outward, trues = [], [], [], []
@@ -154,7 +166,7 @@ def _marker_correlation(
     return np.asarray(cov / np.outer(d, d), dtype=np.float64)
 
 
-def bounds_by_row(dataset: Any, noise: CornerNoiseFit, *, correlated: bool = False) -> NDArray[np.float64]:
+def bounds_by_row(dataset: Dataset, noise: CornerNoiseFit, *, correlated: bool = False) -> NDArray[np.float64]:
     """Per row, the 3x3 Cramér–Rao bound at the true pose for the markers refined there (NaN: none).
 
     Corners independent; with ``correlated``, with the measured correlation of a marker's corners (if any).
@@ -214,93 +226,63 @@ def limit_rows(
     return out
 
 
-def limit_table(rows: list[LimitRow]) -> str:
-    """Markdown: per band and method, RMS error / bound for depth, lateral and yaw."""
-    head = (
-        "| band cm | method | rows | depth RMS / bound cm | ratio | lateral RMS / bound cm | ratio "
-        "| yaw RMS / bound ° | ratio |\n|---|---|---:|---:|---:|---:|---:|---:|---:|\n"
-    )
-    lines = []
-    for r in rows:
-        q = r.ratio
-        lines.append(
-            f"| {r.band} | {r.method} | {r.rows} | {r.rms[0]:.3f} / {r.bound[0]:.3f} | {q[0]:.2f}× "
-            f"| {r.rms[1]:.3f} / {r.bound[1]:.3f} | {q[1]:.2f}× | {r.rms[2]:.3f} / {r.bound[2]:.3f} | {q[2]:.2f}× |"
-        )
-    return head + "\n".join(lines) + "\n"
+@dataclass(frozen=True)
+class PhysicalLimit:
+    """Every method against the Cramér–Rao bound on one held-out dataset with truth.
 
+    Attributes:
+        fit: the refined corners' measured noise (the bound uses it).
+        rows: per method and band (and "all"), its RMS error and the bound, corners taken as independent.
+        correlated: the same rows, keyed by (method, band), with the measured correlation of a marker's corners.
+        what_if: the bound of other markers and cameras over a grid of poses, with the same corner noise model.
+        correlation_eigenvalues: the lowest and highest eigenvalue of the 8x8 correlation (None: not measured).
+        bound_change: the smallest and largest relative change of the bound with that correlation.
+    """
 
-def _what_if_table(result: Any) -> str:
-    """Markdown: each set-up's bound (overall RMS sd) and its ratio to the current one."""
-    head = (
-        "| set-up | depth bound cm | lateral bound cm | yaw bound ° | × current (depth / lateral / yaw) |\n"
-        "|---|---:|---:|---:|---:|\n"
-    )
-    ratio = result.overall_ratio()
-    lines = []
-    for k, name in enumerate(result.variants):
-        sd = result.overall[k] * np.array([100.0, 100.0, math.degrees(1.0)])
-        lines.append(
-            f"| {name} | {sd[0]:.3f} | {sd[1]:.3f} | {sd[2]:.3f} | "
-            f"{ratio[k, 0]:.2f} / {ratio[k, 1]:.2f} / {ratio[k, 2]:.2f} |"
-        )
-    return head + "\n".join(lines) + "\n"
+    fit: CornerNoiseFit
+    rows: tuple[LimitRow, ...]
+    correlated: Mapping[tuple[str, str], LimitRow]
+    what_if: WhatIfResult
+    correlation_eigenvalues: tuple[float, float] | None
+    bound_change: tuple[float, float]
 
-
-def _band_points(
-    rows: list[LimitRow], method: str, field: str, component: int, centres: list[float]
-) -> list[tuple[float, float]]:
-    """(band centre cm, ``field`` ("rms" or "bound") of one component) of one method's rows, in band order."""
-    return [
-        (c, float(getattr(r, field)[component]))
-        for c, (lo, hi) in zip(centres, BANDS_M, strict=True)
-        for r in rows
-        if r.method == method and r.band == f"{lo * 100:.0f}-{hi * 100:.0f}"
-    ]
-
-
-def _plot(rows: list[LimitRow], what: Any, path: Any) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
-    centres = [0.5 * (lo + hi) * 100 for lo, hi in BANDS_M]
-    units = ("depth (cm)", "lateral (cm)", "yaw (°)")
-    scale = np.array([100.0, 100.0, math.degrees(1.0)])
-    for j, ax in enumerate(axes):
-        for method in dict.fromkeys(r.method for r in rows):
-            pts = _band_points(rows, method, "rms", j, centres)
-            if pts:
-                ax.plot(*zip(*pts, strict=True), "-o", ms=3, label=f"{method} RMS error")
-        # The yardstick of the ratios: the bound at these rows' own poses (the widest method's rows).
-        widest = max(dict.fromkeys(r.method for r in rows), key=lambda m: sum(r.rows for r in rows if r.method == m))
-        own = _band_points(rows, widest, "bound", j, centres)
-        if own:
-            ax.plot(*zip(*own, strict=True), "-k", lw=2, label="bound at these rows' poses")
-        # The what-if study's bounds are over its own pose grid: the current set-up's is the reference there.
-        for k, name in enumerate(what.variants):
-            ax.plot(
-                centres[: what.sd.shape[1]],
-                what.sd[k, :, j] * scale[j],
-                "--" if k else ":k",
-                lw=1.2,
-                label=f"bound: {name}" + ("" if k else " (pose grid)"),
-            )
-        ax.set_yscale("log")
-        ax.set_xlabel("depth from the camera (cm)")
-        ax.set_title(units[j])
-        ax.grid(alpha=0.3, which="both")
-    axes[0].legend(fontsize=6)
-    fig.suptitle(
-        "Every method's RMS error against the Cramér–Rao bound at the same poses (solid black)\n"
-        "dashed: the bound of other set-ups over a pose grid (dotted: this set-up on that grid)",
-        fontsize=10,
-    )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    def to_dict(self) -> dict[str, Any]:
+        """The ``physical_limit`` block of the evaluation's summary.json."""
+        fit = self.fit
+        return {
+            "corner_noise": {
+                "sigma_px_by_side": {
+                    f"{lo:g}-{hi:g}": (v if math.isfinite(v) else None)
+                    for lo, hi, v in zip(SIDE_BINS_PX[:-1], SIDE_BINS_PX[1:], fit.sigma_px, strict=True)
+                },
+                "floor_px": fit.floor_px,
+                "c": fit.c,
+                "rms_px": fit.rms_px,
+                "outward_mean_px": fit.outward_mean_px,
+                "corners": fit.corners,
+            },
+            "ratios": [
+                {
+                    "method": r.method,
+                    "band": r.band,
+                    "rows": r.rows,
+                    "rms": list(r.rms),
+                    "bound": list(r.bound),
+                    "ratio": list(r.ratio),
+                    "ratio_correlated": list(self.correlated[(r.method, r.band)].ratio)
+                    if (r.method, r.band) in self.correlated
+                    else None,
+                }
+                for r in self.rows
+            ],
+            "what_if": {
+                name: {
+                    "sd": [float(v) for v in self.what_if.overall[k]],
+                    "ratio": [float(v) for v in self.what_if.overall_ratio()[k]],
+                }
+                for k, name in enumerate(self.what_if.variants)
+            },
+        }
 
 
 def _bound_change(rows: list[LimitRow], correlated: Mapping[tuple[str, str], LimitRow]) -> tuple[float, float]:
@@ -315,15 +297,16 @@ def _bound_change(rows: list[LimitRow], correlated: Mapping[tuple[str, str], Lim
     return (min(changes), max(changes)) if changes else (0.0, 0.0)
 
 
-def limit_section(report: Any, dataset: Any, poses: Mapping[str, NDArray[np.float64]], out: Any) -> dict[str, Any]:
-    """The report's "physical limit" section; returns its summary (empty without truth or refined corners)."""
-    from monodock.evaluation.what_if import what_if
+def physical_limit(dataset: Dataset, poses: Mapping[str, NDArray[np.float64]]) -> PhysicalLimit | None:
+    """Every method's error against the bound at the same rows (None without truth or refined corners).
 
+    ``poses`` are each method's (rows, 3) estimates, x m, y m, yaw rad, NaN where it had none.
+    """
     truth = np.column_stack(
         [dataset["truth_x_m"], dataset["truth_y_m"], np.radians(np.asarray(dataset["truth_yaw_deg"], dtype=float))]
     ).astype(np.float64)
     if not np.isfinite(truth[:, 0]).any() or not np.isfinite(dataset.refined_corners()).any():
-        return {}
+        return None
     fit = measure_corner_noise(dataset)
     depth = truth[:, 0] - dataset.robot().camera_mount.x
     rows = limit_rows(depth, truth, poses, bounds_by_row(dataset, fit))
@@ -331,68 +314,15 @@ def limit_section(report: Any, dataset: Any, poses: Mapping[str, NDArray[np.floa
     correlated = {
         (r.method, r.band): r for r in limit_rows(depth, truth, poses, bounds_by_row(dataset, fit, correlated=True))
     }
+    eigenvalues = None
     if fit.correlation is not None:
         w = np.linalg.eigvalsh(fit.correlation)
-        low, high = _bound_change(rows, correlated)
-        correlation_note = (
-            " A marker's corners share its fitted sides, so their errors are not independent: the eigenvalues of "
-            f"their measured 8x8 correlation run from {w[0]:.2f} to {w[-1]:.2f} (all 1 for independent corners). "
-            f"With it the bound would change by {100 * low:+.0f} % to {100 * high:+.0f} % per band and component "
-            "(summary.json: ratio_correlated); an estimator would need that correlation, which LiDAR labels are "
-            "too coarse to learn, to gain from it."
-        )
-    else:
-        correlation_note = ""
-    what = what_if(dataset.camera(), dataset.layout(), dataset.robot(), noise=fit.noise)
-    report.heading("The physical limit: every method against the Cramér–Rao bound")
-    report.paragraph(
-        f"Refined corners against the truth on these rows: {fit.corners} corners, RMS {fit.rms_px:.3f} px, mean "
-        f"outward error {fit.outward_mean_px:+.4f} px. Their noise, measured per edge length (the bound uses these): "
-        + ", ".join(
-            f"{lo:.0f}-{hi:.0f} px: {s:.3f}" if math.isfinite(hi) else f"≥{lo:.0f} px: {s:.3f}"
-            for lo, hi, s in zip(SIDE_BINS_PX[:-1], SIDE_BINS_PX[1:], fit.sigma_px, strict=True)
-            if math.isfinite(s)
-        )
-        + f" px per axis; as a model, σ² = ({fit.c:.3f})²·(1/L₁+1/L₂)/2 + ({fit.floor_px:.3f})² px². "
-        "The bound of a row is (JᵀWJ)⁻¹ at its true pose for the markers refined there; a band's bound is the root "
-        "of its mean variance. Ratio = RMS error / bound: 1.0× is as good as these pixels allow." + correlation_note
+        eigenvalues = (float(w[0]), float(w[-1]))
+    return PhysicalLimit(
+        fit=fit,
+        rows=tuple(rows),
+        correlated=correlated,
+        what_if=what_if(dataset.camera(), dataset.layout(), dataset.robot(), noise=fit.noise),
+        correlation_eigenvalues=eigenvalues,
+        bound_change=_bound_change(rows, correlated),
     )
-    report.table(limit_table(rows))
-    report.paragraph(
-        "What would buy more: the same bound (same corner noise model) for other markers and cameras, over a grid "
-        "of poses in 25-250 cm, ±40 cm, ±30°:"
-    )
-    report.table(_what_if_table(what))
-    _plot(rows, what, out / "physical_limit.png")
-    report.image("physical_limit.png", "")
-    return {
-        "corner_noise": {
-            "sigma_px_by_side": {
-                f"{lo:g}-{hi:g}": (v if math.isfinite(v) else None)
-                for lo, hi, v in zip(SIDE_BINS_PX[:-1], SIDE_BINS_PX[1:], fit.sigma_px, strict=True)
-            },
-            "floor_px": fit.floor_px,
-            "c": fit.c,
-            "rms_px": fit.rms_px,
-            "outward_mean_px": fit.outward_mean_px,
-            "corners": fit.corners,
-        },
-        "ratios": [
-            {
-                "method": r.method,
-                "band": r.band,
-                "rows": r.rows,
-                "rms": list(r.rms),
-                "bound": list(r.bound),
-                "ratio": list(r.ratio),
-                "ratio_correlated": list(correlated[(r.method, r.band)].ratio)
-                if (r.method, r.band) in correlated
-                else None,
-            }
-            for r in rows
-        ],
-        "what_if": {
-            name: {"sd": [float(v) for v in what.overall[k]], "ratio": [float(v) for v in what.overall_ratio()[k]]}
-            for k, name in enumerate(what.variants)
-        },
-    }

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from monodock.core.pose import DockPose, wrap_angle
 
-__all__ = ["BandRow", "band_table", "markdown_table", "pose_errors"]
+__all__ = ["BandRow", "band_table", "method_tables", "pose_errors"]
 
 
 def pose_errors(truth: Sequence[DockPose], estimates: Sequence[DockPose | None]) -> NDArray[np.float64]:
@@ -72,16 +72,9 @@ def band_table(
     return rows
 
 
-def markdown_table(rows: Sequence[BandRow]) -> str:
-    """The rows as a GitHub-flavoured markdown table."""
-    head = (
-        "| method | depth band | frames | valid | depth bias cm | depth MAE cm | depth p95 cm | lateral MAE cm "
-        "| lateral p95 cm | yaw MAE ° | yaw p95 ° |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n"
-    )
-    body = "".join(
-        f"| {r.method} | {r.band} | {r.frames} | {r.valid} | {r.depth_bias_cm:+.2f} | {r.depth_mae_cm:.2f} "
-        f"| {r.depth_p95_cm:.2f} "
-        f"| {r.lateral_mae_cm:.2f} | {r.lateral_p95_cm:.2f} | {r.yaw_mae_deg:.2f} | {r.yaw_p95_deg:.2f} |\n"
-        for r in rows
-    )
-    return head + body
+def method_tables(depth: NDArray[np.float64], errors: Mapping[str, NDArray[np.float64]]) -> list[BandRow]:
+    """Rows of every method, band by band, with the overall row last for each."""
+    rows: list[BandRow] = []
+    for method, e in errors.items():
+        rows += band_table(method, depth, e)
+    return rows

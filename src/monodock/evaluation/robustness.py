@@ -21,6 +21,8 @@ the nuisance alone. Frames are rendered and estimated in worker processes (``mon
 from __future__ import annotations
 
 import dataclasses
+import enum
+import json
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -28,39 +30,56 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib import ticker
 from numpy.typing import NDArray
+from tqdm import tqdm
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import ROLE_NUMBER, ROLES, DockLayout
+from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
-from monodock.estimation.pnp import PoseEstimate
-from monodock.report.html import HtmlReport
+from monodock.estimation.bundle import load_bundle
+from monodock.estimation.fused import FusedEstimator
+from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
+from monodock.estimation.regression import RegressionEstimator
+from monodock.learning.dataset import Dataset, LabelRun, label_frames
+from monodock.learning.fusion import learn_fusion_from
+from monodock.perception.detect import MarkerDetector
+from monodock.perception.features import feature_vector, refined_vector
+from monodock.perception.refine import refine_detection
 from monodock.sim import Nuisances, PoseDistribution, Simulator
+from monodock.sim.nuisance import apply_nuisances
+from monodock.sim.render import render_radiance
 from monodock.sim.world import Surface, World, rectangle
 
 __all__ = [
     "AXES",
+    "GOOD_ENOUGH",
     "METHODS",
     "STALE",
+    "STATS",
     "Axis",
+    "AxisKind",
+    "AxisResult",
     "Calibration",
+    "HeadlineRow",
     "ImageCondition",
+    "LevelStats",
+    "MethodCurve",
+    "OcclusionStats",
     "RobustnessConfig",
     "RobustnessResult",
+    "RobustnessSettings",
+    "RobustnessSummary",
+    "WorstLevel",
     "axis_stats",
     "calibration_for",
+    "headline",
     "image_condition",
     "occluder_hiding",
     "run_robustness",
-    "write_robustness_report",
 ]
 
 T = TypeVar("T")
@@ -68,20 +87,6 @@ R = TypeVar("R")
 
 METHODS = ("regression", "pnp", "board", "fused")
 STALE = "fused (stale tables)"
-_COLOURS = {
-    "regression": "tab:red",
-    "pnp": "tab:green",
-    "board": "tab:purple",
-    "fused": "tab:orange",
-    STALE: "tab:orange",
-}
-_LABELS = {
-    "regression": "regression (papers)",
-    "pnp": "SolvePnP, marker 2",
-    "board": "board PnP",
-    "fused": "fused",
-    STALE: "fused (stale tables)",
-}
 # The bound the headline checks: within it a method is good enough to dock on (depth cm, lateral cm, yaw deg).
 GOOD_ENOUGH = (1.0, 1.0, 1.0)
 # An occluder stands this far in front of the charger face (a cable, a box): parallel to the face, so that
@@ -95,6 +100,13 @@ CALIBRATION_SUPERSAMPLE = 4
 _DEFAULT = Nuisances()
 
 
+class AxisKind(enum.StrEnum):
+    """What an axis changes: the pixels (IMAGE), or the files the methods are given (CALIBRATION)."""
+
+    IMAGE = "image"
+    CALIBRATION = "calibration"
+
+
 @dataclass(frozen=True)
 class Axis:
     """One nuisance swept on its own: its levels (in ``unit``) and the default level."""
@@ -104,32 +116,33 @@ class Axis:
     unit: str
     levels: tuple[float, ...]
     default: float
-    kind: str  # "image": the pixels change; "calibration": the files the methods are given change
+    kind: AxisKind
 
 
+_IMAGE, _CALIBRATION = AxisKind.IMAGE, AxisKind.CALIBRATION
 AXES: tuple[Axis, ...] = (
-    Axis("noise", "sensor noise (read noise; shot noise scaled alike)", "DN", (0.0, 1.5, 4.0, 8.0), 1.5, "image"),
-    Axis("defocus", "defocus blur (Gaussian sigma)", "px", (0.3, 0.6, 1.5, 2.5), _DEFAULT.defocus_px, "image"),
-    Axis("motion_blur", "motion blur (streak length)", "px", (0.0, 2.0, 4.0, 6.0), _DEFAULT.motion_blur_px, "image"),
+    Axis("noise", "sensor noise (read noise; shot noise scaled alike)", "DN", (0.0, 1.5, 4.0, 8.0), 1.5, _IMAGE),
+    Axis("defocus", "defocus blur (Gaussian sigma)", "px", (0.3, 0.6, 1.5, 2.5), _DEFAULT.defocus_px, _IMAGE),
+    Axis("motion_blur", "motion blur (streak length)", "px", (0.0, 2.0, 4.0, 6.0), _DEFAULT.motion_blur_px, _IMAGE),
     Axis(
-        "exposure", "exposure (gain; 1 = white near 85 % of full scale)", "x", (0.35, 0.6, 1.0, 1.6, 2.5), 1.0, "image"
+        "exposure", "exposure (gain; 1 = white near 85 % of full scale)", "x", (0.35, 0.6, 1.0, 1.6, 2.5), 1.0, _IMAGE
     ),
-    Axis("occlusion", "partial occlusion of one marker", "% of its area", (0.0, 10.0, 25.0, 40.0), 0.0, "image"),
-    Axis("focal", "focal length error", "%", (-3.0, -1.5, 0.0, 1.5, 3.0), 0.0, "calibration"),
+    Axis("occlusion", "partial occlusion of one marker", "% of its area", (0.0, 10.0, 25.0, 40.0), 0.0, _IMAGE),
+    Axis("focal", "focal length error", "%", (-3.0, -1.5, 0.0, 1.5, 3.0), 0.0, _CALIBRATION),
     Axis(
         "marker_size",
         "marker size error (layout file vs printed)",
         "%",
         (-5.0, -2.5, 0.0, 2.5, 5.0),
         0.0,
-        "calibration",
+        _CALIBRATION,
     ),
-    Axis("mount_x", "camera mount x error", "cm", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_y", "camera mount y error", "cm", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_z", "camera mount z error", "cm", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_roll", "camera mount roll error", "°", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_pitch", "camera mount pitch error", "°", (-1.0, 0.0, 1.0), 0.0, "calibration"),
-    Axis("mount_yaw", "camera mount yaw error", "°", (-1.0, 0.0, 1.0), 0.0, "calibration"),
+    Axis("mount_x", "camera mount x error", "cm", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_y", "camera mount y error", "cm", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_z", "camera mount z error", "cm", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_roll", "camera mount roll error", "°", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_pitch", "camera mount pitch error", "°", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
+    Axis("mount_yaw", "camera mount yaw error", "°", (-1.0, 0.0, 1.0), 0.0, _CALIBRATION),
 )
 
 
@@ -297,11 +310,6 @@ class _CalibrationFrame:
 
 def _calibration_frame(setup: _CalibrationSetup, task: tuple[int, DockPose]) -> _CalibrationFrame:
     """Render one calibration frame (default nuisances) and measure it through every camera file."""
-    from monodock.perception.detect import MarkerDetector
-    from monodock.perception.features import feature_vector, refined_vector
-    from monodock.perception.refine import refine_detection
-    from monodock.sim.nuisance import apply_nuisances
-    from monodock.sim.render import render_radiance
 
     index, pose = task
     sim = setup.sim
@@ -329,10 +337,6 @@ class _TableSetup:
 def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, Any, int]:
     """The fusion tables ``monodock train`` would learn with one level's files: label the calibration set with
     the LiDAR through those files, run both methods on it, learn. Returns (key, tables, labelled rows)."""
-    from monodock.estimation.bundle import load_bundle
-    from monodock.estimation.regression import RegressionEstimator
-    from monodock.learning.dataset import Dataset, LabelRun, label_frames
-    from monodock.learning.fusion import learn_fusion_from
 
     cal = setup.calibrations[key]
     ck = _camera_key(cal.camera)
@@ -389,10 +393,6 @@ class _Runtime:
     """The models a worker loads once: the detector, and per calibration level the methods on those files."""
 
     def __init__(self, setup: _TestSetup) -> None:
-        from monodock.estimation.bundle import load_bundle
-        from monodock.estimation.fused import FusedEstimator
-        from monodock.estimation.regression import RegressionEstimator
-        from monodock.perception.detect import MarkerDetector
 
         bundle = load_bundle(Path(setup.bundle_path))
         stale = bundle.fusion_tables()
@@ -426,8 +426,6 @@ def _run_methods(
 ) -> dict[str, NDArray[np.float64]]:
     """Every method on one image with one calibration level's files (``relearned``: also fused with the
     tables re-learned with those files)."""
-    from monodock.estimation.pnp import estimate_board, estimate_single_marker
-    from monodock.perception.refine import refine_detection
 
     cal, reg_method, fused, stale = rt.methods[key]
     ck = _camera_key(cal.camera)
@@ -450,8 +448,6 @@ def _run_methods(
 def _test_frame(setup: _TestSetup, task: tuple[int, DockPose]) -> _FrameResult:
     """Render one test pose at every image level and run every method on each (and on the default image with
     every calibration level's files)."""
-    from monodock.sim.nuisance import apply_nuisances
-    from monodock.sim.render import render_radiance
 
     index, pose = task
     sim = setup.sim
@@ -498,9 +494,6 @@ def _mapped(
     fn: Callable[[Any, T], R], state: Any, tasks: list[T], *, jobs: int, desc: str, unit: str, progress: bool
 ) -> list[R]:
     """``fn(state, task)`` over the tasks in ``jobs`` worker processes, in order, with a progress bar."""
-    from tqdm import tqdm
-
-    from monodock.core.parallel import map_with_state
 
     out: list[R] = []
     with tqdm(total=len(tasks), desc=desc, unit=unit, leave=False, disable=None if progress else True) as bar:
@@ -510,24 +503,415 @@ def _mapped(
     return out
 
 
-# --- the run ----------------------------------------------------------------------------------------------
+# --- the numbers ----------------------------------------------------------------------------------------
 
 
-@dataclass
+@dataclass(frozen=True)
+class LevelStats:
+    """One method at one level: valid rate, MAE (cm, cm, deg) over its valid frames, mean depth error (% of depth)."""
+
+    valid_rate: float
+    depth_mae_cm: float
+    lateral_mae_cm: float
+    yaw_mae_deg: float
+    depth_bias_pct: float
+
+
+STATS = tuple(f.name for f in dataclasses.fields(LevelStats))
+
+
+@dataclass(frozen=True)
+class MethodCurve:
+    """One method along one axis: each statistic of ``LevelStats`` per level, in the axis's order."""
+
+    valid_rate: tuple[float, ...]
+    depth_mae_cm: tuple[float, ...]
+    lateral_mae_cm: tuple[float, ...]
+    yaw_mae_deg: tuple[float, ...]
+    depth_bias_pct: tuple[float, ...]
+
+    @classmethod
+    def of(cls, levels: Sequence[LevelStats]) -> MethodCurve:
+        return cls(*(tuple(getattr(s, k) for s in levels) for k in STATS))
+
+    def stat(self, name: str) -> tuple[float, ...]:
+        """One statistic by name (one of STATS)."""
+        values: tuple[float, ...] = getattr(self, name)
+        return values
+
+    def to_dict(self) -> dict[str, list[float]]:
+        return {k: list(self.stat(k)) for k in STATS}
+
+
+@dataclass(frozen=True)
+class AxisResult:
+    """One axis swept: per method its curve over the axis's levels, on ``frames`` test frames per level."""
+
+    axis: Axis
+    frames: int
+    methods: Mapping[str, MethodCurve]
+
+    def to_dict(self) -> dict[str, Any]:
+        a = self.axis
+        return {
+            "title": a.title,
+            "unit": a.unit,
+            "kind": a.kind,
+            "default": a.default,
+            "levels": list(a.levels),
+            "frames": self.frames,
+            "methods": {m: c.to_dict() for m, c in self.methods.items()},
+        }
+
+
+@dataclass(frozen=True)
+class OcclusionStats:
+    """Per occlusion level: the share of the marker the simulator finds hidden and how often ArUco found it.
+
+    Attributes:
+        occluded_marker: per marker ("m1", "m2", "m3"), the frames in which it was the occluded one.
+    """
+
+    levels: tuple[float, ...]
+    hidden_measured_pct: tuple[float, ...]
+    occluded_marker_detected_pct: tuple[float, ...]
+    occluded_marker: Mapping[str, int]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "levels": list(self.levels),
+            "hidden_measured_pct": list(self.hidden_measured_pct),
+            "occluded_marker_detected_pct": list(self.occluded_marker_detected_pct),
+            "occluded_marker": dict(self.occluded_marker),
+        }
+
+
+@dataclass(frozen=True)
+class WorstLevel:
+    """A method's worst level on an axis: the largest MAE of each component and the lowest valid rate."""
+
+    depth_mae_cm: float
+    lateral_mae_cm: float
+    yaw_mae_deg: float
+    valid_rate: float
+
+    def to_dict(self) -> dict[str, float]:
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class HeadlineRow:
+    """One axis of the headline: per method its worst level; whether fused and board stay within GOOD_ENOUGH."""
+
+    axis: str
+    worst: Mapping[str, WorstLevel]
+    fused_within: bool
+    board_within: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "axis": self.axis,
+            **{m: w.to_dict() for m, w in self.worst.items()},
+            "fused_within": self.fused_within,
+            "board_within": self.board_within,
+        }
+
+
+@dataclass(frozen=True)
+class RobustnessSettings:
+    """What a robustness run was, as the report and summary.json show it (text for people)."""
+
+    bundle: str
+    test_frames: int
+    seed: int
+    pose_distribution: str
+    test_frame_rendering: str
+    calibration_set: str
+    processes: int
+    runtime: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "bundle": self.bundle,
+            "test frames": self.test_frames,
+            "seed": self.seed,
+            "pose distribution": self.pose_distribution,
+            "test frame rendering": self.test_frame_rendering,
+            "calibration set": self.calibration_set,
+            "processes": self.processes,
+            "runtime": self.runtime,
+        }
+
+
+def _worst(values: Iterable[float]) -> float:
+    """The largest value; infinite when a level has no estimate at all (NaN)."""
+    vals = list(values)
+    return max((math.inf if not math.isfinite(v) else v) for v in vals) if vals else math.nan
+
+
+def _within(curve: MethodCurve) -> bool:
+    return all(
+        _worst(curve.stat(k)) <= bound
+        for k, bound in zip(("depth_mae_cm", "lateral_mae_cm", "yaw_mae_deg"), GOOD_ENOUGH, strict=True)
+    )
+
+
+def headline(axes: Mapping[str, AxisResult]) -> tuple[HeadlineRow, ...]:
+    """Per axis the worst level's MAE per method, and whether fused stays within GOOD_ENOUGH where board does not."""
+    rows = []
+    for key, a in axes.items():
+        worst = {
+            m: WorstLevel(_worst(c.depth_mae_cm), _worst(c.lateral_mae_cm), _worst(c.yaw_mae_deg), min(c.valid_rate))
+            for m in (*METHODS, STALE)
+            if (c := a.methods.get(m)) is not None
+        }
+        rows.append(HeadlineRow(key, worst, _within(a.methods["fused"]), _within(a.methods["board"])))
+    return tuple(rows)
+
+
+@dataclass(frozen=True)
+class RobustnessSummary:
+    """The robustness run's summary.json: settings, the headline, every axis's curves and the occlusion numbers."""
+
+    settings: RobustnessSettings
+    runtime_s: float
+    headline: tuple[HeadlineRow, ...]
+    axes: Mapping[str, AxisResult]
+    occlusion: OcclusionStats | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "settings": self.settings.to_dict(),
+            "runtime_s": self.runtime_s,
+            "good_enough": {"depth_cm": GOOD_ENOUGH[0], "lateral_cm": GOOD_ENOUGH[1], "yaw_deg": GOOD_ENOUGH[2]},
+            "headline": [r.to_dict() for r in self.headline],
+            "axes": {k: a.to_dict() for k, a in self.axes.items()},
+            "occlusion": self.occlusion.to_dict() if self.occlusion is not None else {},
+        }
+
+    def to_json(self) -> str:
+        """summary.json's text."""
+        return json.dumps(self.to_dict(), indent=2, default=str)
+
+
+@dataclass(frozen=True)
 class RobustnessResult:
-    """Per axis, level and method the statistics (``axis_stats``), and what the run was."""
+    """Per axis, level and method the statistics, every frame's estimates, and what the run was."""
 
     config: RobustnessConfig
-    axes: dict[str, dict[str, Any]]
-    settings: dict[str, Any]
-    occlusion: dict[str, Any]
+    axes: Mapping[str, AxisResult]
+    settings: RobustnessSettings
+    occlusion: OcclusionStats | None
     runtime_s: float
     truth: NDArray[np.float64]  # (frames, 3): the true DockPose x m, y m, yaw rad
-    estimates: dict[str, dict[str, NDArray[np.float64]]]  # condition -> method -> (frames, 3), NaN when none
+    estimates: Mapping[str, Mapping[str, NDArray[np.float64]]]  # condition -> method -> (frames, 3), NaN when none
+
+    def summary(self) -> RobustnessSummary:
+        """The summary.json contract."""
+        return RobustnessSummary(self.settings, self.runtime_s, headline(self.axes), self.axes, self.occlusion)
+
+    def save_frames(self, path: Path) -> None:
+        """Every frame's numbers as an .npz: "truth" and one array per "CONDITION|METHOD" (see the report)."""
+        arrays = {"truth": self.truth}
+        arrays.update({f"{c}|{m}": v for c, per in self.estimates.items() for m, v in per.items()})
+        np.savez_compressed(path, **arrays)  # type: ignore[arg-type]
+
+
+def _stats(errors: NDArray[np.float64], depth: NDArray[np.float64]) -> LevelStats:
+    """Valid rate, MAE (cm, cm, deg) over the valid frames and the mean depth error relative to depth (%)."""
+    ok = np.isfinite(errors[:, 0])
+    n = len(errors)
+    if not ok.any():
+        return LevelStats(0.0, math.nan, math.nan, math.nan, math.nan)
+    e = errors[ok]
+    return LevelStats(
+        valid_rate=float(ok.sum()) / n,
+        depth_mae_cm=float(np.mean(np.abs(e[:, 0]))) * 100,
+        lateral_mae_cm=float(np.mean(np.abs(e[:, 1]))) * 100,
+        yaw_mae_deg=math.degrees(float(np.mean(np.abs(e[:, 2])))),
+        depth_bias_pct=float(np.mean(e[:, 0] / depth[ok])) * 100,
+    )
+
+
+def _errors(poses: NDArray[np.float64], truth: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Signed errors (estimate - truth), yaw wrapped; NaN rows where a method gave no estimate."""
+    e: NDArray[np.float64] = poses - truth
+    e[:, 2] = np.remainder(e[:, 2] + np.pi, 2 * np.pi) - np.pi
+    return e
+
+
+def axis_stats(
+    axis: Axis,
+    estimates: Mapping[str, Mapping[str, NDArray[np.float64]]],
+    truth: NDArray[np.float64],
+    depth: NDArray[np.float64],
+) -> AxisResult:
+    """One axis: per method, per level (in order) the statistics of ``LevelStats``.
+
+    Args:
+        axis: the axis.
+        estimates: per condition and method the estimates (frames, 3), x m, y m, yaw rad; NaN when none.
+        truth: the true poses (frames, 3).
+        depth: each frame's true depth from the camera, m.
+    """
+    methods = METHODS + ((STALE,) if axis.kind is AxisKind.CALIBRATION else ())
+    curves = {}
+    for m in methods:
+        per_level = []
+        for level in axis.levels:
+            key = _level_key(axis, level)
+            cond = key if axis.kind is AxisKind.IMAGE else f"calibration:{key}"
+            per_level.append(_stats(_errors(estimates[cond][m], truth), depth))
+        curves[m] = MethodCurve.of(per_level)
+    return AxisResult(axis, len(truth), curves)
+
+
+def _occlusion_stats(config: RobustnessConfig, frames: Sequence[_FrameResult]) -> OcclusionStats | None:
+    """Per occlusion level: the share of the marker the simulator finds hidden, and how often ArUco found it."""
+    axis = next((a for a in config.axes if a.key == "occlusion"), None)
+    if axis is None:
+        return None
+    hidden, detected = [], []
+    for level in axis.levels:
+        key = _level_key(axis, level)
+        hidden.append(100.0 * float(np.mean([f.hidden.get(key, 0.0) for f in frames])))
+        detected.append(100.0 * float(np.mean([f.occluded_seen[key] for f in frames])))
+    return OcclusionStats(
+        levels=tuple(axis.levels),
+        hidden_measured_pct=tuple(hidden),
+        occluded_marker_detected_pct=tuple(detected),
+        occluded_marker={f"m{ROLE_NUMBER[r]}": sum(f.occluded_role == r for f in frames) for r in ROLES},
+    )
+
+
+# --- the run: one function per stage ---------------------------------------------------------------------
 
 
 def _sample_poses(sim: Simulator, dist: PoseDistribution, count: int, rng: np.random.Generator) -> list[DockPose]:
     return [sim.sample_pose(dist, rng=rng) for _ in range(count)]
+
+
+def _check(bundle_path: Path, config: RobustnessConfig) -> None:
+    """One clear line for a run that cannot be done: too few frames or processes, a bundle without fusion tables."""
+    if config.frames < 1:
+        raise InputError(f"--frames must be at least 1, got {config.frames}")
+    if config.calibration_frames < 50:
+        raise InputError(
+            f"--calibration-frames must be at least 50 to learn the fusion tables from, got {config.calibration_frames}"
+        )
+    if config.jobs < 1:
+        raise InputError(f"--jobs must be at least 1, got {config.jobs}")
+    load_bundle(bundle_path).fusion_tables()
+
+
+def _conditions(
+    config: RobustnessConfig, camera: CameraModel, layout: DockLayout, robot: RobotConfig
+) -> tuple[dict[str, ImageCondition], dict[str, Calibration]]:
+    """Every distinct image condition and calibration level of the run's axes (each default is one "default")."""
+    images: dict[str, ImageCondition] = {"default": ImageCondition("default", _DEFAULT)}
+    calibrations: dict[str, Calibration] = {}
+    for axis in config.axes:
+        for level in axis.levels:
+            if axis.kind is AxisKind.IMAGE:
+                cond = image_condition(axis, level)
+                images.setdefault(cond.key, cond)
+            else:
+                cal = calibration_for(axis, level, camera, layout, robot)
+                calibrations.setdefault(cal.key, cal)
+    calibrations.setdefault("default", Calibration("default", camera, layout, robot))
+    return images, calibrations
+
+
+def _learn_calibration_tables(
+    bundle_path: Path,
+    sim: Simulator,
+    calibrations: Mapping[str, Calibration],
+    config: RobustnessConfig,
+    *,
+    progress: bool,
+) -> tuple[dict[str, Any], dict[str, int]]:
+    """Render the calibration set, measure it through every camera file, learn each level's fusion tables.
+
+    Returns the tables and the labelled rows per calibration level.
+    """
+    cal_poses = _sample_poses(sim, config.poses, config.calibration_frames, np.random.default_rng([config.seed, 0xCA1]))
+    cameras = list({_camera_key(c.camera): c.camera for c in calibrations.values()}.values())
+    cal_frames = _mapped(
+        _calibration_frame,
+        _CalibrationSetup(sim, cameras, config.seed, min(CALIBRATION_SUPERSAMPLE, config.supersample)),
+        list(enumerate(cal_poses)),
+        jobs=config.jobs,
+        desc="calibration set",
+        unit="frame",
+        progress=progress,
+    )
+    learned = _mapped(
+        _learn_tables,
+        _TableSetup(str(bundle_path), cal_frames, dict(calibrations)),
+        list(calibrations),
+        jobs=min(config.jobs, len(calibrations)),
+        desc="fusion tables",
+        unit="level",
+        progress=progress,
+    )
+    return {k: t for k, t, _ in learned}, {k: n for k, _, n in learned}
+
+
+def _run_test_frames(
+    bundle_path: Path,
+    sim: Simulator,
+    images: Mapping[str, ImageCondition],
+    calibrations: Mapping[str, Calibration],
+    tables: Mapping[str, Any],
+    config: RobustnessConfig,
+    *,
+    progress: bool,
+) -> list[_FrameResult]:
+    """Render the test poses (the same for every level) at every image level and run every method on each."""
+    poses = _sample_poses(sim, config.poses, config.frames, np.random.default_rng([config.seed, 0x7E57]))
+    setup = _TestSetup(
+        str(bundle_path), sim, list(images.values()), dict(calibrations), dict(tables), config.seed, config.supersample
+    )
+    tasks = list(enumerate(poses))
+    return _mapped(_test_frame, setup, tasks, jobs=config.jobs, desc="test frames", unit="frame", progress=progress)
+
+
+def _settings(
+    bundle_path: Path, config: RobustnessConfig, labelled: Mapping[str, int], stage: Mapping[str, float], runtime: float
+) -> RobustnessSettings:
+    """The run's settings for people: sizes, the pose distribution, the calibration set, the time per stage."""
+    return RobustnessSettings(
+        bundle=str(bundle_path),
+        test_frames=config.frames,
+        seed=config.seed,
+        pose_distribution=(
+            f"depth {config.poses.depth[0] * 100:g}-{config.poses.depth[1] * 100:g} cm from the camera, lateral "
+            f"{config.poses.lateral[0] * 100:+g}..{config.poses.lateral[1] * 100:+g} cm, yaw "
+            f"{config.poses.yaw_deg[0]:+g}..{config.poses.yaw_deg[1]:+g}°, marker 2 in view"
+        ),
+        test_frame_rendering=f"Nuisances() defaults, supersample {config.supersample}",
+        calibration_set=(
+            f"{config.calibration_frames} frames, default nuisances, supersample "
+            f"{min(CALIBRATION_SUPERSAMPLE, config.supersample)}, other poses and seeds; LiDAR labels valid: "
+            f"{min(labelled.values())}-{max(labelled.values())} per level"
+        ),
+        processes=config.jobs,
+        runtime=f"{runtime:.0f} s ({', '.join(f'{k} {v:.0f} s' for k, v in stage.items())})",
+    )
+
+
+def _score(
+    config: RobustnessConfig, frames: Sequence[_FrameResult], settings: RobustnessSettings, runtime: float
+) -> RobustnessResult:
+    """Every axis's statistics against the truth, from the test frames' estimates."""
+    truth = np.array([f.truth for f in frames], dtype=np.float64).reshape(-1, 3)
+    depth = np.array([f.depth for f in frames], dtype=np.float64)
+    estimates = {
+        cond: {m: np.array([f.estimates[cond][m] for f in frames], dtype=np.float64).reshape(-1, 3) for m in methods}
+        for cond, methods in frames[0].estimates.items()
+    }
+    axes = {axis.key: axis_stats(axis, estimates, truth, depth) for axis in config.axes}
+    return RobustnessResult(config, axes, settings, _occlusion_stats(config, frames), runtime, truth, estimates)
 
 
 def run_robustness(
@@ -544,387 +928,17 @@ def run_robustness(
 
     ``camera``, ``layout`` and ``robot`` are the robot's true calibration (the simulator's and the right files).
     """
-
-    from monodock.estimation.bundle import load_bundle
-
-    if config.frames < 1:
-        raise InputError(f"--frames must be at least 1, got {config.frames}")
-    if config.calibration_frames < 50:
-        raise InputError(
-            f"--calibration-frames must be at least 50 to learn the fusion tables from, got {config.calibration_frames}"
-        )
-    if config.jobs < 1:
-        raise InputError(f"--jobs must be at least 1, got {config.jobs}")
-    load_bundle(bundle_path).fusion_tables()  # one clear line now for a bundle without fusion tables
+    _check(bundle_path, config)
     started = time.perf_counter()
     sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=_DEFAULT, seed=config.seed)
-    images: dict[str, ImageCondition] = {"default": ImageCondition("default", _DEFAULT)}
-    calibrations: dict[str, Calibration] = {}
-    for axis in config.axes:
-        for level in axis.levels:
-            if axis.kind == "image":
-                cond = image_condition(axis, level)
-                images.setdefault(cond.key, cond)
-            else:
-                cal = calibration_for(axis, level, camera, layout, robot)
-                calibrations.setdefault(cal.key, cal)
-    calibrations.setdefault("default", Calibration("default", camera, layout, robot))
-
-    # 1. The calibration set, measured through every camera file; 2. the tables each level's files learn.
-    cal_poses = _sample_poses(sim, config.poses, config.calibration_frames, np.random.default_rng([config.seed, 0xCA1]))
-    cameras = list({_camera_key(c.camera): c.camera for c in calibrations.values()}.values())
-    cal_supersample = min(CALIBRATION_SUPERSAMPLE, config.supersample)
+    images, calibrations = _conditions(config, camera, layout, robot)
     log(
         f"robustness: {config.frames} test poses x {len(images)} image levels, {len(calibrations)} calibration "
         f"levels; calibration set of {config.calibration_frames} frames ({config.jobs} processes)"
     )
-    cal_frames = _mapped(
-        _calibration_frame,
-        _CalibrationSetup(sim, cameras, config.seed, cal_supersample),
-        list(enumerate(cal_poses)),
-        jobs=config.jobs,
-        desc="calibration set",
-        unit="frame",
-        progress=progress,
-    )
-    learned = _mapped(
-        _learn_tables,
-        _TableSetup(str(bundle_path), cal_frames, calibrations),
-        list(calibrations),
-        jobs=min(config.jobs, len(calibrations)),
-        desc="fusion tables",
-        unit="level",
-        progress=progress,
-    )
+    tables, labelled = _learn_calibration_tables(bundle_path, sim, calibrations, config, progress=progress)
     stage = {"calibration set and tables": time.perf_counter() - started}
-    tables = {k: t for k, t, _ in learned}
-    labelled = {k: n for k, _, n in learned}
-
-    # 3. The test poses, the same for every level.
-    poses = _sample_poses(sim, config.poses, config.frames, np.random.default_rng([config.seed, 0x7E57]))
-    setup = _TestSetup(
-        str(bundle_path), sim, list(images.values()), calibrations, tables, config.seed, config.supersample
-    )
-    frames = _mapped(
-        _test_frame,
-        setup,
-        list(enumerate(poses)),
-        jobs=config.jobs,
-        desc="test frames",
-        unit="frame",
-        progress=progress,
-    )
+    frames = _run_test_frames(bundle_path, sim, images, calibrations, tables, config, progress=progress)
     runtime = time.perf_counter() - started
     stage["test frames"] = runtime - stage["calibration set and tables"]
-    truth = np.array([f.truth for f in frames], dtype=np.float64).reshape(-1, 3)
-    depth = np.array([f.depth for f in frames], dtype=np.float64)
-    estimates = {
-        cond: {m: np.array([f.estimates[cond][m] for f in frames], dtype=np.float64).reshape(-1, 3) for m in methods}
-        for cond, methods in frames[0].estimates.items()
-    }
-    axes = {axis.key: axis_stats(axis, estimates, truth, depth) for axis in config.axes}
-    occ = _occlusion_stats(config, frames)
-    settings = {
-        "bundle": str(bundle_path),
-        "test frames": config.frames,
-        "seed": config.seed,
-        "pose distribution": (
-            f"depth {config.poses.depth[0] * 100:g}-{config.poses.depth[1] * 100:g} cm from the camera, lateral "
-            f"{config.poses.lateral[0] * 100:+g}..{config.poses.lateral[1] * 100:+g} cm, yaw "
-            f"{config.poses.yaw_deg[0]:+g}..{config.poses.yaw_deg[1]:+g}°, marker 2 in view"
-        ),
-        "test frame rendering": f"Nuisances() defaults, supersample {config.supersample}",
-        "calibration set": (
-            f"{config.calibration_frames} frames, default nuisances, supersample {cal_supersample}, other "
-            f"poses and seeds; LiDAR labels valid: {min(labelled.values())}-{max(labelled.values())} per level"
-        ),
-        "processes": config.jobs,
-        "runtime": f"{runtime:.0f} s ({', '.join(f'{k} {v:.0f} s' for k, v in stage.items())})",
-    }
-    return RobustnessResult(config, axes, settings, occ, runtime, truth, estimates)
-
-
-def _stats(errors: NDArray[np.float64], depth: NDArray[np.float64]) -> dict[str, float]:
-    """Valid rate, MAE (cm, cm, deg) over the valid frames and the mean depth error relative to depth (%)."""
-    ok = np.isfinite(errors[:, 0])
-    n = len(errors)
-    if not ok.any():
-        return {
-            "valid_rate": 0.0,
-            "depth_mae_cm": math.nan,
-            "lateral_mae_cm": math.nan,
-            "yaw_mae_deg": math.nan,
-            "depth_bias_pct": math.nan,
-        }
-    e = errors[ok]
-    return {
-        "valid_rate": float(ok.sum()) / n,
-        "depth_mae_cm": float(np.mean(np.abs(e[:, 0]))) * 100,
-        "lateral_mae_cm": float(np.mean(np.abs(e[:, 1]))) * 100,
-        "yaw_mae_deg": math.degrees(float(np.mean(np.abs(e[:, 2])))),
-        "depth_bias_pct": float(np.mean(e[:, 0] / depth[ok])) * 100,
-    }
-
-
-def _errors(poses: NDArray[np.float64], truth: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Signed errors (estimate - truth), yaw wrapped; NaN rows where a method gave no estimate."""
-    e: NDArray[np.float64] = poses - truth
-    e[:, 2] = np.remainder(e[:, 2] + np.pi, 2 * np.pi) - np.pi
-    return e
-
-
-def axis_stats(
-    axis: Axis,
-    estimates: Mapping[str, Mapping[str, NDArray[np.float64]]],
-    truth: NDArray[np.float64],
-    depth: NDArray[np.float64],
-) -> dict[str, Any]:
-    """One axis: per method, per level (in order) the statistics of ``_stats``, as lists.
-
-    Args:
-        axis: the axis.
-        estimates: per condition and method the estimates (frames, 3), x m, y m, yaw rad; NaN when none.
-        truth: the true poses (frames, 3).
-        depth: each frame's true depth from the camera, m.
-    """
-    methods = METHODS + ((STALE,) if axis.kind == "calibration" else ())
-    out: dict[str, Any] = {
-        "title": axis.title,
-        "unit": axis.unit,
-        "kind": axis.kind,
-        "default": axis.default,
-        "levels": list(axis.levels),
-        "frames": len(truth),
-        "methods": {},
-    }
-    for m in methods:
-        per_level = []
-        for level in axis.levels:
-            key = _level_key(axis, level)
-            cond = key if axis.kind == "image" else f"calibration:{key}"
-            per_level.append(_stats(_errors(estimates[cond][m], truth), depth))
-        out["methods"][m] = {k: [s[k] for s in per_level] for k in per_level[0]}
-    return out
-
-
-def _occlusion_stats(config: RobustnessConfig, frames: Sequence[_FrameResult]) -> dict[str, Any]:
-    """Per occlusion level: the share of the marker the simulator finds hidden, and how often ArUco found it."""
-    axis = next((a for a in config.axes if a.key == "occlusion"), None)
-    if axis is None:
-        return {}
-    out: dict[str, Any] = {"levels": [], "hidden_measured_pct": [], "occluded_marker_detected_pct": []}
-    for level in axis.levels:
-        key = _level_key(axis, level)
-        out["levels"].append(level)
-        out["hidden_measured_pct"].append(100.0 * float(np.mean([f.hidden.get(key, 0.0) for f in frames])))
-        out["occluded_marker_detected_pct"].append(100.0 * float(np.mean([f.occluded_seen[key] for f in frames])))
-    out["occluded_marker"] = {f"m{ROLE_NUMBER[r]}": sum(f.occluded_role == r for f in frames) for r in ROLES}
-    return out
-
-
-# --- the report -------------------------------------------------------------------------------------------
-
-
-def _fmt(v: float, digits: int = 2) -> str:
-    return "—" if not math.isfinite(v) else f"{v:.{digits}f}"
-
-
-def _worst(values: Iterable[float]) -> float:
-    """The largest value; infinite when a level has no estimate at all (NaN)."""
-    vals = list(values)
-    return max((math.inf if not math.isfinite(v) else v) for v in vals) if vals else math.nan
-
-
-def _within(stats: Mapping[str, list[float]]) -> bool:
-    return all(
-        _worst(stats[k]) <= bound
-        for k, bound in zip(("depth_mae_cm", "lateral_mae_cm", "yaw_mae_deg"), GOOD_ENOUGH, strict=True)
-    )
-
-
-_SHORT = {"regression": "regression", "pnp": "pnp", "board": "board", "fused": "fused", STALE: "fused, stale"}
-
-
-def headline(axes: Mapping[str, Mapping[str, Any]]) -> tuple[str, list[dict[str, Any]]]:
-    """Per axis the worst level's MAE per method, and whether fused stays within GOOD_ENOUGH where board does not.
-
-    Returns the markdown table (cells "depth / lateral / yaw", the lowest valid rate when below 100 %) and
-    the same numbers as rows for summary.json.
-    """
-    methods = (*METHODS, STALE)
-    head = "| axis | " + " | ".join(_SHORT[m] for m in methods) + " | fused within | board within |\n"
-    head += "|---|" + "---:|" * len(methods) + "---|---|\n"
-    lines, rows = [], []
-    for key, a in axes.items():
-        cells = []
-        row: dict[str, Any] = {"axis": key}
-        for m in methods:
-            s = a["methods"].get(m)
-            if s is None:
-                cells.append("")
-                continue
-            worst = [_worst(s[k]) for k in ("depth_mae_cm", "lateral_mae_cm", "yaw_mae_deg")]
-            valid = min(s["valid_rate"])
-            row[m] = {
-                "depth_mae_cm": worst[0],
-                "lateral_mae_cm": worst[1],
-                "yaw_mae_deg": worst[2],
-                "valid_rate": valid,
-            }
-            rate = f" ({math.floor(valid * 100)} %)" if valid < 1.0 else ""
-            cells.append(f"{_fmt(worst[0])} / {_fmt(worst[1])} / {_fmt(worst[2])}{rate}")
-        fused_ok, board_ok = _within(a["methods"]["fused"]), _within(a["methods"]["board"])
-        row["fused_within"], row["board_within"] = fused_ok, board_ok
-        verdict = ("yes, board not" if not board_ok else "yes") if fused_ok else "no"
-        name = key.replace("_", " ")
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {verdict} | {'yes' if board_ok else 'no'} |")
-        rows.append(row)
-    return head + "\n".join(lines) + "\n", rows
-
-
-def axis_table(a: Mapping[str, Any]) -> str:
-    """One axis as a markdown table: a row per level and method."""
-    head = (
-        f"| level ({a['unit']}) | method | valid % | depth MAE cm | lateral MAE cm | yaw MAE ° | depth bias % |\n"
-        "|---:|---|---:|---:|---:|---:|---:|\n"
-    )
-    lines = []
-    for i, level in enumerate(a["levels"]):
-        mark = " (default)" if level == a["default"] else ""
-        for m, s in a["methods"].items():
-            lines.append(
-                f"| {level:g}{mark} | {_LABELS[m]} | {s['valid_rate'][i] * 100:.0f} | {_fmt(s['depth_mae_cm'][i])} "
-                f"| {_fmt(s['lateral_mae_cm'][i])} | {_fmt(s['yaw_mae_deg'][i])} | {_fmt(s['depth_bias_pct'][i], 1)} |"
-            )
-    return head + "\n".join(lines) + "\n"
-
-
-def axis_plot(key: str, a: Mapping[str, Any], path: Path) -> None:
-    """Three panels (depth, lateral, yaw MAE against the level), one line per method, the default marked."""
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), layout="constrained")
-    levels = np.array(a["levels"], dtype=float)
-    for ax, stat, label in zip(
-        axes,
-        ("depth_mae_cm", "lateral_mae_cm", "yaw_mae_deg"),
-        ("depth (x) MAE (cm)", "lateral (y) MAE (cm)", "yaw MAE (°)"),
-        strict=True,
-    ):
-        values = []
-        for m, s in a["methods"].items():
-            v = np.array(s[stat], dtype=float)
-            values += [x for x in v if math.isfinite(x) and x > 0]
-            valid = min(s["valid_rate"]) * 100
-            ax.plot(
-                levels,
-                v,
-                "--" if m == STALE else "-",
-                marker="s" if m == STALE else "o",
-                color=_COLOURS[m],
-                label=f"{_LABELS[m]} (valid ≥ {valid:.0f} %)",
-                ms=5,
-                mfc="none" if m == STALE else None,
-            )
-        if values and max(values) / min(values) > 10:
-            ax.set_yscale("log")
-            ax.yaxis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-            ax.yaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _pos: f"{v:g}"))
-            ax.yaxis.set_minor_formatter(ticker.NullFormatter())
-        ax.axvline(a["default"], color="grey", ls=":", lw=1.2)
-        ax.annotate(
-            "default",
-            (a["default"], 1.0),
-            xycoords=("data", "axes fraction"),
-            xytext=(3, -12),
-            textcoords="offset points",
-            fontsize=8,
-            color="grey",
-        )
-        ax.set_xticks(levels)
-        ax.set_xlabel(f"{a['title']} ({a['unit']})")
-        ax.set_ylabel(label)
-        ax.grid(True, which="both", alpha=0.3)
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=8, frameon=False)
-    fig.suptitle(f"{a['title']}: error against the simulator's truth, {a['frames']} frames per level ({key})")
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def write_robustness_report(result: RobustnessResult, out: Path) -> dict[str, Any]:
-    """report.html, report.md, summary.json and one PNG per axis in ``out``; returns the summary."""
-    report = HtmlReport("monodock robustness: every method against one nuisance at a time")
-    report.heading("Settings")
-    report.settings(result.settings)
-    report.paragraph(
-        "Each axis is swept on its own, everything else at the defaults (Nuisances()). The same test poses are "
-        "used at every level, each frame with the same random draws (sensor noise, exposure jitter, motion-blur "
-        "direction, occluder), so the curves differ by the nuisance alone. Errors are against the simulator's "
-        "truth; MAE is over each method's valid frames (its valid rate is given beside it)."
-    )
-    report.bullets(
-        [
-            "regression: the papers' (the bundle's models); pnp: marker 2 alone (IPPE); board: every visible "
-            "marker; fused: planar PnP on refined corners combined with the regression.",
-            "Calibration axes render the default images and give every method the wrong file. 'fused' has its "
-            "tables re-learned with the same wrong files on a LiDAR-labelled calibration set, as monodock train "
-            "would have on that robot (also at level 0, from that small set); 'fused (stale tables)' keeps the "
-            "bundle's tables, learned with the right files (a calibration that changed after training).",
-            "The regression is not retrained per level: under a wrong focal length its inputs shift, which a "
-            "regression retrained with the same wrong file would absorb (and so would fused's regression half).",
-            "MAE is over each method's own valid frames: where a nuisance makes a method drop frames, its MAE "
-            "is over the frames it still answers, which need not be the easy ones nor the hard ones; read it with "
-            "the valid rate (in the tables and the legends). frames.npz has every frame's numbers.",
-            "Noise: the read noise is the level; the shot noise is scaled by the same factor (a higher gain).",
-            "Occlusion: a board 5 cm in front of the charger face, parallel to it, hides the given share of one "
-            "marker's area from one side (the marker and side drawn per frame, the same at every level). ArUco "
-            "may then miss that marker: the valid rates count it.",
-        ]
-    )
-    report.heading("Headline: the worst level of each axis")
-    table, rows = headline(result.axes)
-    report.paragraph(
-        "Per axis and method: depth MAE (cm) / lateral MAE (cm) / yaw MAE (°), each at the level where it is "
-        "worst, and in brackets the lowest valid rate over the levels when below 100 %. 'fused within': "
-        "fused stays within 1 cm depth, 1 cm lateral and 1° yaw at every level (on calibration axes: fused "
-        "with re-learned tables); 'yes, board not': where board does not."
-    )
-    report.table(table)
-    summary: dict[str, Any] = {
-        "settings": result.settings,
-        "runtime_s": result.runtime_s,
-        "good_enough": {"depth_cm": GOOD_ENOUGH[0], "lateral_cm": GOOD_ENOUGH[1], "yaw_deg": GOOD_ENOUGH[2]},
-        "headline": rows,
-        "axes": result.axes,
-        "occlusion": result.occlusion,
-    }
-    for kind, title in (("image", "Image nuisances"), ("calibration", "Calibration errors")):
-        report.heading(title)
-        for key, a in result.axes.items():
-            if a["kind"] != kind:
-                continue
-            report.heading(f"{a['title']} ({a['unit']})", 3)
-            report.table(axis_table(a))
-            if key == "occlusion" and result.occlusion:
-                o = result.occlusion
-                report.paragraph(
-                    "Share of the marker hidden, as the simulator measures it (9x9 grid): "
-                    + ", ".join(
-                        f"{lv:g} %: {h:.0f} %" for lv, h in zip(o["levels"], o["hidden_measured_pct"], strict=True)
-                    )
-                    + ". ArUco found the occluded marker in "
-                    + ", ".join(f"{d:.0f} %" for d in o["occluded_marker_detected_pct"])
-                    + " of the frames. Occluded marker: "
-                    + ", ".join(f"{k} {v}" for k, v in o["occluded_marker"].items())
-                    + " frames."
-                )
-            axis_plot(key, a, out / f"{key}.png")
-            report.image(f"{key}.png", a["title"])
-    report.paragraph(
-        "frames.npz holds every frame's numbers: 'truth' (frames x 3: x m, y m, yaw rad) and one array per "
-        "condition and method ('CONDITION|METHOD', the same layout, NaN where the method gave no estimate)."
-    )
-    arrays = {"truth": result.truth}
-    arrays.update({f"{c}|{m}": v for c, per in result.estimates.items() for m, v in per.items()})
-    np.savez_compressed(out / "frames.npz", **arrays)  # type: ignore[arg-type]
-    report.write(out, summary)
-    return summary
+    return _score(config, frames, _settings(bundle_path, config, labelled, stage, runtime), runtime)

@@ -21,19 +21,17 @@ import numpy as np
 
 from monodock import __version__
 from monodock.core.atomic import atomic_directory
-from monodock.core.camera import CameraModel
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.fused import FUSION_SCHEMA
 from monodock.learning.dataset import Dataset, label_recording
 from monodock.learning.fusion import FUSION_LEARNING
-from monodock.learning.pipeline import TrainOptions
-from monodock.learning.pipeline import train_bundle as pipeline_train_bundle
+from monodock.learning.pipeline import TrainOptions, train_bundle
 from monodock.learning.train import TrainingResult
 from monodock.sim import Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
 from monodock.sim.recording import write_recording
 
-__all__ = ["SelfTrainConfig", "cache_root", "cached_bundle", "simulate_and_train", "train_bundle"]
+__all__ = ["SelfTrainConfig", "cache_root", "cached_bundle", "simulate_and_train"]
 
 
 @dataclass(frozen=True)
@@ -52,14 +50,6 @@ class SelfTrainConfig:
 
 def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
-
-
-def train_bundle(
-    ds: Dataset, out: Path, *, trials: int, seed: int, jobs: int, camera: CameraModel | None = None
-) -> TrainingResult:
-    """Train the default marker sets on a labelled dataset and save the bundle to ``out`` (``learning.pipeline``)."""
-    options = TrainOptions(trials=trials, seed=seed, jobs=jobs, camera=camera, source="simulated training drive")
-    return pipeline_train_bundle(ds, out, options).result
 
 
 def simulate_and_train(
@@ -82,7 +72,8 @@ def simulate_and_train(
     _log(f"{steps}labelling it with the LiDAR ...")
     ds, run, _ = label_recording(work / "train_drive", sim_train.layout)
     _log(f"{steps}training the seven regressors per segment ({config.trials} trials each) ...")
-    result = train_bundle(ds, out, trials=config.trials, seed=config.seed, jobs=jobs)
+    options = TrainOptions(trials=config.trials, seed=config.seed, jobs=jobs, source="simulated training drive")
+    result = train_bundle(ds, out, options).result
     return ds, run, result
 
 

@@ -1,158 +1,118 @@
-"""The demo report: the error table by depth band, an error plot and overlay pictures, as HTML."""
+"""A report page built section by section: report.html for a browser, report.md beside it, summary.json.
+
+The page is laid out for a 1280 px wide window: nothing is wider than the page (images shrink to fit, long
+tables wrap their headers), long tables go into collapsed ``<details>`` sections, and settings are shown as
+YAML, the way a person would write them in a file.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import html
-import itertools
-import json
 import math
-from collections.abc import Sequence
-from dataclasses import asdict
+import re
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-from numpy.typing import NDArray
+import yaml
 
-from monodock.evaluation.metrics import BandRow, band_table, markdown_table
+__all__ = ["HtmlReport", "plain", "settings_yaml"]
 
-__all__ = ["PAPER_FIGURES", "HtmlReport", "error_plot", "method_tables", "write_html_report"]
-
-# The Sensors 2025 paper's headline numbers (mean errors against LiDAR labels, Tables 4-5).
-PAPER_FIGURES = {
-    "regression (paper)": {"depth_cm": 1.18, "yaw_deg": 3.11},
-    "SolvePnP (paper)": {"depth_cm": 58.54, "yaw_deg": 6.64},
-}
-
-_COLOURS = {"pnp": "tab:orange", "board": "tab:blue", "regression": "tab:green", "fused": "tab:purple"}
-
-
-def method_tables(depth: NDArray[np.float64], errors: dict[str, NDArray[np.float64]]) -> list[BandRow]:
-    """Rows of every method, band by band, with the overall row last for each."""
-    rows: list[BandRow] = []
-    for method, e in errors.items():
-        rows += band_table(method, depth, e)
-    return rows
-
-
-def error_plot(depth: NDArray[np.float64], errors: dict[str, NDArray[np.float64]], path: Path) -> None:
-    """|depth|, |lateral| and |yaw| error against depth for each method: points and per-band medians."""
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), constrained_layout=True)
-    edges = np.arange(0.25, 2.51, 0.25)
-    centres = (edges[:-1] + edges[1:]) / 2
-    for ax, col, scale, label in zip(
-        axes,
-        (0, 1, 2),
-        (100.0, 100.0, math.degrees(1.0)),
-        ("|depth error| (cm)", "|lateral error| (cm)", "|yaw error| (°)"),
-        strict=True,
-    ):
-        for method, e in errors.items():
-            v = np.abs(e[:, col]) * scale
-            ok = np.isfinite(v)
-            colour = _COLOURS.get(method)
-            ax.scatter(depth[ok] * 100, np.maximum(v[ok], 1e-3), s=6, alpha=0.35, color=colour)
-            med = [
-                np.median(v[ok & (depth >= lo) & (depth < hi)]) if np.any(ok & (depth >= lo) & (depth < hi)) else np.nan
-                for lo, hi in itertools.pairwise(edges)
-            ]
-            ax.plot(centres * 100, med, "-o", color=colour, label=f"{method} (band median)")
-        ax.set_yscale("log")
-        ax.set_xlabel("depth from the camera (cm)")
-        ax.set_ylabel(label)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.suptitle("SolvePnP baselines against the simulator's ground truth")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+_STYLE = """body{font-family:system-ui,sans-serif;max-width:1240px;margin:1em auto;padding:0 12px;line-height:1.4;
+color:#1b1b1b}
+h1{font-size:1.5em;margin:0.2em 0 0.1em}h2{font-size:1.25em;margin-top:1.4em}h3{font-size:1.05em}
+p.lead{margin:0 0 0.6em;color:#444}p.note{font-size:85%;color:#444;margin:0.2em 0 0.8em}
+table{border-collapse:collapse;margin:0.6em 0;font-size:0.9em}
+td,th{border:1px solid #ccc;padding:2px 5px;text-align:right}th{background:#f4f4f4;font-weight:600}
+td:first-child,th:first-child{text-align:left}tr.all{font-weight:bold;background:#eef}tr.paper{color:#555;
+background:#fafafa}
+td{white-space:nowrap}table.wrap td{white-space:normal}
+img{max-width:100%;height:auto}
+figure{display:inline-block;margin:0.4em 0.4em 0.4em 0;max-width:100%;vertical-align:top}
+figcaption{font-size:85%;color:#444}
+pre.settings{background:#f6f8fa;border:1px solid #ddd;padding:8px 12px;font-size:0.85em;white-space:pre-wrap}
+pre.long{column-count:2;column-gap:2em}
+details{margin:0.5em 0;border:1px solid #ddd;border-radius:4px;padding:0.3em 0.8em}
+details>summary{cursor:pointer;font-weight:600}
+.first-screen{display:grid;grid-template-columns:minmax(0,560px) minmax(0,1fr);gap:12px 20px;align-items:start}
+.first-screen figure{margin:0}.first-screen table{margin-top:0}
+.first-screen h2{margin:0 0 0.3em;font-size:1.1em}
+.row{display:flex;flex-wrap:wrap;gap:8px}"""
 
 
-def _table_html(markdown: str) -> str:
+def plain(value: object) -> object:
+    """``value`` as YAML's plain types: dataclasses and mappings as dicts, tuples as lists, enums by value,
+    numpy scalars as Python numbers, paths as text; floats rounded to 6 significant digits for people."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, Mapping):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [plain(v) for v in value]
+    if isinstance(value, enum.Enum):
+        return plain(value.value)
+    if isinstance(value, np.generic):
+        return plain(value.item())
+    if isinstance(value, bool | int | str) or value is None:
+        return value
+    if isinstance(value, float):
+        return float(f"{value:.6g}") if math.isfinite(value) else value
+    return str(value)
+
+
+class _SettingsDumper(yaml.SafeDumper):
+    """YAML with lists on one line ("range_m: [0.12, 12.0]" reads better than a column) and mappings in blocks."""
+
+
+def _flow_list(dumper: yaml.SafeDumper, data: list[object]) -> yaml.Node:
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=True)
+
+
+_SettingsDumper.add_representer(list, _flow_list)
+
+
+def settings_yaml(values: Mapping[str, object]) -> str:
+    """Settings as a YAML document, keys in the given order."""
+    return yaml.dump(
+        plain(values), Dumper=_SettingsDumper, sort_keys=False, allow_unicode=True, default_flow_style=False, width=100
+    )
+
+
+def _cells(line: str) -> list[str]:
+    """The cells of one markdown table line; an escaped pipe (``\\|``) is part of a cell."""
+    inner = line.strip()
+    inner = inner.removeprefix("|")
+    inner = inner[:-1] if inner.endswith("|") and not inner.endswith("\\|") else inner
+    return [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", inner)]
+
+
+def table_html(markdown: str, *, css_class: str = "") -> str:
+    """A GitHub-flavoured markdown table as HTML; rows whose second cell is "all" are emphasised."""
     lines = [ln for ln in markdown.strip().splitlines() if ln.strip()]
-    head = [c.strip() for c in lines[0].strip("|").split("|")]
-    out = ["<table>", "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
+    head = _cells(lines[0])
+    cls = f' class="{css_class}"' if css_class else ""
+    out = [f"<table{cls}>", "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
     for ln in lines[2:]:
-        cells = [c.strip() for c in ln.strip("|").split("|")]
-        cls = ' class="all"' if len(cells) > 1 and cells[1] == "all" else ""
-        out.append(f"<tr{cls}>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+        cells = _cells(ln)
+        row = ' class="all"' if len(cells) > 1 and cells[1] == "all" else ""
+        out.append(f"<tr{row}>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
     out.append("</table>")
     return "\n".join(out)
-
-
-def write_html_report(
-    out: Path,
-    *,
-    title: str,
-    settings: dict[str, object],
-    rows: Sequence[BandRow],
-    plot: str,
-    overlays: Sequence[tuple[str, str]],
-    notes: Sequence[str] = (),
-) -> None:
-    """report.html, report.md and summary.json in ``out`` (plot and overlays are file names in ``out``)."""
-    md = markdown_table(rows)
-    paper = "".join(
-        f"<tr><td>{html.escape(k)}</td><td>{v['depth_cm']:.2f}</td><td>{v['yaw_deg']:.2f}</td></tr>"
-        for k, v in PAPER_FIGURES.items()
-    )
-    overall = [r for r in rows if r.band == "all"]
-    ours = "".join(
-        f"<tr><td>{html.escape(r.method)} (this run, vs truth)</td><td>{r.depth_mae_cm:.2f}</td>"
-        f"<td>{r.yaw_mae_deg:.2f}</td></tr>"
-        for r in overall
-    )
-    settings_html = "".join(
-        f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in settings.items()
-    )
-    pics = "".join(
-        f'<figure><img src="{html.escape(f)}" width="640"><figcaption>{html.escape(c)}</figcaption></figure>'
-        for f, c in overlays
-    )
-    notes_html = "".join(f"<li>{html.escape(n)}</li>" for n in notes)
-    page = f"""<!doctype html>
-<html><head><meta charset="utf-8"><title>{html.escape(title)}</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}}
-table{{border-collapse:collapse;margin:1em 0}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}
-td:first-child,th:first-child{{text-align:left}}tr.all{{font-weight:bold;background:#eef}}
-td{{white-space:nowrap}}table.settings td{{text-align:left;white-space:normal}}
-figure{{display:inline-block;margin:0.5em}}</style></head><body>
-<h1>{html.escape(title)}</h1>
-<h2>Settings</h2><table class="settings">{settings_html}</table>
-<h2>Headline: mean absolute error, all depths</h2>
-<table><tr><th>method</th><th>depth MAE cm</th><th>yaw MAE °</th></tr>{ours}{paper}</table>
-<p>The papers' figures are against LiDAR labels on their robot, with a SolvePnP whose depths are ~1.5x the
-LiDAR's (a calibration error); ours are against the simulator's exact truth, with every method given the
-same, correct calibration.</p>
-<h2>Error by depth band</h2>{_table_html(md)}
-<h2>Errors against depth</h2><img src="{html.escape(plot)}" width="1050">
-<h2>Overlays</h2><p>Green: detected corners (filled dot: corner 0) and ids; red crosses: true corners;
-arrows: the board estimate's dock axes (x red into the charger, y green left, z blue up).</p>{pics}
-<h2>Notes</h2><ul>{notes_html}</ul>
-</body></html>
-"""
-    (out / "report.html").write_text(page, encoding="utf-8")
-    (out / "report.md").write_text(f"# {title}\n\n{md}\n", encoding="utf-8")
-    summary = {"settings": settings, "rows": [asdict(r) for r in rows], "paper": PAPER_FIGURES}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str), encoding="utf-8")
-
-
-_STYLE = """body{font-family:sans-serif;max-width:1150px;margin:2em auto;line-height:1.4}
-table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
-td:first-child,th:first-child{text-align:left}tr.all{font-weight:bold;background:#eef}
-td{white-space:nowrap}table.settings td{text-align:left;white-space:normal}
-figure{display:inline-block;margin:0.5em}figcaption{font-size:90%;color:#444}"""
 
 
 class HtmlReport:
     """A report built section by section, written as report.html, report.md and summary.json."""
 
-    def __init__(self, title: str) -> None:
+    def __init__(self, title: str, *, lead: str = "") -> None:
         self.title = title
         self._html: list[str] = []
         self._md: list[str] = [f"# {title}\n"]
+        if lead:
+            self._html.append(f'<p class="lead">{html.escape(lead)}</p>')
+            self._md.append(lead + "\n")
 
     def heading(self, text: str, level: int = 2) -> None:
         self._html.append(f"<h{level}>{html.escape(text)}</h{level}>")
@@ -162,34 +122,64 @@ class HtmlReport:
         self._html.append(f"<p>{html.escape(text)}</p>")
         self._md.append(text + "\n")
 
-    def settings(self, values: dict[str, object]) -> None:
-        rows = "".join(
-            f"<tr><td>{html.escape(str(k))}</td><td>{html.escape(str(v))}</td></tr>" for k, v in values.items()
-        )
-        self._html.append(f'<table class="settings">{rows}</table>')
-        self._md.append("".join(f"- {k}: {v}\n" for k, v in values.items()))
+    def note(self, text: str) -> None:
+        """A short paragraph in small print, e.g. under a table."""
+        self._html.append(f'<p class="note">{html.escape(text)}</p>')
+        self._md.append(text + "\n")
 
-    def table(self, markdown: str) -> None:
-        self._html.append(_table_html(markdown))
+    def settings(self, values: Mapping[str, object]) -> None:
+        """Settings as a YAML block (nested mappings allowed)."""
+        text = settings_yaml(values)
+        # A long block reads in two columns rather than down a whole screen.
+        css = "settings long" if text.count("\n") > 24 else "settings"
+        self._html.append(f'<pre class="{css}">{html.escape(text)}</pre>')
+        self._md.append(f"```yaml\n{text}```\n")
+
+    def table(self, markdown: str, *, wrap: bool = False) -> None:
+        """A markdown table; ``wrap`` lets long cells break over lines."""
+        self._html.append(table_html(markdown, css_class="wrap" if wrap else ""))
         self._md.append(markdown.strip() + "\n")
 
     def image(self, file: str, caption: str = "", width: int = 1050) -> None:
+        """An image file (relative to the report), at most ``width`` px wide and never wider than the page."""
         cap = f"<figcaption>{html.escape(caption)}</figcaption>" if caption else ""
-        self._html.append(f'<figure><img src="{html.escape(file)}" width="{width}">{cap}</figure>')
+        self._html.append(
+            f'<figure style="max-width:{width}px"><img src="{html.escape(file)}" width="{width}" alt="'
+            f'{html.escape(caption or file)}">{cap}</figure>'
+        )
         self._md.append(f"![{caption}]({file})\n")
 
     def bullets(self, items: Sequence[str]) -> None:
         self._html.append("<ul>" + "".join(f"<li>{html.escape(i)}</li>" for i in items) + "</ul>")
         self._md.append("".join(f"- {i}\n" for i in items))
 
-    def write(self, out: Path, summary: dict[str, object]) -> None:
+    @contextmanager
+    def details(self, summary: str, *, open_: bool = False) -> Iterator[None]:
+        """A collapsed section (``<details>``) around what is added inside the ``with``; a heading in report.md."""
+        self._html.append(f"<details{' open' if open_ else ''}><summary>{html.escape(summary)}</summary>")
+        self._md.append(f"**{summary}**\n")
+        try:
+            yield
+        finally:
+            self._html.append("</details>")
+
+    @contextmanager
+    def block(self, css_class: str) -> Iterator[None]:
+        """A ``<div>`` of the given class around what is added inside the ``with`` (layout only; not in the md)."""
+        self._html.append(f'<div class="{html.escape(css_class)}">')
+        try:
+            yield
+        finally:
+            self._html.append("</div>")
+
+    def write(self, out: Path, summary_json: str) -> None:
         """Write the three files into ``out`` (images are file names relative to it)."""
         page = (
-            f'<!doctype html>\n<html><head><meta charset="utf-8"><title>{html.escape(self.title)}</title>'
-            f"<style>{_STYLE}</style></head><body>\n<h1>{html.escape(self.title)}</h1>\n"
-            + "\n".join(self._html)
-            + "\n</body></html>\n"
+            f'<!doctype html>\n<html><head><meta charset="utf-8">'
+            f'<meta name="viewport" content="width=device-width, initial-scale=1">'
+            f"<title>{html.escape(self.title)}</title><style>{_STYLE}</style></head><body>\n"
+            f"<h1>{html.escape(self.title)}</h1>\n" + "\n".join(self._html) + "\n</body></html>\n"
         )
         (out / "report.html").write_text(page, encoding="utf-8")
         (out / "report.md").write_text("\n".join(self._md), encoding="utf-8")
-        (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str), encoding="utf-8")
+        (out / "summary.json").write_text(summary_json, encoding="utf-8")

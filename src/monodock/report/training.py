@@ -15,10 +15,6 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
@@ -33,6 +29,7 @@ from monodock.learning.train import (
     describe_search_space,
     segment_quota,
 )
+from monodock.report.plotting import plt
 
 __all__ = [
     "MODEL_LABELS",
