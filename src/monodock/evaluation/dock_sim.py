@@ -143,7 +143,7 @@ class TrialResult:
     start: Pose2D
     classified_case: int | None
     state: str
-    reason: str
+    reason: str  # the mission's own words, with its numbers
     success: bool
     retries: int
     time_s: float
@@ -158,6 +158,7 @@ class TrialResult:
     path: tuple[tuple[float, float, float], ...]  # true (x, y, heading) in the dock frame, every 0.2 s
     log: tuple[tuple[float, str], ...]
     filter_frames: tuple[FilterFrame, ...] = ()
+    failure: str = ""  # the mission's FailureReason ("" when it docked by its own estimate)
 
 
 def case_distances(case: int, config: DockSimConfig) -> tuple[float, float]:
@@ -305,6 +306,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         classified_case=result.case,
         state=result.state.value,
         reason=result.reason,
+        failure=result.failure.value if result.failure is not None else "",
         success=success,
         retries=result.retries,
         time_s=result.duration,
@@ -409,8 +411,9 @@ class RunGroup:
     """A group of runs (one method overall, or one case of it): successes, final errors, time, retries.
 
     Attributes:
-        failures: per failure, runs; a failed mission by its reason up to the first colon, a mission that
-            docked outside the tolerances as "docked outside the tolerances".
+        failures: per failure, runs; a failed mission by its FailureReason ("markers-lost", "timeout", ...), a
+            mission that docked by its own estimate but outside the tolerances by the truth as
+            "docked outside the tolerances".
         case_agreement: the share of runs whose mission classified the start as the case it was drawn in.
     """
 
@@ -432,7 +435,7 @@ class RunGroup:
         runs = len(results)
         successes = sum(r.success for r in results)
         failures = Counter(
-            (r.reason.split(":")[0] if r.state == "failed" else "docked outside the tolerances")
+            (r.failure if r.state == "failed" else "docked outside the tolerances")
             for r in results
             if not r.success
         )
@@ -860,6 +863,7 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
             "render_s",
             "perceive_s",
             "reason",
+            "failure",
         ]
     )
     for r in results:
@@ -885,6 +889,7 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
                 f"{r.render_s:.2f}",
                 f"{r.perceive_s:.2f}",
                 r.reason,
+                r.failure,
             ]
         )
     return buf.getvalue()
