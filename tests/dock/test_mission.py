@@ -492,7 +492,6 @@ def test_ros2_adapter_maps_topics_to_the_interface(monkeypatch: pytest.MonkeyPat
 
     ROS 2 is not installed here; these stand-ins have just the attributes the adapter touches.
     """
-    import argparse
     import array
     import importlib
     import sys
@@ -535,11 +534,12 @@ def test_ros2_adapter_maps_topics_to_the_interface(monkeypatch: pytest.MonkeyPat
     module("sensor_msgs.msg", Image=object, CompressedImage=object)
     module("std_msgs.msg", Bool=object)
     # Imported afresh against the stand-ins, and forgotten afterwards.
-    monkeypatch.setitem(sys.modules, "monodock.ros.dock_node", None)
-    monkeypatch.delitem(sys.modules, "monodock.ros.dock_node")
+    for name in ("monodock.ros._rclpy", "monodock.ros.dock_node"):
+        monkeypatch.setitem(sys.modules, name, None)
+        monkeypatch.delitem(sys.modules, name)
     ros2 = importlib.import_module("monodock.ros.dock_node")
-    args = argparse.Namespace(
-        compressed=False, image_topic="/cam/image", odom_topic="/odom", cmd_vel_topic="/cmd_vel", contact_topic="/dock"
+    args = ros2.DockOptions(
+        image_topic="/cam/image", odom_topic="/odom", cmd_vel_topic="/cmd_vel", contact_topic="/dock"
     )
     robot = ros2.Ros2Robot(Node(), args)
     yaw = math.radians(30.0)

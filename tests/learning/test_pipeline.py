@@ -289,8 +289,9 @@ def test_a_segment_without_data_gives_no_angle_and_says_why(work: Path, tmp_path
 
     from monodock.core.pose import DockPose
     from monodock.estimation.bundle import Bundle
-    from monodock.estimation.regression import RegressionEstimator, bundle_metadata, training_sets
+    from monodock.estimation.regression import RegressionEstimator
     from monodock.learning.export import save_bundle
+    from monodock.learning.pipeline import bundle_metadata, training_sets
     from monodock.learning.train import TrainConfig, train
     from monodock.perception.detect import MarkerDetector
 

@@ -58,6 +58,8 @@ def test_ros_node_without_rclpy_says_so() -> None:
     try:
         import rclpy  # noqa: F401
     except ImportError:
+        for name in ("monodock.ros._rclpy", "monodock.ros.detector"):
+            sys.modules.pop(name, None)
         with pytest.raises(ImportError, match="rclpy") as info:
             import monodock.ros.detector  # noqa: F401
         assert info.value.name == "rclpy"
@@ -119,9 +121,11 @@ def test_ros_node_publishes_the_covariance_beside_the_pose(
         PoseWithCovarianceStamped=Stamped,
     )
     module("sensor_msgs.msg", CameraInfo=object, CompressedImage=object, Image=object)
-    monkeypatch.delitem(sys.modules, "monodock.ros.detector", raising=False)
+    for name in ("monodock.ros._rclpy", "monodock.ros.detector"):  # imported afresh against the stand-ins
+        monkeypatch.delitem(sys.modules, name, raising=False)
     ros_node = importlib.import_module("monodock.ros.detector")
-    monkeypatch.delitem(sys.modules, "monodock.ros.detector")  # forgotten afterwards: it was built on stand-ins
+    for name in ("monodock.ros._rclpy", "monodock.ros.detector"):  # forgotten afterwards: built on stand-ins
+        monkeypatch.delitem(sys.modules, name)
     options = ros_node.DetectorOptions(
         layout=str(folder / "layout.yaml"), robot=str(folder / "robot.yaml"), image_topic="/cam"
     )
