@@ -916,6 +916,11 @@ def _ippe_starts(roles: tuple[str, ...], img: NDArray[np.float64], model: Planar
             continue
         if n:
             add(rvecs, tvecs, transforms.invert(layout.dock_T_marker(role)))
+    if len(roles) == 1:
+        # Both sides of a lone marker's yaw ambiguity, whatever IPPE returned: its second solution is not always
+        # the mirror of its first (OpenCV 5.0.0's IPPE_SQUARE can return a rotation 4.7 px off for a marker
+        # 2.3 m away on an x86_64 build), and a missing side is a missing minimum.
+        starts += [_mirrored(th, roles[0], model) for th in starts]
     if len(roles) > 1:
         obj = model.parts(roles).obj
         try:
@@ -927,6 +932,17 @@ def _ippe_starts(roles: tuple[str, ...], img: NDArray[np.float64], model: Planar
         if n:
             add(rvecs, tvecs, _EYE4)
     return starts
+
+
+def _mirrored(th: NDArray[np.float64], role: str, model: PlanarModel) -> NDArray[np.float64]:
+    """The planar pose on the other side of a lone marker's yaw ambiguity: the marker's normal reflected about the
+    camera's line of sight to its centre (yaw -> 2 bearing - yaw), the marker's centre where it was."""
+    x, y, yaw = (float(v) for v in th)
+    offset = model.layout.marker(role).y  # the marker's centre in the dock frame is (0, offset, z)
+    mx, my = x - math.sin(yaw) * offset, y + math.cos(yaw) * offset
+    bearing = math.atan2(my - float(model.base_T_optical[1, 3]), mx - float(model.base_T_optical[0, 3]))
+    turned = wrap_angle(2.0 * bearing - yaw)
+    return np.array([mx + math.sin(turned) * offset, my - math.cos(turned) * offset, turned])
 
 
 def _same(a: NDArray[np.float64], b: NDArray[np.float64], tol: float) -> bool:
