@@ -830,10 +830,7 @@ def _learn_calibration_tables(
     *,
     progress: bool,
 ) -> tuple[dict[str, FusionTables], dict[str, int]]:
-    """Render the calibration set, measure it through every camera file, learn each level's fusion tables.
-
-    Returns the tables and the labelled rows per calibration level.
-    """
+    """The calibration set measured through every camera file, and per level its fusion tables and labelled rows."""
     cal_poses = _sample_poses(sim, config.poses, config.calibration_frames, np.random.default_rng([config.seed, 0xCA1]))
     cameras = list({_camera_key(c.camera): c.camera for c in calibrations.values()}.values())
     cal_frames = _mapped(
