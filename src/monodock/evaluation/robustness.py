@@ -39,14 +39,15 @@ from monodock.core.layout import ROLE_NUMBER, ROLES, DockLayout
 from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
+from monodock.core.scan import LaserScan
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
-from monodock.estimation.fused import FusedEstimator
+from monodock.estimation.fused import FusedEstimator, FusionTables
 from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
 from monodock.estimation.regression import RegressionEstimator
 from monodock.learning.dataset import Dataset, LabelRun, label_frames
 from monodock.learning.fusion import learn_fusion_from
-from monodock.perception.detect import MarkerDetector
+from monodock.perception.detect import Detection, MarkerDetector
 from monodock.perception.features import feature_vector, refined_vector
 from monodock.perception.refine import refine_detection
 from monodock.sim import Nuisances, PoseDistribution, Simulator
@@ -304,7 +305,7 @@ class _CalibrationFrame:
 
     raw: dict[tuple[float, ...], NDArray[np.float64]]
     refined: dict[tuple[float, ...], NDArray[np.float64]]
-    scan: Any
+    scan: LaserScan
     truth: DockPose
 
 
@@ -334,7 +335,7 @@ class _TableSetup:
     calibrations: dict[str, Calibration]
 
 
-def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, Any, int]:
+def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, FusionTables, int]:
     """The fusion tables ``monodock train`` would learn with one level's files: label the calibration set with
     the LiDAR through those files, run both methods on it, learn. Returns (key, tables, labelled rows)."""
 
@@ -371,7 +372,7 @@ class _TestSetup:
     sim: Simulator
     images: list[ImageCondition]
     calibrations: dict[str, Calibration]
-    tables: dict[str, Any]
+    tables: dict[str, FusionTables]
     seed: int
     supersample: int
 
@@ -397,7 +398,7 @@ class _Runtime:
         bundle = load_bundle(Path(setup.bundle_path))
         stale = bundle.fusion_tables()
         self.detector = MarkerDetector(setup.sim.layout)
-        self.methods: dict[str, tuple[Calibration, Any, Any, Any]] = {}
+        self.methods: dict[str, tuple[Calibration, RegressionEstimator, FusedEstimator | None, FusedEstimator]] = {}
         for key, cal in setup.calibrations.items():
             reg = RegressionEstimator(bundle, cal.camera, cal.robot)
             learned = setup.tables.get(key)
@@ -419,8 +420,8 @@ def _run_methods(
     rt: _Runtime,
     key: str,
     image: NDArray[np.uint8],
-    det: Any,
-    refined_by_camera: dict[tuple[float, ...], Any],
+    det: Detection,
+    refined_by_camera: dict[tuple[float, ...], Detection],
     *,
     relearned: bool = True,
 ) -> dict[str, NDArray[np.float64]]:
@@ -476,7 +477,7 @@ def _test_frame(setup: _TestSetup, task: tuple[int, DockPose]) -> _FrameResult:
         nuisances = cond.nuisances.updated(motion_blur_angle_deg=blur_angle)
         image = apply_nuisances(radiance[share], nuisances, np.random.default_rng([setup.seed, 0x7E57, index]))
         det = rt.detector.detect(image)
-        refined: dict[tuple[float, ...], Any] = {}
+        refined: dict[tuple[float, ...], Detection] = {}
         ests = _run_methods(rt, "default", image, det, refined, relearned=False)
         ests["fused"] = ests.pop(STALE)  # on the image axes the bundle's tables are the right ones
         result.estimates[cond.key] = ests
@@ -829,11 +830,8 @@ def _learn_calibration_tables(
     config: RobustnessConfig,
     *,
     progress: bool,
-) -> tuple[dict[str, Any], dict[str, int]]:
-    """Render the calibration set, measure it through every camera file, learn each level's fusion tables.
-
-    Returns the tables and the labelled rows per calibration level.
-    """
+) -> tuple[dict[str, FusionTables], dict[str, int]]:
+    """The calibration set measured through every camera file, and per level its fusion tables and labelled rows."""
     cal_poses = _sample_poses(sim, config.poses, config.calibration_frames, np.random.default_rng([config.seed, 0xCA1]))
     cameras = list({_camera_key(c.camera): c.camera for c in calibrations.values()}.values())
     cal_frames = _mapped(
@@ -862,7 +860,7 @@ def _run_test_frames(
     sim: Simulator,
     images: Mapping[str, ImageCondition],
     calibrations: Mapping[str, Calibration],
-    tables: Mapping[str, Any],
+    tables: Mapping[str, FusionTables],
     config: RobustnessConfig,
     *,
     progress: bool,

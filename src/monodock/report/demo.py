@@ -152,12 +152,13 @@ def lidar_settings(model: LidarModel) -> dict[str, object]:
 
 
 def _project(view: FrameView, pose: DockPose, points_in_dock: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Pixels of dock-frame points seen from the camera if the dock were at ``pose``; NaN behind the camera."""
+    """Pixels of dock-frame points seen from the camera if the dock were at ``pose``; NaN where it cannot see."""
     optical_T_dock = transforms.invert(view.robot.base_T_optical()) @ pose.matrix()
     p = transforms.apply(optical_T_dock, points_in_dock)
-    px = view.camera.project(p)
-    px[p[:, 2] < 0.05] = np.nan
-    return np.asarray(px, dtype=np.float64)
+    px = np.asarray(view.camera.project(p), dtype=np.float64)
+    # Outside the lens model's field the polynomial folds points back into the image: leave them out.
+    px[~view.camera.in_view_field(p)] = np.nan
+    return px
 
 
 def _draw_dock(ax: Axes, view: FrameView, pose: DockPose, colour: str, *, ls: str = "-", lw: float = 1.4) -> None:
@@ -165,7 +166,8 @@ def _draw_dock(ax: Axes, view: FrameView, pose: DockPose, colour: str, *, ls: st
     for role in ROLES:
         c = _project(view, pose, view.layout.corners_in_dock(role))
         ax.plot(*np.vstack([c, c[:1]]).T, ls=ls, color=colour, lw=lw)
-    axis = _project(view, pose, np.array([[0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]))
+    # Sampled along its length, so that it is drawn up to where it leaves the camera's field.
+    axis = _project(view, pose, np.column_stack([np.linspace(0.0, -1.0, 41), np.zeros(41), np.zeros(41)]))
     ax.plot(*axis.T, ls=ls, color=colour, lw=lw + 0.4)
     ax.plot(*axis[0], "o", color=colour, ms=4)
 
