@@ -19,6 +19,7 @@ The model ignores the angle between the edges (near 90° on upright markers) and
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,12 +48,12 @@ def corner_sides_px(corners: ArrayLike) -> NDArray[np.float64]:
     """Lengths in pixels of each corner's two edges, shape (N, 2), for markers' corners stacked (N, 2), ArUco
     order per marker (corner k's edges run to corners k−1 and k+1 of its marker)."""
     quads = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
-    out = np.empty((len(quads) * 4, 2))
-    for m, quad in enumerate(quads):
-        sides = side_lengths(quad)  # side k runs from corner k to corner k+1
-        for k in range(4):
-            out[4 * m + k] = (sides[k - 1], sides[k])
-    return out
+    return np.array([_edge_pairs(side_lengths(quad)) for quad in quads], dtype=np.float64).reshape(-1, 2)
+
+
+def _edge_pairs(sides: Sequence[float]) -> list[tuple[float, float]]:
+    """Each corner's (previous, next) edge of a marker's four sides (side k runs from corner k to corner k+1)."""
+    return [(sides[k - 1], sides[k]) for k in range(4)]
 
 
 @dataclass(frozen=True)
@@ -84,8 +85,17 @@ class CornerNoise:
 
     def sigma(self, corners: ArrayLike) -> NDArray[np.float64]:
         """Per-corner σ in pixels, shape (N,), of markers' corners stacked (N, 2), ArUco order per marker."""
-        sides = np.maximum(corner_sides_px(corners), 1e-9)
-        inverse = 0.5 * (1.0 / sides[:, 0] + 1.0 / sides[:, 1])
-        s = np.maximum(self.c * np.sqrt(inverse), self.floor_px)
-        small = inverse > 1.0 / self.small_side_px if self.small_side_px > 0 else np.zeros(len(s), dtype=bool)
-        return np.asarray(np.where(small, np.maximum(s, self.small_sigma_px), s), dtype=np.float64)
+        quads = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
+        return self.sigma_of_sides([side_lengths(quad) for quad in quads])
+
+    def sigma_of_sides(self, sides: Sequence[Sequence[float]]) -> NDArray[np.float64]:
+        """Per-corner σ in pixels, shape (4M,), from each marker's four sides (``side_lengths``), in plain floats:
+        the fused method calls it on every frame."""
+        small = 1.0 / self.small_side_px if self.small_side_px > 0 else math.inf
+        out = []
+        for marker in sides:
+            for before, after in _edge_pairs(marker):
+                inverse = 0.5 * (1.0 / max(before, 1e-9) + 1.0 / max(after, 1e-9))
+                s = max(self.c * math.sqrt(inverse), self.floor_px)
+                out.append(max(s, self.small_sigma_px) if inverse > small else s)
+        return np.array(out, dtype=np.float64)

@@ -362,6 +362,7 @@ class FusedEstimator:
         self.tables = tables
         self.regression = regression
         self.geometry_robot = tables.geometry_robot(robot)
+        self.corner_noise = CornerNoise.edge_fit(tables.corner_sigma)  # the bias-free corners' noise
 
     def estimate(
         self, detection: Detection, refined: Detection | None = None, reg: PoseEstimate | None = None
@@ -467,8 +468,9 @@ class FusedEstimator:
         corners = {r: source.observations[r].corners for r in roles}
         if not roles:
             return roles, corners, np.zeros(0), np.zeros(0)
-        sides = np.array([0.25 * sum(side_lengths(corners[r])) for r in roles])
-        sig = CornerNoise.edge_fit(self.tables.corner_sigma).sigma(np.vstack([corners[r] for r in roles]))
+        marker_sides = [side_lengths(corners[r]) for r in roles]
+        sides = np.array([0.25 * sum(s) for s in marker_sides])
+        sig = self.corner_noise.sigma_of_sides(marker_sides)
         unrefined = set(getattr(source, "unrefined", ())) if refined is not None else set(roles)
         for i, r in enumerate(roles):
             if r in unrefined:
