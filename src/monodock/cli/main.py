@@ -3,18 +3,46 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from typing import NoReturn
 
-from monodock.cli import calibrate, demo, dock_sim, estimate, evaluate, label, run, show, simulate, train
-from monodock.cli.options import Parser
 from monodock.errors import MonodockError
 
-__all__ = ["main", "parser"]
+__all__ = ["COMMANDS", "main", "parser"]
+
+# Each command's module (with its ``add_parser`` and ``run``), in the order of ``monodock --help``. A module is
+# loaded only when its command runs, so that a command starts without the libraries of the others (the report's
+# matplotlib, the trainer's scikit-learn).
+COMMANDS = {
+    "simulate": "monodock.cli.simulate",
+    "estimate": "monodock.cli.estimate",
+    "show": "monodock.cli.show",
+    "label": "monodock.cli.label",
+    "train": "monodock.cli.train",
+    "evaluate": "monodock.cli.evaluate",
+    "calibrate": "monodock.cli.calibrate",
+    "run": "monodock.cli.run",
+    "dock-sim": "monodock.cli.dock_sim",
+    "demo": "monodock.cli.demo",
+}
 
 
-def parser() -> argparse.ArgumentParser:
-    """The whole command line: one sub-parser per command, each built by its own module."""
+class Parser(argparse.ArgumentParser):
+    """argparse with the usage error on one line, like every other monodock error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def _command(argv: Sequence[str]) -> str | None:
+    """The command named on a command line: its first word that is not an option."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
+def parser(commands: Iterable[str] = COMMANDS) -> argparse.ArgumentParser:
+    """The command line with the sub-parsers of ``commands`` (default: all), each built by its own module."""
     p = Parser(
         prog="monodock",
         description="Dock a robot onto its charger with one camera and three ArUco markers.",
@@ -22,14 +50,16 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for command in (simulate, estimate, show, label, train, evaluate, calibrate, run, dock_sim, demo):
-        command.add_parser(sub)
+    for name in commands:
+        importlib.import_module(COMMANDS[name]).add_parser(sub)
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; user errors print one line on stderr and return a non-zero code."""
-    args = parser().parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    name = _command(words)
+    args = parser([name] if name in COMMANDS else COMMANDS).parse_args(words)
     try:
         return int(args.func(args))
     except MonodockError as exc:

@@ -5,20 +5,16 @@ from __future__ import annotations
 import argparse
 import math
 import os
-from typing import TYPE_CHECKING, Any, NoReturn
-
-import cv2
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.errors import InputError, MonodockError
+from monodock.errors import InputError
 from monodock.estimation.bundle import Bundle
-from monodock.estimation.estimator import Estimator, FrameEstimates
+from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
 from monodock.estimation.factory import bundle_calibration as _bundle_calibration
-from monodock.report.overlay import draw_overlay
 
 if TYPE_CHECKING:
     SubParsers = argparse._SubParsersAction[Any]
@@ -26,7 +22,6 @@ else:
     SubParsers = Any
 
 __all__ = [
-    "Parser",
     "SubParsers",
     "add_calibration",
     "add_estimator_options",
@@ -35,17 +30,9 @@ __all__ = [
     "bundle_calibration",
     "jobs",
     "load_calibration",
-    "overlay_png",
     "positive_seconds",
     "range_option",
 ]
-
-
-class Parser(argparse.ArgumentParser):
-    """argparse with the usage error on one line, like every other monodock error."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def add_calibration(p: argparse.ArgumentParser, *, required: bool) -> None:
@@ -142,27 +129,3 @@ def bundle_calibration(args: argparse.Namespace, bundle: Bundle) -> tuple[Camera
         layout=getattr(args, "layout", None),
         robot=getattr(args, "robot", None),
     )
-
-
-def overlay_png(
-    image: np.ndarray,
-    result: FrameEstimates,
-    estimator: Estimator,
-    truth_corners: dict[str, np.ndarray] | None = None,
-    method: str = "board",
-) -> bytes:
-    """The overlay of one estimated frame (its detection and ``method``'s estimate), PNG-encoded."""
-    assert result.detection is not None
-    pic = draw_overlay(
-        image,
-        result.detection,
-        estimator.layout,
-        estimator.camera,
-        estimator.robot,
-        result.estimates.get(method),
-        truth_corners,
-    )
-    ok, buf = cv2.imencode(".png", pic)
-    if not ok:
-        raise MonodockError("cannot encode the overlay PNG")
-    return bytes(buf.tobytes())

@@ -6,10 +6,11 @@ import argparse
 import math
 from pathlib import Path
 
-from monodock.cli.options import SubParsers, add_calibration, load_calibration, overlay_png
+from monodock.cli.options import SubParsers, add_calibration, load_calibration
 from monodock.core.atomic import check_writable, write_bytes_atomic
 from monodock.estimation.estimator import Estimator
 from monodock.io.frames import read_image
+from monodock.report.overlay import estimates_png
 
 __all__ = ["add_parser", "run"]
 
@@ -31,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     image = read_image(args.image)
     estimator = Estimator(camera, layout, robot, ("board",))
     result = estimator.estimate(Path(args.image).name, math.nan, image)
-    write_bytes_atomic(args.out, overlay_png(image, result, estimator), force=args.force)
+    write_bytes_atomic(args.out, estimates_png(image, result, estimator), force=args.force)
     e = result.estimates["board"]
     print(f"board: {e.pose if e.pose else e.reason} -> {args.out}")
     return 0

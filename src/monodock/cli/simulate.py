@@ -9,10 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from monodock.cli.options import SubParsers, add_calibration, jobs, load_calibration, overlay_png, range_option
+from monodock.cli.options import SubParsers, add_calibration, jobs, load_calibration, range_option
 from monodock.core.atomic import atomic_directory
 from monodock.errors import MonodockError
 from monodock.estimation.estimator import Estimator
+from monodock.report.overlay import estimates_png
 from monodock.sim import Nuisances, PoseDistribution, RoomGeometry, SimFrame, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
 from monodock.sim.export import FrameRecord, write_frame_folder
@@ -138,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
     def preview(rec: FrameRecord) -> None:
         if rec.index < args.preview:
             result = estimator.estimate(rec.name, rec.stamp, rec.frame.image)
-            previews.append((rec.name, overlay_png(rec.frame.image, result, estimator, rec.frame.truth.corners)))
+            previews.append((rec.name, estimates_png(rec.frame.image, result, estimator, rec.frame.truth.corners)))
 
     t0 = time.perf_counter()
     if args.format == "rosbag2":
@@ -183,7 +184,7 @@ def _simulate_recording(args: argparse.Namespace, sim: Simulator, estimator: Est
         if index < args.preview:
             name = f"frame_{index:06d}.png"
             result = estimator.estimate(name, 0.0, frame.image)
-            previews.append((name, overlay_png(frame.image, result, estimator, frame.truth.corners)))
+            previews.append((name, estimates_png(frame.image, result, estimator, frame.truth.corners)))
 
     t0 = time.perf_counter()
     summary = write_recording(

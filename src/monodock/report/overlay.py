@@ -12,10 +12,12 @@ from monodock.core import transforms
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.errors import InputError
+from monodock.estimation.estimator import Estimator, FrameEstimates
 from monodock.estimation.pnp import PoseEstimate
 from monodock.perception.detect import Detection
 
-__all__ = ["draw_overlay"]
+__all__ = ["draw_overlay", "estimates_png"]
 
 _GREEN, _RED, _BLUE = (60, 200, 60), (40, 40, 230), (230, 120, 30)
 _YELLOW, _WHITE, _MAGENTA = (0, 220, 240), (255, 255, 255), (220, 40, 220)
@@ -90,3 +92,27 @@ def draw_overlay(
         y = out.shape[0] - 12 - 22 * (len(lines) - 1 - i)
         cv2.putText(out, text, (10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.6, _WHITE, 1, cv2.LINE_AA)
     return np.asarray(out, dtype=np.uint8)
+
+
+def estimates_png(
+    image: np.ndarray,
+    result: FrameEstimates,
+    estimator: Estimator,
+    truth_corners: dict[str, np.ndarray] | None = None,
+    method: str = "board",
+) -> bytes:
+    """The overlay of one estimated frame (its detection and ``method``'s estimate), PNG-encoded."""
+    assert result.detection is not None
+    pic = draw_overlay(
+        image,
+        result.detection,
+        estimator.layout,
+        estimator.camera,
+        estimator.robot,
+        result.estimates.get(method),
+        truth_corners,
+    )
+    ok, buf = cv2.imencode(".png", pic)
+    if not ok:
+        raise InputError("cannot encode the overlay PNG")
+    return bytes(buf.tobytes())
