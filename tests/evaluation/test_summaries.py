@@ -33,6 +33,7 @@ def _trial(case: int, method: str, *, success: bool, lateral: float, frames: tup
         classified_case=case if success else None,
         state="docked" if success else "failed",
         reason="" if success else "markers lost: for 1.2 s during the approach",
+        failure="" if success else "markers-lost",
         success=success,
         retries=0 if success else 2,
         time_s=18.5 + case,
@@ -83,7 +84,7 @@ def test_dock_sim_summary_writes_the_contract_and_reads_back(tmp_path: Path) -> 
     assert raw["method"] == "board"
     assert raw["overall"] == raw["methods"]["board"]["overall"]
     assert set(raw["cases"]) == {"2", "7"}
-    assert raw["overall"]["failures"] == {"markers lost": 1}
+    assert raw["overall"]["failures"] == {"markers-lost": 1}
     assert raw["overall"]["retries"] == {"total": 2, "max": 2}
     assert raw["overall"]["final_lateral_cm"]["max"] == 3.1
     assert [b["depth_cm"] for b in raw["filter"]["board"]["bands"]] == [[d, d + 25] for d in range(25, 250, 25)]
@@ -95,7 +96,7 @@ def test_dock_sim_summary_writes_the_contract_and_reads_back(tmp_path: Path) -> 
     assert back.to_json() == path.read_text(encoding="utf-8")
     # Attributes, not string keys.
     assert back.overall.successes == 1
-    assert back.cases[7].failures == {"markers lost": 1}
+    assert back.cases[7].failures == {"markers-lost": 1}
     assert back.methods["fused"].overall.success_rate == 1.0
     assert back.filter["board"].all.filtered is not None
 
