@@ -17,7 +17,7 @@ from typing import Any, TypeVar, cast
 
 import numba
 
-__all__ = ["kernel"]
+__all__ = ["inlined", "kernel"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -25,3 +25,12 @@ F = TypeVar("F", bound=Callable[..., Any])
 def kernel(fn: F) -> F:
     """``fn`` compiled with numba (nopython, cached, numpy's error model, the GIL released)."""
     return cast(F, numba.njit(cache=True, error_model="numpy", nogil=True)(fn))
+
+
+def inlined(fn: F) -> F:
+    """A small helper of kernels, inlined into each kernel that calls it.
+
+    Why: a call between compiled functions passes each array with a reference-count increment and decrement
+    (atomic operations), which costs more than the helper's own work when it runs once per pixel.
+    """
+    return cast(F, numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")(fn))

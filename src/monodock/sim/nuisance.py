@@ -7,12 +7,16 @@ generator passed in.
 
 from __future__ import annotations
 
+import functools
 import math
+import statistics
 from dataclasses import dataclass, fields, replace
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+
+from monodock.core.compiled import kernel
 
 __all__ = ["Nuisances", "apply_nuisances"]
 
@@ -87,14 +91,62 @@ def _motion_kernel(length: float, angle: float) -> NDArray[np.float32]:
     return np.asarray(k / k.sum(), dtype=np.float32)
 
 
+@functools.lru_cache(maxsize=4)
+def _vignetting_gain(height: int, width: int, vignetting: float) -> NDArray[np.float32]:
+    """1 - v r^2, r the distance from the image centre over the half diagonal (cached: the same every frame)."""
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float32)
+    r2 = ((xx - (width - 1) / 2) ** 2 + (yy - (height - 1) / 2) ** 2) / ((width / 2) ** 2 + (height / 2) ** 2)
+    gain: NDArray[np.float32] = (1.0 - vignetting * r2).astype(np.float32)
+    gain.flags.writeable = False
+    return gain
+
+
+_NO_VIGNETTING = np.ones((1, 1), dtype=np.float32)
+
+
+@functools.lru_cache(maxsize=1)
+def _normal_quantiles() -> NDArray[np.float64]:
+    """The standard normal's quantiles at the centres of 65536 equal-probability bins, scaled to unit variance.
+
+    Why: a uniform 16-bit draw and a table lookup give a normal deviate at a tenth of the cost of numpy's
+    normal generator, which was a third of a frame's nuisances. The table reaches +-4.2 sigma; a sensor's read
+    and shot noise rounded to 8 bits cannot tell the difference.
+    """
+    inv_cdf = statistics.NormalDist().inv_cdf
+    q = np.array([inv_cdf((i + 0.5) / 65536) for i in range(65536)])
+    return q / float(np.sqrt(np.mean(q**2)))
+
+
+@kernel
+def _expose(
+    img: NDArray[np.float32], vignette: NDArray[np.float32], gain: float, read_noise: float, shot_noise: float,
+    gamma: float, draws: NDArray[np.uint16], quantiles: NDArray[np.float64],
+) -> NDArray[np.uint8]:  # fmt: skip
+    """The sensor in one pass: vignetting and exposure gain, clipping, shot and read noise, clipping, gamma,
+    8-bit rounding. ``vignette`` of shape (1, 1) is no vignetting."""
+    h, w = img.shape
+    vignetted = vignette.shape[0] == h
+    out = np.empty((h, w), dtype=np.uint8)
+    noisy = read_noise > 0.0 or shot_noise > 0.0
+    for i in range(h):
+        for j in range(w):
+            v = img[i, j] * vignette[i, j] if vignetted else img[i, j]
+            dn = min(max(v * gain, 0.0), 1.0) * 255.0
+            if noisy:
+                dn += quantiles[draws[i, j]] * np.sqrt(read_noise * read_noise + shot_noise * dn)
+                dn = min(max(dn, 0.0), 255.0)
+            if gamma != 1.0:
+                dn = 255.0 * (dn / 255.0) ** (1.0 / gamma)
+            out[i, j] = np.uint8(np.rint(dn))
+    return out
+
+
 def apply_nuisances(radiance: NDArray[np.float32], nuisances: Nuisances, rng: np.random.Generator) -> NDArray[np.uint8]:
     """The 8-bit image a camera would record of a radiance (albedo) image."""
-    img = radiance.astype(np.float32, copy=True)
+    img = np.asarray(radiance, dtype=np.float32)
     h, w = img.shape
-    if nuisances.vignetting > 0:
-        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-        r2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
-        img *= 1.0 - nuisances.vignetting * r2
+    # Vignetting is applied by _expose, after the blur: the gain changes by under 0.1 % across a blur kernel.
+    vignette = _vignetting_gain(h, w, nuisances.vignetting) if nuisances.vignetting > 0 else _NO_VIGNETTING
     if nuisances.defocus_px > 0:
         img = np.asarray(cv2.GaussianBlur(img, (0, 0), nuisances.defocus_px, borderType=cv2.BORDER_REFLECT))
     if nuisances.motion_blur_px > 0:
@@ -105,11 +157,17 @@ def apply_nuisances(radiance: NDArray[np.float32], nuisances: Nuisances, rng: np
     gain = nuisances.exposure
     if nuisances.exposure_jitter > 0:
         gain *= float(np.exp(rng.normal(0.0, nuisances.exposure_jitter)))
-    dn = np.clip(img * gain, 0.0, 1.0) * 255.0
     if nuisances.shot_noise > 0 or nuisances.read_noise > 0:
-        sigma = np.sqrt(nuisances.read_noise**2 + nuisances.shot_noise * dn)
-        dn = dn + rng.standard_normal(dn.shape).astype(np.float32) * sigma
-    dn = np.clip(dn, 0.0, 255.0)
-    if nuisances.gamma != 1.0:
-        dn = 255.0 * (dn / 255.0) ** (1.0 / nuisances.gamma)
-    return np.asarray(np.rint(dn), dtype=np.uint8)
+        draws = rng.integers(0, 65536, size=(h, w), dtype=np.uint16)
+    else:
+        draws = np.zeros((1, 1), dtype=np.uint16)
+    return _expose(
+        np.ascontiguousarray(img, dtype=np.float32),
+        vignette,
+        float(gain),
+        float(nuisances.read_noise),
+        float(nuisances.shot_noise),
+        float(nuisances.gamma),
+        draws,
+        _normal_quantiles(),
+    )

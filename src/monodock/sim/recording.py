@@ -59,7 +59,6 @@ class RecordingSummary:
     bytes: int
 
 
-
 # --- rendering (in worker processes when jobs > 1) --------------------------------------------------
 
 

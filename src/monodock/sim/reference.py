@@ -28,7 +28,7 @@ _FLAT = 1e-9  # albedo differences below this are one flat region
 
 
 @functools.lru_cache(maxsize=4)
-def _nrooks(S: int) -> NDArray[np.float64]:
+def nrooks(S: int) -> NDArray[np.float64]:
     """S*S sub-pixel offsets in [0, 1)^2: stratified in an S x S grid and with all columns and rows distinct."""
     a, b = np.meshgrid(np.arange(S), np.arange(S), indexing="ij")
     ox = (a + (b + 0.5) / S) / S
@@ -90,7 +90,7 @@ def _supersample(
     S: int,
 ) -> NDArray[np.float64]:
     """Albedo at S*S n-rooks samples inside each listed pixel, shape (pixels, S*S)."""
-    offsets = _nrooks(S)
+    offsets = nrooks(S)
     ox, oy = offsets[:, 0], offsets[:, 1]
     weights = np.stack([(1 - ox) * (1 - oy), ox * (1 - oy), (1 - ox) * oy, ox * oy])  # (4, S*S)
     out = np.empty((rows.size, len(offsets)))

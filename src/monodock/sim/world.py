@@ -7,12 +7,14 @@ into the same surfaces, so what one sensor sees the other sees too.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from monodock.core.compiled import kernel
 from monodock.core.layout import DockLayout
 from monodock.errors import ConfigError
 
@@ -133,31 +135,19 @@ class World:
 
     def cast(self, origin: ArrayLike, directions: ArrayLike) -> Hits:
         """Nearest hit of rays ``origin + t * direction`` (t > 0); origin shape (3,) or (N, 3)."""
-        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
-        o = np.asarray(origin, dtype=np.float64)
-        n = d.shape[0]
-        best_t = np.full(n, np.inf)
-        best_k = np.full(n, -1, dtype=np.intp)
-        best_s = np.zeros(n)
-        best_u = np.zeros(n)
-        for k, surf in enumerate(self.surfaces):
-            normal = surf.normal
-            rel = o - surf.origin  # (3,) or (N, 3)
-            denom = d @ normal
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = -(rel @ normal) / denom
-            ok = np.isfinite(t) & (t > 1e-9) & (t < best_t)
-            if not ok.any():
-                continue
-            t = np.where(ok, t, 0.0)
-            s = rel @ surf.s_axis + t * (d @ surf.s_axis)
-            u = rel @ surf.t_axis + t * (d @ surf.t_axis)
-            ok &= (s >= 0.0) & (s <= surf.s_len) & (u >= 0.0) & (u <= surf.t_len)
-            best_t = np.where(ok, t, best_t)
-            best_k = np.where(ok, k, best_k)
-            best_s = np.where(ok, s, best_s)
-            best_u = np.where(ok, u, best_u)
-        return Hits(best_t, best_k, best_s, best_u)
+        d = np.ascontiguousarray(np.asarray(directions, dtype=np.float64).reshape(-1, 3))
+        o = np.ascontiguousarray(np.asarray(origin, dtype=np.float64).reshape(-1, 3))
+        t, k, s, u = _cast_rays(self.geometry, o, d)
+        return Hits(t, k, s, u)
+
+    @functools.cached_property
+    def geometry(self) -> NDArray[np.float64]:
+        """(K, 15) per surface: origin (3), s_axis (3), t_axis (3), normal (3), s_len, t_len, albedo (made once)."""
+        rows = [
+            np.concatenate([s.origin, s.s_axis, s.t_axis, s.normal, [s.s_len, s.t_len, s.albedo]])
+            for s in self.surfaces
+        ]
+        return np.array(rows, dtype=np.float64).reshape(len(self.surfaces), 15)
 
     def shade(self, hits: Hits) -> NDArray[np.float64]:
         """Albedo seen along each ray."""
@@ -167,6 +157,37 @@ class World:
             if m.any():
                 out[m] = surf.shade(hits.s[m], hits.u[m])
         return out
+
+
+@kernel
+def _cast_rays(
+    geometry: NDArray[np.float64], origins: NDArray[np.float64], dirs: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.intp], NDArray[np.float64], NDArray[np.float64]]:
+    """Nearest hit of each ray among the surfaces (rows: origin, s_axis, t_axis, normal, s_len, t_len).
+
+    ``origins`` is (N, 3) or (1, 3) for rays from one point. A ray parallel to a plane, or hitting it at t <= 1e-9,
+    misses it; the surface bounds are inclusive.
+    """
+    n = dirs.shape[0]
+    best_t = np.full(n, np.inf)
+    best_k = np.full(n, -1, dtype=np.intp)
+    best_s = np.zeros(n)
+    best_u = np.zeros(n)
+    one_origin = origins.shape[0] == 1
+    for i in range(n):
+        o = origins[0] if one_origin else origins[i]
+        dx, dy, dz = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+        for k in range(geometry.shape[0]):
+            g = geometry[k]
+            rx, ry, rz = o[0] - g[0], o[1] - g[1], o[2] - g[2]
+            t = -(rx * g[9] + ry * g[10] + rz * g[11]) / (dx * g[9] + dy * g[10] + dz * g[11])
+            if not (t > 1e-9 and t < best_t[i]):  # also rejects NaN and inf (a ray parallel to the plane)
+                continue
+            s = rx * g[3] + ry * g[4] + rz * g[5] + t * (dx * g[3] + dy * g[4] + dz * g[5])
+            u = rx * g[6] + ry * g[7] + rz * g[8] + t * (dx * g[6] + dy * g[7] + dz * g[8])
+            if 0.0 <= s <= g[12] and 0.0 <= u <= g[13]:
+                best_t[i], best_k[i], best_s[i], best_u[i] = t, k, s, u
+    return best_t, best_k, best_s, best_u
 
 
 @dataclass(frozen=True)
