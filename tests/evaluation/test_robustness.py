@@ -17,7 +17,7 @@ from monodock.evaluation.robustness import AXES, METHODS, STALE, occluder_hiding
 from monodock.evaluation.selftrain import SelfTrainConfig, simulate_and_train
 from monodock.sim import Nuisances, PoseDistribution, Simulator
 
-FRAMES = 16
+FRAMES = 32
 
 
 @pytest.fixture(scope="module")

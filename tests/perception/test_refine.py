@@ -148,13 +148,14 @@ def test_no_common_mode_from_the_exposure_jitter() -> None:
 
     Per frame, the mean outward error of all refined corners acts like a scale error on the whole frame;
     its spread over frames must stay < 0.02 px (0.023-0.055 px over 30 such frames before the clipping
-    correction, 0.009-0.011 px after; ~0.01 px when the exposure does not vary).
+    correction, 0.009-0.011 px after; ~0.01 px when the exposure does not vary). 60 frames: with the compiled
+    sensor model's draws, seed 6's first 30 frames held only 4 markers in clipped white, too few to test it.
     """
-    errs = _measure(Simulator(seed=6), None, 30)
+    errs = _measure(Simulator(seed=6), None, 60)
     clipped = np.concatenate(errs["clip"]) > 0.05
     assert np.count_nonzero(clipped) >= 6  # several frames' markers sit in clipped white
     common = np.concatenate(errs["common"])
-    assert common.size >= 28
+    assert common.size >= 56
     assert float(np.std(common)) < 0.02, np.std(common)
     assert abs(float(np.mean(common))) <= 0.03
 

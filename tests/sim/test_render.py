@@ -223,8 +223,8 @@ def test_compiled_renderer_matches_the_reference_and_dense_sampling(seed: int) -
     """A cluttered dock scene with an occluder: off the edges the compiled image is the reference's to 1/255;
     on them both are compared with 16384 rays per pixel, and the compiled one is the closer."""
     from monodock.sim.reference import render_radiance as reference_render
-    from monodock.sim.simulator import Simulator
     from monodock.sim.scene import occluder_for
+    from monodock.sim.simulator import Simulator
 
     sim = Simulator(seed=seed)
     pose = sim.sample_pose()

@@ -53,7 +53,7 @@ def add_parser(subparsers: SubParsers) -> None:
     )
     g.add_argument("--seed", type=int, help="seed of the poses and of every frame's draws (default 0)")
     g.add_argument(
-        "--supersample", type=int, help="S: test frames' edge pixels get SxS area samples (default 16; lower is faster)"
+        "--supersample", type=int, help="S: test frames' pixels where three surfaces meet get SxS samples (default 16)"
     )
     g.add_argument("--jobs", type=int, help="render processes (default: cores, at most 4)")
     add_topics(ev)

@@ -83,7 +83,11 @@ def add_nuisances(p: argparse.ArgumentParser) -> None:
     g.add_argument("--vignetting", type=float, help="relative fall-off at the image corners")
     g.add_argument("--occluder-probability", type=float, help="chance per frame of an object hiding a marker")
     g.add_argument("--no-clutter", action="store_true", help="no posters or foreign markers around the charger")
-    g.add_argument("--supersample", type=int, help="S: edge pixels get SxS area samples (default 16; lower is faster)")
+    g.add_argument(
+        "--supersample",
+        type=int,
+        help="S: pixels where three surfaces meet get SxS samples (default 16; other edges are exact)",
+    )
     g.add_argument("--side-walls", type=float, metavar="DIST", help="side walls DIST metres either side of the dock")
 
 

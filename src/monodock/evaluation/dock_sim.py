@@ -95,7 +95,7 @@ class DockSimConfig:
     distance: tuple[float, float] = (1.0, 2.5)  # base_link's distance from the face along the axis, metres
     max_heading_deg: float = 30.0
     view_margin_px: float = 10.0
-    supersample: int = 8
+    supersample: int = 16
     jobs: int = 2
     mission: MissionConfig = field(default_factory=MissionConfig)
     drive: DiffDriveConfig = field(default_factory=DiffDriveConfig)
@@ -106,7 +106,7 @@ class DockSimConfig:
     bundle: Path | None = None  # the regression's model bundle
 
     def simulator(self, seed: int = 0) -> Simulator:
-        # supersample is the renderer's edge sampling, not a nuisance: 8x8 resolves an edge to 1/64 px.
+        # supersample is the renderer's sampling where surfaces meet, not a nuisance (Nuisances.supersample).
         return Simulator(
             layout=self.layout,
             camera=self.camera,

@@ -97,7 +97,7 @@ OCCLUDER_DISTANCE_M = 0.05
 # neighbouring markers are a marker width away, so it never reaches them).
 OCCLUDER_OVERHANG = 0.3
 # The calibration set is rendered as ``monodock train``'s drive is (see SelfTrainConfig.supersample).
-CALIBRATION_SUPERSAMPLE = 4
+CALIBRATION_SUPERSAMPLE = 16
 _DEFAULT = Nuisances()
 
 

@@ -145,6 +145,10 @@ class SimulatedRobot:
             self._frame = CameraFrame(stamp, self.render(stamp, pose))
         return self._frame
 
+    def deliver(self, frame: CameraFrame) -> None:
+        """Hand over a frame rendered ahead (the real-time runner renders each exposure when it happens)."""
+        self._frame = frame
+
     def sleep(self, seconds: float) -> None:
         steps = max(1, round(seconds / self.config.physics_dt))
         for _ in range(steps):

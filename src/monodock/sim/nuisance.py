@@ -37,7 +37,8 @@ class Nuisances:
         shot_noise: photon noise variance per digital number of signal.
         clutter: posters, floor marks and ArUco markers of other ids around the charger.
         occluder_probability: chance per frame that an object hides part of one dock marker.
-        supersample: S of the renderer's S x S samples on edge pixels.
+        supersample: S of the renderer's S x S samples on the pixels where three surfaces meet or painted
+            patches overlap; every other edge pixel is integrated exactly (``monodock.sim.render``).
     """
 
     exposure: float = 1.0

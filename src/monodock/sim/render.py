@@ -31,7 +31,7 @@ _PROBE = 4  # S of the probe on pixels next to an edge
 
 
 @functools.lru_cache(maxsize=8)
-def _tile_boxes(camera: CameraModel) -> tuple[NDArray[np.float64], int]:
+def tile_boxes(camera: CameraModel) -> tuple[NDArray[np.float64], int]:
     """Per culling tile, the box (x0, x1, y0, y1) of its pixel corners' rays, and the tiles per row."""
     rays = camera.vertex_rays()
     H, W, T = camera.height, camera.width, raycast.TILE
@@ -75,7 +75,7 @@ def render_radiance(
     scene = raycast.scene_arrays(world)
     surf = raycast.surfaces_in_optical(scene, T)
     rays = camera.vertex_rays()  # (H+1, W+1, 2) undistorted normalised coordinates of pixel corners
-    boxes, tiles_x = _tile_boxes(camera)
+    boxes, tiles_x = tile_boxes(camera)
     polys, poly_counts, patch_polys, patch_counts = raycast.frame_geometry(surf, scene.patches, scene.patch_surface)
     candidates, counts, tile_patches, patch_count, flat, covered = raycast.tile_candidates(
         polys, poly_counts, patch_polys, patch_counts, scene.patch_surface, surf, boxes
