@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import multiprocessing as mp
+import os
 import platform
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -94,6 +95,18 @@ def bench_parser(doc: str, *, frames: int, frames_help: str, seed: int) -> argpa
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     p.add_argument("--workers", type=int, default=DEFAULT_WORKERS, help="render processes (default 2)")
     return p
+
+
+def pin_one_cpu() -> str:
+    """Time on one core from here on: OpenCV to one thread, this process to one CPU; says which ("no": not here)."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    if not hasattr(os, "sched_setaffinity"):
+        return "no"
+    cpu = min(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {cpu})
+    return f"cpu {cpu}"
 
 
 def fmt(value: float, digits: int = 2) -> str:

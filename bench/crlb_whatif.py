@@ -44,10 +44,9 @@ from functools import partial  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks  # noqa: E402
+from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, pin_one_cpu, simulate_chunks  # noqa: E402
 from monodock.core.camera import CameraModel  # noqa: E402
 from monodock.core.layout import ROLES, DockLayout  # noqa: E402
 from monodock.core.pose import DockPose  # noqa: E402
@@ -166,12 +165,7 @@ def fit_noise(records: list[dict[str, Any]], small_side: float) -> tuple[float, 
 
 def time_solver(seed: int, frames: int, repeat: int) -> dict[str, Any]:
     """Per-call time of solve_planar (3 markers, good start) and planar_candidates, pinned to one core."""
-    cv2.setNumThreads(1)
-    pinned = "no"
-    if hasattr(os, "sched_setaffinity"):
-        cpu = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
-        pinned = f"cpu {cpu}"
+    pinned = pin_one_cpu()
     sim = Simulator(seed=chunk_seed(seed, 10**6))
     rng = np.random.default_rng(seed)
     dist = PoseDistribution(require_in_view=ROLES)

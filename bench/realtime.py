@@ -22,10 +22,9 @@ import argparse  # noqa: E402
 import dataclasses  # noqa: E402
 import sys  # noqa: E402
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from _common import emit, environment, fmt, markdown_table  # noqa: E402
+from _common import emit, environment, fmt, markdown_table, pin_one_cpu  # noqa: E402
 from monodock.core.camera import CameraModel  # noqa: E402
 from monodock.core.pose2d import Pose2D  # noqa: E402
 from monodock.sim import Simulator  # noqa: E402
@@ -41,12 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     args = p.parse_args(argv)
-    cv2.setNumThreads(1)
-    pinned = "no"
-    if hasattr(os, "sched_setaffinity"):
-        cpu = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
-        pinned = f"cpu {cpu}"
+    pinned = pin_one_cpu()
 
     camera = CameraModel.load(args.camera) if args.camera else CameraModel.default()
     sim = Simulator(camera=camera, seed=args.seed)

@@ -35,15 +35,16 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from _common import bench_parser, emit, environment, fmt, markdown_table  # noqa: E402
+from _common import bench_parser, emit, environment, fmt, markdown_table, pin_one_cpu  # noqa: E402
 from monodock.core.camera import CameraModel  # noqa: E402
 from monodock.core.layout import ROLES, DockLayout  # noqa: E402
 from monodock.core.robot import RobotConfig  # noqa: E402
 from monodock.perception.detect import MarkerDetector  # noqa: E402
 from monodock.sim import raycast  # noqa: E402
 from monodock.sim.nuisance import apply_nuisances  # noqa: E402
+from monodock.sim.reference import nrooks, pixel_means_by_rays  # noqa: E402
 from monodock.sim.reference import render_radiance as reference_radiance  # noqa: E402
-from monodock.sim.render import nrooks, render_radiance, tile_boxes  # noqa: E402
+from monodock.sim.render import render_radiance, tile_boxes  # noqa: E402
 from monodock.sim.simulator import Simulator  # noqa: E402
 from monodock.sim.world import World  # noqa: E402
 
@@ -99,21 +100,6 @@ def _edges(world: World, camera: CameraModel, T: NDArray[np.float64]) -> NDArray
     return np.asarray(cv2.dilate(straddles.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool))
 
 
-def _truth(world: World, camera: CameraModel, T: NDArray[np.float64], pixels: NDArray[np.intp], seed: int) -> Any:
-    """Mean albedo of each pixel over 128 x 128 stratified random rays (no lattice to alias with an edge)."""
-    rng = np.random.default_rng(seed)
-    rays = camera.vertex_rays()
-    n = 128
-    a, b = np.meshgrid(np.arange(n), np.arange(n))
-    out = []
-    for r, c in pixels:
-        ox, oy = ((a + rng.random((n, n))) / n).ravel(), ((b + rng.random((n, n))) / n).ravel()
-        w = np.stack([(1 - ox) * (1 - oy), ox * (1 - oy), (1 - ox) * oy, ox * oy], axis=1)
-        xy = w @ np.stack([rays[r, c], rays[r, c + 1], rays[r + 1, c], rays[r + 1, c + 1]])
-        out.append(world.shade(world.cast(T[:3, 3], np.c_[xy, np.ones(len(xy))] @ T[:3, :3].T)).mean())
-    return np.array(out)
-
-
 def _median_ms(values: list[float]) -> float:
     return 1e3 * float(np.median(values))
 
@@ -122,12 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     p = bench_parser(__doc__, frames=40, frames_help="random poses timed per set-up", seed=0)
     p.add_argument("--reference-frames", type=int, default=4, help="poses also rendered by the reference (4)")
     args = p.parse_args(argv)
-    cv2.setNumThreads(1)
-    pinned = "no"
-    if hasattr(os, "sched_setaffinity"):
-        cpu = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
-        pinned = f"cpu {cpu}"
+    pinned = pin_one_cpu()
 
     speed_rows, stage_rows, exact_rows = [], [], []
     raw: dict[str, Any] = {"environment": environment(), "pinned": pinned, "setups": {}}
@@ -178,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
             edge_mean.append(float(diff[edges].mean()))
             edge_share.append(100.0 * float(edges.mean()))
             pick = np.random.default_rng([args.seed, k]).choice(np.argwhere(edges), 100, replace=False)
-            truth = _truth(sim.world, sim.camera, T, pick, k)
+            truth = pixel_means_by_rays(sim.world, sim.camera, T, pick, rng=np.random.default_rng(k))
             new_err += list(np.abs(new[pick[:, 0], pick[:, 1]] - truth) * 255)
             ref_err += list(np.abs(ref[pick[:, 0], pick[:, 1]] - truth) * 255)
 

@@ -41,10 +41,9 @@ from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, simulate_chunks  # noqa: E402
+from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, pin_one_cpu, simulate_chunks  # noqa: E402
 from monodock.estimation.bundle import load_bundle  # noqa: E402
 from monodock.estimation.estimator import Estimator  # noqa: E402
 from monodock.estimation.fused import FusedEstimator, FusionTables  # noqa: E402
@@ -143,12 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     images: list[np.ndarray] = simulate_chunks(render_chunk, args, "pre-render", CHUNK)
 
     # Timing from here on: one thread, one CPU.
-    cv2.setNumThreads(1)
-    pinned = "no"
-    if hasattr(os, "sched_setaffinity"):
-        cpu = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
-        pinned = f"cpu {cpu}"
+    pinned = pin_one_cpu()
 
     sim = Simulator(seed=chunk_seed(args.seed, 10**6))
     camera, layout, robot = sim.camera, sim.layout, sim.robot

@@ -14,6 +14,8 @@ from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
 from monodock.sim.nuisance import Nuisances, apply_nuisances
+from monodock.sim.reference import pixel_means_by_rays
+from monodock.sim.reference import render_radiance as reference_render
 from monodock.sim.render import render_radiance
 from monodock.sim.world import Patch, Surface, World, rectangle
 
@@ -187,27 +189,6 @@ def test_clean_8bit_image_keeps_area() -> None:
 # --- the compiled renderer against the numpy reference and against dense sampling ---------------------------------
 
 
-def _dense_truth(world: World, camera: CameraModel, T: Array, pixels: NDArray[np.intp], seed: int) -> Array:
-    """Each pixel's mean albedo over 128 x 128 stratified random rays, cast by World.cast.
-
-    Stratified jitter, not a regular lattice: a lattice aliases with edges along its rows (the n-rooks pattern
-    of S = 16 and 128 agreed with each other and missed a nearly vertical edge by 0.45/255).
-    """
-    rng = np.random.default_rng(seed)
-    rays = camera.vertex_rays()
-    n = 128
-    a, b = np.meshgrid(np.arange(n), np.arange(n))
-    out = []
-    for r, c in pixels:
-        ox, oy = ((a + rng.random((n, n))) / n).ravel(), ((b + rng.random((n, n))) / n).ravel()
-        w = np.stack([(1 - ox) * (1 - oy), ox * (1 - oy), (1 - ox) * oy, ox * oy], axis=1)
-        quad = np.stack([rays[r, c], rays[r, c + 1], rays[r + 1, c], rays[r + 1, c + 1]])
-        xy = w @ quad
-        dirs = np.c_[xy, np.ones(len(xy))] @ T[:3, :3].T
-        out.append(world.shade(world.cast(T[:3, 3], dirs)).mean())
-    return np.array(out)
-
-
 def _edge_pixels(world: World, camera: CameraModel, T: Array) -> NDArray[np.bool_]:
     """Pixels whose corners, or a neighbour's, see different albedos (by World.cast, not the renderer)."""
     rays = camera.vertex_rays().reshape(-1, 2)
@@ -222,7 +203,6 @@ def _edge_pixels(world: World, camera: CameraModel, T: Array) -> NDArray[np.bool
 def test_compiled_renderer_matches_the_reference_and_dense_sampling(seed: int) -> None:
     """A cluttered dock scene with an occluder: off the edges the compiled image is the reference's to 1/255;
     on them both are compared with 16384 rays per pixel, and the compiled one is the closer."""
-    from monodock.sim.reference import render_radiance as reference_render
     from monodock.sim.scene import occluder_for
     from monodock.sim.simulator import Simulator
 
@@ -238,7 +218,7 @@ def test_compiled_renderer_matches_the_reference_and_dense_sampling(seed: int) -
     assert edges.sum() > 2000  # markers, clutter, the charger's outline and the occluder
     np.testing.assert_array_less(np.abs(image - reference)[~edges], 1.0 / 255)
     pick = np.random.default_rng(seed).choice(np.argwhere(edges), 150, replace=False)
-    truth = _dense_truth(world, sim.camera, T, pick, seed)
+    truth = pixel_means_by_rays(world, sim.camera, T, pick, rng=np.random.default_rng(seed))
     compiled_err = np.abs(image[pick[:, 0], pick[:, 1]] - truth)
     reference_err = np.abs(reference[pick[:, 0], pick[:, 1]] - truth)
     # 16384 jittered rays resolve a pixel to ~0.01/255 on average; the compiled renderer's exact areas sit at that,
