@@ -60,7 +60,7 @@ FRAME_DEPTH = 1.2
 
 @dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; the defaults fit in about five minutes on two cores."""
+    """Sizes of the demo; the defaults take under four minutes on two cores (most of it training the models)."""
 
     train_stops: int = 3000
     test_stops: int = 500
