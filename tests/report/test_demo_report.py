@@ -175,7 +175,7 @@ def test_the_settings_are_yaml_without_python_reprs(report: tuple[Path, str]) ->
     assert demo["LiDAR"]["angle_increment_deg"] == 0.5
     assert demo["held-out drive"]["nuisances"]["exposure"] == 1.0
     docking = yaml.safe_load(blocks[1])
-    assert docking["nuisances"]["supersample"] == 8
+    assert docking["nuisances"]["supersample"] == DockSimConfig().supersample == 16
     for repr_ in ("Nuisances(", "LidarModel(", "Mount(", "PlannerConfig("):
         assert repr_ not in page
 

@@ -191,7 +191,7 @@ def _cast(
     return best_k, best_s, best_u
 
 
-@inlined
+@kernel
 def _area(px: NDArray[np.float64], py: NDArray[np.float64], n: int) -> float:
     """Signed shoelace area (positive counter-clockwise in x right, y down... i.e. by the formula's sign)."""
     a = 0.0
@@ -201,7 +201,7 @@ def _area(px: NDArray[np.float64], py: NDArray[np.float64], n: int) -> float:
     return 0.5 * a
 
 
-@inlined
+@kernel
 def _clip_line(
     px: NDArray[np.float64], py: NDArray[np.float64], n: int, a: float, b: float, c: float,
     ox: NDArray[np.float64], oy: NDArray[np.float64],
@@ -264,7 +264,7 @@ def _clip_polygon(
     return n
 
 
-@inlined
+@kernel
 def _image_area(ps: NDArray[np.float64], pu: NDArray[np.float64], n: int, surf: NDArray[np.float64], k: int) -> float:
     """Area on the normalised image plane of a polygon given in surface k's (s, u) coordinates.
 
