@@ -60,7 +60,7 @@ FRAME_DEPTH = 1.2
 
 @dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; the defaults take under four minutes on two cores (most of it training the models)."""
+    """Sizes of the demo; the defaults take about four minutes on two cores (most of it training the models)."""
 
     train_stops: int = 3000
     test_stops: int = 500
