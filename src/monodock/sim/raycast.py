@@ -224,6 +224,15 @@ def _clip_line(
     return m
 
 
+@inlined
+def _edge(px: NDArray[np.float64], py: NDArray[np.float64], i: int, n: int) -> tuple[float, float, float]:
+    """Edge i -> i+1 of a polygon as the line a x + b y + c = 0 whose side a x + b y + c >= 0 is the polygon's
+    inside when it is positively oriented (cross(edge, p - p_i) >= 0)."""
+    j = i + 1 if i + 1 < n else 0
+    a, b = -(py[j] - py[i]), px[j] - px[i]
+    return a, b, -(a * px[i] + b * py[i])
+
+
 @kernel
 def _clip_polygon(
     buf: NDArray[np.float64], src: int, n: int, qx: NDArray[np.float64], qy: NDArray[np.float64], m: int,
@@ -236,10 +245,7 @@ def _clip_polygon(
     # Wholly inside (the common case away from a silhouette): a copy.
     inside = True
     for i in range(m):
-        j = i + 1 if i + 1 < m else 0
-        a = -(qy[j] - qy[i])
-        b = qx[j] - qx[i]
-        c = -(a * qx[i] + b * qy[i])
+        a, b, c = _edge(qx, qy, i, m)
         for v in range(n):
             if a * buf[src, v] + b * buf[src + 1, v] + c < 0.0:
                 inside = False
@@ -250,11 +256,7 @@ def _clip_polygon(
     for i in range(m):
         if n == 0 or inside:
             break
-        j = i + 1 if i + 1 < m else 0
-        # Inside of edge i -> j of a positively oriented polygon: cross(edge, p - q_i) >= 0.
-        a = -(qy[j] - qy[i])
-        b = qx[j] - qx[i]
-        c = -(a * qx[i] + b * qy[i])
+        a, b, c = _edge(qx, qy, i, m)
         out = _CLIP if cur != _CLIP else _CLIP + 2
         n = _clip_line(buf[cur], buf[cur + 1], n, a, b, c, buf[out], buf[out + 1])
         cur = out
@@ -367,8 +369,7 @@ def _polygon_overlaps_box(
     if hi_x < x0 or lo_x > x1 or hi_y < y0 or lo_y > y1:
         return False
     for i in range(n):
-        j = i + 1 if i + 1 < n else 0
-        nx, ny = -(py[j] - py[i]), px[j] - px[i]  # the edge's normal
+        nx, ny, _ = _edge(px, py, i, n)  # the edge's normal
         pmin = pmax = nx * px[0] + ny * py[0]
         for m in range(1, n):
             v = nx * px[m] + ny * py[m]
@@ -388,9 +389,7 @@ def _box_inside_polygon(
     if n < 3:
         return False
     for i in range(n):
-        j = i + 1 if i + 1 < n else 0
-        a, b = -(py[j] - py[i]), px[j] - px[i]
-        c = -(a * px[i] + b * py[i])
+        a, b, c = _edge(px, py, i, n)
         if a * x0 + b * y0 + c < 0 or a * x0 + b * y1 + c < 0 or a * x1 + b * y0 + c < 0 or a * x1 + b * y1 + c < 0:
             return False
     return True
