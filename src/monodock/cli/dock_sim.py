@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from monodock.cli.options import int_in
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -28,6 +29,7 @@ from monodock.evaluation.dock_sim import (
 from monodock.evaluation.selftrain import SelfTrainConfig, cached_bundle
 from monodock.report.docking import console_table, write_dock_report
 from monodock.sim.diffdrive import DiffDriveConfig
+from monodock.sim.render import MAX_SUPERSAMPLE
 
 __all__ = ["add_parser"]
 
@@ -112,7 +114,7 @@ def add_parser(subparsers: Any) -> None:
     d.add_argument("--camera-rate", type=float, default=15.0, help="camera frames per second (15)")
     d.add_argument(
         "--supersample",
-        type=int,
+        type=int_in(1, MAX_SUPERSAMPLE),
         default=16,
         help="S: pixels where three surfaces meet get SxS samples (16; other edges are exact)",
     )
@@ -134,8 +136,6 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         raise InputError(f"--max-retries must not be negative, got {args.max_retries}")
     if not 0 < args.distance[0] < args.distance[1]:
         raise InputError(f"--distance needs 0 < MIN < MAX, got {args.distance[0]:g} {args.distance[1]:g}")
-    if not 1 <= args.supersample <= 32:
-        raise InputError(f"--supersample must be 1-32, got {args.supersample}")
     if not 0 < args.max_heading <= 60:
         raise InputError(f"--max-heading must be in (0, 60] degrees, got {args.max_heading:g}")
     if not args.camera_rate > 0:

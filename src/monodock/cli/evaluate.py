@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from monodock.cli.label import label
-from monodock.cli.options import SubParsers, add_topics, bundle_calibration, jobs
+from monodock.cli.options import SubParsers, add_topics, bundle_calibration, int_in, jobs
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
@@ -18,6 +18,7 @@ from monodock.evaluation.robustness import RobustnessConfig, run_robustness
 from monodock.learning.dataset import read_dataset
 from monodock.report.evaluation import write_evaluation_report
 from monodock.report.robustness import write_robustness_report
+from monodock.sim.render import MAX_SUPERSAMPLE
 
 __all__ = ["add_parser", "run"]
 
@@ -53,7 +54,9 @@ def add_parser(subparsers: SubParsers) -> None:
     )
     g.add_argument("--seed", type=int, help="seed of the poses and of every frame's draws (default 0)")
     g.add_argument(
-        "--supersample", type=int, help="S: test frames' pixels where three surfaces meet get SxS samples (default 16)"
+        "--supersample",
+        type=int_in(1, MAX_SUPERSAMPLE),
+        help="S: test frames' pixels where three surfaces meet get SxS samples (default 16)",
     )
     g.add_argument("--jobs", type=int, help="render processes (default: cores, at most 4)")
     add_topics(ev)
@@ -67,7 +70,6 @@ def _robustness(args: argparse.Namespace) -> int:
     for flag, value, least in (
         ("--frames", args.frames, 1),
         ("--calibration-frames", args.calibration_frames, 50),
-        ("--supersample", args.supersample, 1),
     ):
         if value is not None and value < least:
             raise InputError(f"{flag} must be at least {least}, got {value}")

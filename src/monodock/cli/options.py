@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from monodock.core.camera import CameraModel
@@ -28,6 +29,7 @@ __all__ = [
     "add_topics",
     "build_estimator",
     "bundle_calibration",
+    "int_in",
     "jobs",
     "load_calibration",
     "positive_seconds",
@@ -60,6 +62,21 @@ def range_option(p: argparse.ArgumentParser, flag: str, default: tuple[float, fl
         metavar=("MIN", "MAX"),
         help=f"{what} (default {default[0]:g} {default[1]:g})",
     )
+
+
+def int_in(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: a whole number from ``low`` to ``high`` (a usage error, one line, otherwise)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be {low}-{high}, got {value}")
+        return value
+
+    return parse
 
 
 def jobs(value: int | None) -> int:

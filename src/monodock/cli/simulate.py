@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from monodock.cli.options import SubParsers, add_calibration, jobs, load_calibration, range_option
+from monodock.cli.options import SubParsers, add_calibration, int_in, jobs, load_calibration, range_option
 from monodock.core.atomic import atomic_directory
 from monodock.errors import MonodockError
 from monodock.estimation.estimator import Estimator
@@ -18,6 +18,7 @@ from monodock.sim import Nuisances, PoseDistribution, RoomGeometry, SimFrame, Si
 from monodock.sim.drive import DriveConfig, plan_drive
 from monodock.sim.export import FrameRecord, write_frame_folder
 from monodock.sim.recording import write_recording
+from monodock.sim.render import MAX_SUPERSAMPLE
 
 __all__ = ["add_parser", "run"]
 
@@ -85,7 +86,7 @@ def add_nuisances(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-clutter", action="store_true", help="no posters or foreign markers around the charger")
     g.add_argument(
         "--supersample",
-        type=int,
+        type=int_in(1, MAX_SUPERSAMPLE),
         help="S: pixels where three surfaces meet get SxS samples (default 16; other edges are exact)",
     )
     g.add_argument("--side-walls", type=float, metavar="DIST", help="side walls DIST metres either side of the dock")
@@ -112,8 +113,6 @@ def nuisances(args: argparse.Namespace) -> Nuisances:
     if args.no_clutter:
         changes["clutter"] = False
     if args.supersample is not None:
-        if args.supersample < 1:
-            raise MonodockError(f"--supersample must be at least 1, got {args.supersample}")
         changes["supersample"] = args.supersample
     return n.updated(**changes)
 
