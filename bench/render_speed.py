@@ -31,22 +31,18 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
-import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
 
 from _common import bench_parser, emit, environment, fmt, markdown_table, pin_one_cpu  # noqa: E402
 from monodock.core.camera import CameraModel  # noqa: E402
 from monodock.core.layout import ROLES, DockLayout  # noqa: E402
 from monodock.core.robot import RobotConfig  # noqa: E402
 from monodock.perception.detect import MarkerDetector  # noqa: E402
-from monodock.sim import raycast  # noqa: E402
 from monodock.sim.nuisance import apply_nuisances  # noqa: E402
-from monodock.sim.reference import nrooks, pixel_means_by_rays  # noqa: E402
+from monodock.sim.reference import edge_pixels, pixel_means_by_rays  # noqa: E402
 from monodock.sim.reference import render_radiance as reference_radiance  # noqa: E402
-from monodock.sim.render import render_radiance, tile_boxes  # noqa: E402
+from monodock.sim.render import RenderStats, render_radiance  # noqa: E402
 from monodock.sim.simulator import Simulator  # noqa: E402
-from monodock.sim.world import World  # noqa: E402
 
 WIDE = Path(__file__).parent / "setups" / "wide"
 
@@ -60,46 +56,6 @@ def _setups() -> dict[str, Simulator]:
     return {"640x480 (default)": Simulator(), "1280x720 (wide)": wide}
 
 
-def _stages(sim: Simulator, T: NDArray[np.float64], rng: np.random.Generator) -> dict[str, float]:
-    """Seconds of each stage of one image, run as render_radiance runs them."""
-    out: dict[str, float] = {}
-    t = time.perf_counter()
-    scene = raycast.scene_arrays(sim.world)
-    surf = raycast.surfaces_in_optical(scene, T)
-    boxes, tiles_x = tile_boxes(sim.camera)
-    polys, poly_counts, patch_polys, patch_counts = raycast.frame_geometry(surf, scene.patches, scene.patch_surface)
-    candidates, counts, tile_patches, patch_count, flat, covered = raycast.tile_candidates(
-        polys, poly_counts, patch_polys, patch_counts, scene.patch_surface, surf, boxes
-    )
-    out["culling"] = time.perf_counter() - t
-    rays = sim.camera.vertex_rays()
-    tiles = (candidates, counts, tile_patches, patch_count)
-    texture = (scene.patches, scene.patch_surface, scene.cells, scene.no_hit)
-    t = time.perf_counter()
-    vert = raycast.cast_vertices(rays, surf, *texture, *tiles, flat, tiles_x)
-    out["pixel corners"] = time.perf_counter() - t
-    t = time.perf_counter()
-    image, _ = raycast.shade_pixels(
-        vert, rays, surf, scene.patch_start, *texture, polys, poly_counts, *tiles, covered, tiles_x,
-        nrooks(sim.nuisances.supersample), nrooks(4),
-    )  # fmt: skip
-    out["edge pixels"] = time.perf_counter() - t
-    t = time.perf_counter()
-    apply_nuisances(image, sim.nuisances, rng)
-    out["sensor nuisances"] = time.perf_counter() - t
-    out["flat tiles %"] = 100.0 * float(np.isfinite(flat).mean())
-    return out
-
-
-def _edges(world: World, camera: CameraModel, T: NDArray[np.float64]) -> NDArray[np.bool_]:
-    rays = camera.vertex_rays().reshape(-1, 2)
-    vert = world.shade(world.cast(T[:3, 3], np.c_[rays, np.ones(len(rays))] @ T[:3, :3].T))
-    vert = vert.reshape(camera.height + 1, camera.width + 1)
-    corners = np.stack([vert[:-1, :-1], vert[:-1, 1:], vert[1:, :-1], vert[1:, 1:]])
-    straddles = (corners.max(axis=0) - corners.min(axis=0)) > raycast.FLAT
-    return np.asarray(cv2.dilate(straddles.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool))
-
-
 def _median_ms(values: list[float]) -> float:
     return 1e3 * float(np.median(values))
 
@@ -108,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     p = bench_parser(__doc__, frames=40, frames_help="random poses timed per set-up", seed=0)
     p.add_argument("--reference-frames", type=int, default=4, help="poses also rendered by the reference (4)")
     args = p.parse_args(argv)
+    if not 1 <= args.reference_frames <= args.frames:
+        p.error(f"--reference-frames must be 1-{args.frames} (--frames), got {args.reference_frames}")
     pinned = pin_one_cpu()
 
     speed_rows, stage_rows, exact_rows = [], [], []
@@ -121,9 +79,21 @@ def main(argv: list[str] | None = None) -> int:
         stages: dict[str, list[float]] = {}
         for k, pose in enumerate(poses):
             T = sim.world_T_optical(pose)
+            stats = RenderStats()
             t = time.perf_counter()
-            render_radiance(sim.world, sim.camera, T, supersample=sim.nuisances.supersample)
+            radiance = render_radiance(sim.world, sim.camera, T, supersample=sim.nuisances.supersample, stats=stats)
             times["radiance"].append(time.perf_counter() - t)
+            t = time.perf_counter()
+            apply_nuisances(radiance, sim.nuisances, np.random.default_rng(k))
+            sensor = time.perf_counter() - t
+            for stage, seconds in (
+                ("culling", stats.culling_s),
+                ("pixel corners", stats.corners_s),
+                ("edge pixels", stats.edges_s),
+                ("sensor nuisances", sensor),
+                ("flat tiles %", 100.0 * stats.flat_tiles),
+            ):
+                stages.setdefault(stage, []).append(seconds)
             t = time.perf_counter()
             image = sim.render(pose, rng=np.random.default_rng([args.seed, k]))
             times["image"].append(time.perf_counter() - t)
@@ -133,8 +103,6 @@ def main(argv: list[str] | None = None) -> int:
             t = time.perf_counter()
             detector.detect(image)
             times["detection"].append(time.perf_counter() - t)
-            for stage, seconds in _stages(sim, T, np.random.default_rng(k)).items():
-                stages.setdefault(stage, []).append(seconds)
             t = time.perf_counter()
             sim.scan(pose, rng=np.random.default_rng(k))
             stages.setdefault("LiDAR scan", []).append(time.perf_counter() - t)
@@ -153,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
             t = time.perf_counter()
             ref = reference_radiance(sim.world, sim.camera, T, supersample=sim.nuisances.supersample)
             ref_times.append(time.perf_counter() - t)
-            edges = _edges(sim.world, sim.camera, T)
+            edges = edge_pixels(sim.world, sim.camera, T)
             diff = np.abs(new.astype(np.float64) - ref) * 255
             off_edge_max.append(float(diff[~edges].max()))
             edge_mean.append(float(diff[edges].mean()))

@@ -7,6 +7,9 @@ resulting polygon. No detector is involved.
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import cv2
 import numpy as np
 import pytest
@@ -14,7 +17,7 @@ from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
 from monodock.sim.nuisance import Nuisances, apply_nuisances
-from monodock.sim.reference import pixel_means_by_rays
+from monodock.sim.reference import edge_pixels, pixel_means_by_rays
 from monodock.sim.reference import render_radiance as reference_render
 from monodock.sim.render import render_radiance
 from monodock.sim.world import Patch, Surface, World, rectangle
@@ -189,24 +192,43 @@ def test_clean_8bit_image_keeps_area() -> None:
 # --- the compiled renderer against the numpy reference and against dense sampling ---------------------------------
 
 
-def _edge_pixels(world: World, camera: CameraModel, T: Array) -> NDArray[np.bool_]:
-    """Pixels whose corners, or a neighbour's, see different albedos (by World.cast, not the renderer)."""
-    rays = camera.vertex_rays().reshape(-1, 2)
-    dirs = np.c_[rays, np.ones(len(rays))] @ T[:3, :3].T
-    vert = world.shade(world.cast(T[:3, 3], dirs)).reshape(camera.height + 1, camera.width + 1)
-    corners = np.stack([vert[:-1, :-1], vert[:-1, 1:], vert[1:, :-1], vert[1:, 1:]])
-    straddles = (corners.max(axis=0) - corners.min(axis=0)) > 1e-9
-    return cv2.dilate(straddles.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+WIDE = Path(__file__).parents[2] / "bench" / "setups" / "wide"
+# A strong rational_polynomial lens (the one tests/core/test_lens.py checks against OpenCV).
+RATIONAL = CameraModel(
+    1280,
+    720,
+    (700.0, 0.0, 645.0, 0.0, 698.0, 355.0, 0.0, 0.0, 1.0),
+    (0.6, -0.05, 5e-4, -8e-4, 0.01, 0.95, 0.02, 0.015),
+    "rational_polynomial",
+)
 
 
-@pytest.mark.parametrize("seed", [3, 11])
-def test_compiled_renderer_matches_the_reference_and_dense_sampling(seed: int) -> None:
-    """A cluttered dock scene with an occluder: off the edges the compiled image is the reference's to 1/255;
-    on them both are compared with 16384 rays per pixel, and the compiled one is the closer."""
-    from monodock.sim.scene import occluder_for
+def _setup(name: str, seed: int) -> Any:
+    from monodock.core.layout import DockLayout
+    from monodock.core.robot import RobotConfig
     from monodock.sim.simulator import Simulator
 
-    sim = Simulator(seed=seed)
+    if name == "wide":  # 1280x720 barrel lens, DICT_5X5 markers 12 cm and 22 cm apart, a pitched camera
+        return Simulator(
+            layout=DockLayout.load(WIDE / "layout.yaml"),
+            camera=CameraModel.load(WIDE / "camera.yaml"),
+            robot=RobotConfig.load(WIDE / "robot.yaml"),
+            seed=seed,
+        )
+    if name == "rational":
+        return Simulator(camera=RATIONAL, seed=seed)
+    return Simulator(seed=seed)
+
+
+@pytest.mark.parametrize(("setup", "seed"), [("default", 3), ("default", 11), ("wide", 5), ("rational", 7)])
+def test_compiled_renderer_matches_the_reference_and_dense_sampling(setup: str, seed: int) -> None:
+    """A cluttered dock scene with an occluder, on the default set-up and on two it was not built on (another
+    layout, camera and mounts behind a wide barrel lens; a rational_polynomial lens): off the edges the compiled
+    image is the reference's to 1/255; on them both are compared with 16384 rays per pixel, and the compiled one
+    is the closer."""
+    from monodock.sim.scene import occluder_for
+
+    sim = _setup(setup, seed)
     pose = sim.sample_pose()
     T = sim.world_T_optical(pose)
     world = sim.world.with_surfaces(occluder_for(sim.layout, T[:3, 3], np.random.default_rng(seed)))
@@ -214,7 +236,7 @@ def test_compiled_renderer_matches_the_reference_and_dense_sampling(seed: int) -
     image = render_radiance(world, sim.camera, T)
     reference = reference_render(world, sim.camera, T)
 
-    edges = _edge_pixels(world, sim.camera, T)
+    edges = edge_pixels(world, sim.camera, T)
     assert edges.sum() > 2000  # markers, clutter, the charger's outline and the occluder
     np.testing.assert_array_less(np.abs(image - reference)[~edges], 1.0 / 255)
     pick = np.random.default_rng(seed).choice(np.argwhere(edges), 150, replace=False)

@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 from monodock.core.camera import CameraModel
 from monodock.sim.world import World
 
-__all__ = ["nrooks", "pixel_means_by_rays", "render_radiance"]
+__all__ = ["edge_pixels", "nrooks", "pixel_means_by_rays", "render_radiance"]
 
 _CHUNK_SAMPLES = 1 << 18
 _PROBE = 4  # S of the probe on pixels next to an edge
@@ -131,3 +131,15 @@ def pixel_means_by_rays(
         dirs = np.c_[xy, np.ones(len(xy))] @ T[:3, :3].T
         out[k] = world.shade(world.cast(T[:3, 3], dirs)).mean()
     return out
+
+
+def edge_pixels(world: World, camera: CameraModel, world_T_optical: ArrayLike) -> NDArray[np.bool_]:
+    """Pixels whose corners, or a neighbour's, see different albedos, by ``World.cast`` (not a renderer): where two
+    renderers may differ by their treatment of edges, and off which they must agree."""
+    T = np.asarray(world_T_optical, dtype=np.float64)
+    rays = camera.vertex_rays().reshape(-1, 2)
+    vert = world.shade(world.cast(T[:3, 3], np.c_[rays, np.ones(len(rays))] @ T[:3, :3].T))
+    vert = vert.reshape(camera.height + 1, camera.width + 1)
+    corners = np.stack([vert[:-1, :-1], vert[:-1, 1:], vert[1:, :-1], vert[1:, 1:]])
+    straddles = (corners.max(axis=0) - corners.min(axis=0)) > _FLAT
+    return np.asarray(cv2.dilate(straddles.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool))
