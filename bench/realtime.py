@@ -8,7 +8,8 @@ frames were late and by how much, the rendering time against the camera period, 
 
 Run from the repo root:
 
-    python bench/realtime.py [--seconds 20] [--rate 15] [--camera CAMERA.yaml] [--out FILE.md]
+    python bench/realtime.py [--seconds 20] [--rate 15] [--camera CAMERA.yaml] [--layout L.yaml] [--robot R.yaml]
+        [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -20,13 +21,16 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUME
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import math  # noqa: E402
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from _common import emit, environment, fmt, markdown_table, pin_one_cpu  # noqa: E402
 from monodock.core.camera import CameraModel  # noqa: E402
+from monodock.core.layout import DockLayout  # noqa: E402
 from monodock.core.pose2d import Pose2D  # noqa: E402
+from monodock.core.robot import RobotConfig  # noqa: E402
 from monodock.sim import Simulator  # noqa: E402
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot  # noqa: E402
 from monodock.sim.realtime import RealTimeRunner, drive_arc  # noqa: E402
@@ -37,13 +41,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seconds", type=float, default=20.0, help="simulated seconds (20)")
     p.add_argument("--rate", type=float, default=15.0, help="camera frames per second (15)")
     p.add_argument("--camera", help="camera_info YAML (default: the simulator's 640x480 camera)")
+    p.add_argument("--layout", help="dock layout YAML (default: the papers')")
+    p.add_argument("--robot", help="robot YAML: mounts, front offset (default: the papers')")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     args = p.parse_args(argv)
+    for flag, value in (("--seconds", args.seconds), ("--rate", args.rate)):
+        if not (math.isfinite(value) and value > 0):
+            p.error(f"{flag} must be a positive number, got {value}")
     pinned = pin_one_cpu()
 
     camera = CameraModel.load(args.camera) if args.camera else CameraModel.default()
-    sim = Simulator(camera=camera, seed=args.seed)
+    layout = DockLayout.load(args.layout) if args.layout else DockLayout.default()
+    robot_config = RobotConfig.load(args.robot) if args.robot else RobotConfig.default()
+    sim = Simulator(layout=layout, camera=camera, robot=robot_config, seed=args.seed)
     sim.render(sim.sample_pose())  # warm-up: compiles or loads the kernels, caches the camera's rays
     config = DiffDriveConfig(camera_rate=args.rate)
     robot = SimulatedRobot(sim, Pose2D(-2.4, 0.05, 0.03), config, np.random.default_rng(args.seed))
@@ -81,7 +92,9 @@ def main(argv: list[str] | None = None) -> int:
         ],
     )
     text = (
-        f"### Real-time simulated robot\n\n`python bench/realtime.py --seconds {args.seconds:g} --rate {args.rate:g}` "
+        f"### Real-time simulated robot\n\n`python bench/realtime.py --seconds {args.seconds:g} --rate {args.rate:g}"
+        f"{' --camera ' + args.camera if args.camera else ''}{' --layout ' + args.layout if args.layout else ''}"
+        f"{' --robot ' + args.robot if args.robot else ''}` "
         f"— {env['date_utc']} UTC, {env['machine']}, pinned: {pinned}. The robot drives at 0.1 m/s towards the "
         f"charger from 2.4 m; a frame is late when its rendering ends after its exposure plus the camera's "
         f"{1e3 * config.camera_latency:.0f} ms latency.\n\n{table}"

@@ -122,15 +122,20 @@ class RealTimeRunner:
                 if on_odometry is not None:
                     on_odometry(robot.odometry())
             robot.sleep(dt)
-            # Render each new exposure now, while its pose is the robot's; hand it over once it is due.
-            for stamp, pose in list(robot.exposures):
-                if stamp > self._rendered_until:
-                    r0 = self._clock()
-                    frame = CameraFrame(stamp, robot.render(stamp, pose))
-                    render_s += self._clock() - r0
-                    rendered += 1
-                    self._rendered_until = stamp
-                    self._pending.append((stamp + latency, frame))
+            # Render each new exposure now, while its pose is the robot's; hand it over once it is due. New
+            # exposures are at the end of the deque: at most one per step at any camera rate below 1/dt.
+            fresh = []
+            for stamp, pose in reversed(robot.exposures):
+                if stamp <= self._rendered_until:
+                    break
+                fresh.append((stamp, pose))
+            for stamp, pose in reversed(fresh):
+                r0 = self._clock()
+                frame = CameraFrame(stamp, robot.render(stamp, pose))
+                render_s += self._clock() - r0
+                rendered += 1
+                self._rendered_until = stamp
+                self._pending.append((stamp + latency, frame))
             while self._pending and self._pending[0][0] <= robot.t + 1e-12:
                 due, frame = self._pending.popleft()
                 due_wall = start_wall + (due - start_sim) / self.speed
