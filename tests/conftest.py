@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -19,6 +22,21 @@ from monodock.sim.recording import write_recording
 from shared import BLACK, FRAMES, META, synthetic_set
 
 FAST = Nuisances().updated(supersample=2)
+
+# DDS discovers peers by multicast on every interface. No test here starts a DDS participant (the ROS tests run
+# the nodes against stand-ins for rclpy); should one ever, it and every process it starts stay on loopback.
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("ROS_DOMAIN_ID", "117")
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _no_dds_participant() -> Iterator[None]:
+    """The ROS tests use stand-ins: at the end no real rclpy (one loaded from a file) may be in this process."""
+    yield
+    rclpy = sys.modules.get("rclpy")
+    assert rclpy is None or getattr(rclpy, "__file__", None) is None, (
+        "a test imported the real rclpy: run ROS 2 graphs in a private network namespace (issue 17)"
+    )
 
 
 def _record(path: Path, sim: Simulator, stops: int, seed: int) -> None:
