@@ -18,7 +18,10 @@ from monodock.core.layout import DockLayout
 
 
 def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
-    code = main(args)
+    try:
+        code = main(args)
+    except SystemExit as exc:  # argparse's own usage errors: one line and exit 2 too (cli.main.Parser)
+        code = int(exc.code or 0)
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -296,7 +299,8 @@ def test_output_where_a_file_cannot_go(sim_folder: Path, tmp_path: Path, capsys:
     [
         (["demo", "--train-stops", "0"], "--train-stops"),
         (["simulate", "--out", "x", "--preview", "-1"], "--preview"),
-        (["simulate", "--out", "x", "--supersample", "0"], "--supersample"),
+        (["simulate", "--out", "x", "--supersample", "0"], "--supersample: must be 1-64, got 0"),
+        (["dock-sim", "--out", "x", "--supersample", "65"], "--supersample: must be 1-64, got 65"),
         (["simulate", "--out", "x", "--depth", "2", "1"], "--depth"),
         (["train", "x", "--out", "x", "--trials", "0"], "--trials"),
         (["simulate", "--out", "x", "--format", "rosbag2", "--density", "1,2,x"], "--density"),

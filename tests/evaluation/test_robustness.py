@@ -125,7 +125,7 @@ def test_the_occluder_hides_the_share_it_is_built_for() -> None:
         (["--robustness", "--frames", "0"], "--frames must be at least 1"),
         (["--robustness", "--calibration-frames", "10"], "--calibration-frames must be at least 50"),
         (["--robustness", "--jobs", "0"], "--jobs must be at least 1"),
-        (["--robustness", "--supersample", "0"], "--supersample must be at least 1"),
+        (["--robustness", "--supersample", "0"], "--supersample: must be 1-64, got 0"),
         (["--frames", "5", "rec"], "--frames only applies with --robustness"),
         ([], "give the held-out RECORDING"),
         (["--robustness", "--frames", "many"], "invalid int value"),
