@@ -28,7 +28,7 @@ D = TypeVar("D")
 
 def _from_fields(cls: type[D], f: Fields) -> D:
     """An instance of the dataclass ``cls`` from a mapping: known keys typed like their defaults, others refused."""
-    defaults = cls()  # type: ignore[call-arg]
+    defaults = cls()
     known = {x.name: x for x in dataclasses.fields(cls)}  # type: ignore[arg-type]
     unknown = sorted(str(k) for k in f.data if k not in known)
     if unknown:
