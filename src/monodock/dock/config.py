@@ -49,6 +49,8 @@ def _from_fields(cls: type[D], f: Fields) -> D:
             values[name] = f.integer(name, minimum=0)
         elif isinstance(default, float):
             values[name] = f.number(name)
+        elif isinstance(default, str):
+            values[name] = f.string(name)
         else:  # pragma: no cover - every MissionConfig field is one of the above
             raise f.error(name, f"cannot be set from a file ({type(default).__name__})")
     try:

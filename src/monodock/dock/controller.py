@@ -34,7 +34,7 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.interface import Odometry, RobotInterface
-from monodock.dock.planner import Manoeuvre, PlannerConfig, plan, point_a
+from monodock.dock.planner import Manoeuvre, PlannerConfig, plan_for, point_a
 from monodock.dock.pose_filter import DockFilter, FilterConfig, MeasurementNoise
 from monodock.errors import ConfigError
 from monodock.estimation.estimator import Estimator
@@ -636,7 +636,7 @@ class DockingMission:
         """Calculate: the robot's pose in the dock frame, its case, Point A and the targets in odometry."""
         assert self.track.mean is not None
         robot = self.track.robot_in_dock(pose)
-        m = plan(robot, self.config.planner, self.robot.front_offset)
+        m = plan_for(robot, self.config.planner, self.robot.front_offset)
         dock = self.track.mean
         self.manoeuvre = m
         if self.case is None:

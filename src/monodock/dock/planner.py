@@ -28,7 +28,18 @@ from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.errors import ConfigError
 
-__all__ = ["CASES", "CaseSpec", "Manoeuvre", "PlannerConfig", "classify", "plan", "plan_papers", "point_a"]
+__all__ = [
+    "CASES",
+    "PLANNERS",
+    "CaseSpec",
+    "Manoeuvre",
+    "PlannerConfig",
+    "classify",
+    "plan",
+    "plan_for",
+    "plan_papers",
+    "point_a",
+]
 
 
 @dataclass(frozen=True)
@@ -77,11 +88,16 @@ CASES: dict[int, CaseSpec] = {
 }
 
 
+PLANNERS = ("monodock", "papers")
+
+
 @dataclass(frozen=True)
 class PlannerConfig:
     """Where Point A is.
 
     Attributes:
+        kind: "monodock" (``plan``: Point A at the stand-off, a turn to face it) or "papers" (``plan_papers``:
+            Point A on the heading line, Moving₁ straight with no turn).
         standoff: floor between the robot's front edge and the charger face at Point A, metres.
         arrive_tolerance: a start closer than this to A skips the drive to A (Moving₃'s P-control takes the
             rest), metres.
@@ -94,8 +110,11 @@ class PlannerConfig:
     arrive_tolerance: float = 0.10
     papers_min_standoff: float = 0.5
     papers_max_standoff: float = 2.0
+    kind: str = "monodock"
 
     def __post_init__(self) -> None:
+        if self.kind not in PLANNERS:
+            raise ConfigError(f"planner: kind must be one of {', '.join(PLANNERS)}, got {self.kind!r}")
         if not self.standoff > 0:
             raise ConfigError(f"the stand-off of Point A must be positive, got {self.standoff}")
         if not 0 < self.papers_min_standoff < self.papers_max_standoff:
@@ -185,3 +204,8 @@ def plan_papers(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Ma
                 classify(robot, a), robot, a, robot.theta, reverse, 0.0, abs(along), wrap_angle(-robot.theta)
             )
     return plan(robot, config, front_offset)
+
+
+def plan_for(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre:
+    """The configured planner's manoeuvre (``config.kind``)."""
+    return (plan_papers if config.kind == "papers" else plan)(robot, config, front_offset)
