@@ -76,11 +76,12 @@ def test_dock_sim_runs_with_a_config_file_and_reports_its_tolerances(tmp_path: P
     config = _write(tmp_path, {"tolerance_heading_deg": 3.07, "planner": {"standoff": 0.8}})
     out = tmp_path / "run"
     argv = ["dock-sim", "--cases", "1", "--trials", "1", "--method", "board", "--jobs", "1", "--out", str(out)]
-    assert main([*argv, "--config", str(config), "--standoff", "0.9"]) == 0
+    assert main([*argv, "--config", str(config), "--standoff", "0.9", "--planner", "papers"]) == 0
     settings = json.loads((out / "summary.json").read_text())["settings"]
     assert settings["tolerances"]["heading_deg"] == 3.07
     assert settings["tolerances"]["lateral_cm"] == 2.0  # the file left it alone
     assert settings["standoff_m"] == 0.9
+    assert settings["planner"] == "papers"
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("tolerance_heading: 3\n", encoding="utf-8")

@@ -15,7 +15,7 @@ from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.dock.config import load_mission_config
 from monodock.dock.controller import MissionConfig
-from monodock.dock.planner import CASES
+from monodock.dock.planner import CASES, PLANNERS
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.evaluation.dock_sim import (
@@ -98,6 +98,12 @@ def add_parser(subparsers: Any) -> None:
         "--config",
         help="docking config YAML: the mission's gains, speeds, tolerances, time-outs and retries (docs/docking.md)",
     )
+    d.add_argument(
+        "--planner",
+        choices=PLANNERS,
+        help="monodock (Point A at the stand-off, a turn to face it) or papers (Point A on the heading line, "
+        "straight there); default: the config's, monodock",
+    )
     d.add_argument("--standoff", type=float, help="Point A: floor between front edge and face, m (the config's: 1.0)")
     d.add_argument(
         "--distance",
@@ -140,6 +146,8 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         if args.max_retries < 0:
             raise InputError(f"--max-retries must not be negative, got {args.max_retries}")
         mission = dataclasses.replace(mission, max_retries=args.max_retries)
+    if args.planner is not None:
+        mission = dataclasses.replace(mission, planner=dataclasses.replace(mission.planner, kind=args.planner))
     if args.standoff is not None:
         if not args.standoff > 0:
             raise InputError(f"--standoff must be positive, got {args.standoff:g}")

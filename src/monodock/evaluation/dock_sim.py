@@ -663,6 +663,7 @@ class DockSimSettings:
     distance_m: tuple[float, float]
     max_heading_deg: float
     standoff_m: float
+    planner: str
     tolerance_lateral_cm: float
     tolerance_longitudinal_cm: float
     tolerance_heading_deg: float
@@ -676,6 +677,7 @@ class DockSimSettings:
             "distance_m": list(self.distance_m),
             "max_heading_deg": self.max_heading_deg,
             "standoff_m": self.standoff_m,
+            "planner": self.planner,
             "tolerances": {
                 "lateral_cm": self.tolerance_lateral_cm,
                 "longitudinal_cm": self.tolerance_longitudinal_cm,
@@ -695,6 +697,7 @@ class DockSimSettings:
             distance_m=(float(lo), float(hi)),
             max_heading_deg=float(d["max_heading_deg"]),
             standoff_m=float(d["standoff_m"]),
+            planner=str(d.get("planner", "monodock")),  # summaries written before the papers' planner
             tolerance_lateral_cm=float(t["lateral_cm"]),
             tolerance_longitudinal_cm=float(t["longitudinal_cm"]),
             tolerance_heading_deg=float(t["heading_deg"]),
@@ -827,6 +830,7 @@ def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> DockSimS
             distance_m=config.distance,
             max_heading_deg=config.max_heading_deg,
             standoff_m=c.planner.standoff,
+            planner=c.planner.kind,
             tolerance_lateral_cm=c.tolerance_lateral * 100,
             tolerance_longitudinal_cm=c.tolerance_longitudinal * 100,
             tolerance_heading_deg=c.tolerance_heading_deg,
