@@ -258,6 +258,40 @@ def test_each_case_docks_from_a_hand_placed_start(case: int) -> None:
         assert path[:, 0].min() < _start(case)[0] - 0.05  # it backed away from the face first
 
 
+@pytest.mark.parametrize(
+    "start",
+    [
+        Pose2D(-2.2, 0.45, math.radians(-18)),  # crossing ahead: forward to A, then Θab
+        Pose2D(-1.3, 0.25, math.radians(15)),  # heading away from the axis: A behind, on the heading line; reverse
+    ],
+)
+def test_the_papers_planner_drives_straight_along_its_heading_line_and_docks(start: Pose2D) -> None:
+    """``kind="papers"``: Point A on the heading line, Moving₁ a straight leg there with no turn of its own (a
+    centring turn for a lone marker is undone), Moving₂ the turn by Θab; docked within the tolerances by the truth."""
+    robot = _robot(start)
+    mission = _mission(robot, planner=PlannerConfig(kind="papers"))
+    result = run_mission(robot, make_perceive(_board(robot), "board"), mission)
+    assert result.state is State.DOCKED, result.log
+    m = mission.manoeuvre
+    assert m is not None
+    assert m.first_turn == 0.0
+    assert m.reverse == (start.y * math.sin(start.theta) > 0)
+    # The drive to A is one straight leg, along the start's heading (within the estimate's and odometry's errors).
+    entered = {entry.split(":")[0]: t for t, entry in result.log}
+    leg = np.array([(s.pose.x, s.pose.y) for s in robot.truth if entered["moving1-drive"] <= s.t <= entered["moving2"]])
+    chord = leg[-1] - leg[0]
+    normal = np.array([-chord[1], chord[0]]) / np.linalg.norm(chord)
+    # Straight to within the wheels' drift: the base steers on odometry, whose per-run wheel-scale error bows the
+    # true path by ~1 cm over a 1.4 m leg.
+    assert np.max(np.abs((leg - leg[0]) @ normal)) < 0.02
+    assert abs(
+        wrap_angle(math.atan2(chord[1], chord[0]) + (math.pi if m.reverse else 0.0) - start.theta)
+    ) < math.radians(3)
+    assert abs(robot.pose.y) < 0.01
+    assert abs(math.degrees(robot.pose.theta)) < 1.5
+    assert abs(robot.longitudinal_error()) < 0.01
+
+
 def test_markers_hidden_mid_approach_stop_the_robot_within_the_timeout() -> None:
     robot = _robot(Pose2D(-1.6, 0.0, 0.0))
     hidden_from: list[float] = []

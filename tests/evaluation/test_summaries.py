@@ -3,6 +3,7 @@ to the same values; the evaluation's summary has its keys; and computing never l
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -148,3 +149,21 @@ def test_computing_the_evaluations_loads_no_plotting_library() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_runs_are_grouped_by_the_case_executed_as_well_as_by_the_start_region(tmp_path: Path) -> None:
+    """A start in region 2 that executed case 4 counts under case 2's start region and under executed case 4; a
+    mission that never planned under 0; the read-back keeps both groupings."""
+    rng = np.random.default_rng(2)
+    turned = dataclasses.replace(_trial(2, "board", success=True, lateral=0.3, frames=_frames(rng)), classified_case=4)
+    straight = _trial(2, "board", success=True, lateral=0.1, frames=())
+    lost = _trial(7, "board", success=False, lateral=3.0, frames=())
+    summary = summarize([turned, straight, lost], DockSimConfig(cases=(2, 7), trials=2, methods=("board",)))
+    runs = summary.methods["board"]
+    assert {c: g.runs for c, g in runs.cases.items()} == {2: 2, 7: 1}
+    assert {c: g.runs for c, g in runs.executed.items()} == {0: 1, 2: 1, 4: 1}
+    assert runs.cases[2].case_agreement == 0.5
+    assert runs.executed[0].failures == {"markers-lost": 1}
+    path = tmp_path / "summary.json"
+    path.write_text(summary.to_json(), encoding="utf-8")
+    assert DockSimSummary.read(path).methods["board"].executed == runs.executed

@@ -14,8 +14,9 @@ from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.dock.config import load_mission_config
 from monodock.dock.controller import MissionConfig
-from monodock.dock.planner import CASES, PlannerConfig
+from monodock.dock.planner import CASES, PLANNERS
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.evaluation.dock_sim import (
@@ -95,7 +96,17 @@ def add_parser(subparsers: Any) -> None:
     d.add_argument("--force", action="store_true", help="replace an existing --out folder")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--jobs", type=int, help="worker processes (default: the cores, at most 4)")
-    d.add_argument("--standoff", type=float, default=1.0, help="Point A: floor between front edge and face, m (1.0)")
+    d.add_argument(
+        "--config",
+        help="docking config YAML: the mission's gains, speeds, tolerances, time-outs and retries (docs/docking.md)",
+    )
+    d.add_argument(
+        "--planner",
+        choices=PLANNERS,
+        help="monodock (Point A at the stand-off, a turn to face it) or papers (Point A on the heading line, "
+        "straight there); default: the config's, monodock",
+    )
+    d.add_argument("--standoff", type=float, help="Point A: floor between front edge and face, m (the config's: 1.0)")
     d.add_argument(
         "--distance",
         type=float,
@@ -105,7 +116,7 @@ def add_parser(subparsers: Any) -> None:
         help="starts: base_link's distance from the face, m (1.0 2.5)",
     )
     d.add_argument("--max-heading", type=float, default=30.0, help="starts: heading within ± this, degrees (30)")
-    d.add_argument("--max-retries", type=int, default=2, help="back off to Point A and try again up to N times (2)")
+    d.add_argument("--max-retries", type=int, help="back off to Point A and try again up to N times (the config's: 2)")
     d.add_argument(
         "--contact-sensor",
         action="store_true",
@@ -132,8 +143,17 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
 
     if args.out:
         check_writable(args.out, force=args.force)
-    if args.max_retries < 0:
-        raise InputError(f"--max-retries must not be negative, got {args.max_retries}")
+    mission = load_mission_config(args.config) if args.config else MissionConfig()
+    if args.max_retries is not None:
+        if args.max_retries < 0:
+            raise InputError(f"--max-retries must not be negative, got {args.max_retries}")
+        mission = dataclasses.replace(mission, max_retries=args.max_retries)
+    if args.planner is not None:
+        mission = dataclasses.replace(mission, planner=dataclasses.replace(mission.planner, kind=args.planner))
+    if args.standoff is not None:
+        if not args.standoff > 0:
+            raise InputError(f"--standoff must be positive, got {args.standoff:g}")
+        mission = dataclasses.replace(mission, planner=dataclasses.replace(mission.planner, standoff=args.standoff))
     if not 0 < args.distance[0] < args.distance[1]:
         raise InputError(f"--distance needs 0 < MIN < MAX, got {args.distance[0]:g} {args.distance[1]:g}")
     if not 0 < args.max_heading <= 60:
@@ -150,7 +170,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         max_heading_deg=args.max_heading,
         supersample=args.supersample,
         jobs=jobs,
-        mission=MissionConfig(planner=PlannerConfig(standoff=args.standoff), max_retries=args.max_retries),
+        mission=mission,
         drive=DiffDriveConfig(contact_sensor=args.contact_sensor, camera_rate=args.camera_rate),
         layout=DockLayout.load(args.layout) if args.layout else DockLayout.default(),
         camera=CameraModel.load(args.camera) if args.camera else CameraModel.default(),

@@ -34,7 +34,7 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.interface import Odometry, RobotInterface
-from monodock.dock.planner import Manoeuvre, PlannerConfig, plan, point_a
+from monodock.dock.planner import Manoeuvre, PlannerConfig, plan_for, point_a
 from monodock.dock.pose_filter import DockFilter, FilterConfig, MeasurementNoise
 from monodock.errors import ConfigError
 from monodock.estimation.estimator import Estimator
@@ -377,6 +377,7 @@ class DockingMission:
         self.reason = ""
         self.case: int | None = None
         self.manoeuvre: Manoeuvre | None = None
+        self.heading_before_center: float | None = None  # odometry heading when a centring turn began
         self.retries = 0
         self.log: list[tuple[float, str]] = []
         self.command = (0.0, 0.0)
@@ -539,6 +540,7 @@ class DockingMission:
                 and abs(bearing) > math.radians(c.center_tolerance_deg)
             ):
                 self.center_heading = wrap_angle(odom.pose.theta + bearing)
+                self.heading_before_center = odom.pose.theta
                 self._enter(now, State.CENTER, f"fewer than three markers; turning {math.degrees(bearing):+.1f} deg")
                 return (0.0, 0.0)
             self.track.seed(self.calc_samples)
@@ -636,7 +638,11 @@ class DockingMission:
         """Calculate: the robot's pose in the dock frame, its case, Point A and the targets in odometry."""
         assert self.track.mean is not None
         robot = self.track.robot_in_dock(pose)
-        m = plan(robot, self.config.planner, self.robot.front_offset)
+        if self.config.planner.kind == "papers" and self.centered and self.heading_before_center is not None:
+            # The papers' Point A lies on the heading the robot had when it calculated; a centring turn (ours,
+            # for a lone marker's ambiguity) is undone by Moving₁'s turn back to that heading.
+            robot = Pose2D(robot.x, robot.y, wrap_angle(robot.theta + self.heading_before_center - pose.theta))
+        m = plan_for(robot, self.config.planner, self.robot.front_offset)
         dock = self.track.mean
         self.manoeuvre = m
         if self.case is None:

@@ -28,7 +28,18 @@ from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.errors import ConfigError
 
-__all__ = ["CASES", "CaseSpec", "Manoeuvre", "PlannerConfig", "classify", "plan", "point_a"]
+__all__ = [
+    "CASES",
+    "PLANNERS",
+    "CaseSpec",
+    "Manoeuvre",
+    "PlannerConfig",
+    "classify",
+    "plan",
+    "plan_for",
+    "plan_papers",
+    "point_a",
+]
 
 
 @dataclass(frozen=True)
@@ -77,22 +88,40 @@ CASES: dict[int, CaseSpec] = {
 }
 
 
+PLANNERS = ("monodock", "papers")
+
+
 @dataclass(frozen=True)
 class PlannerConfig:
     """Where Point A is.
 
     Attributes:
+        kind: "monodock" (``plan``: Point A at the stand-off, a turn to face it) or "papers" (``plan_papers``:
+            Point A on the heading line, Moving₁ straight with no turn).
         standoff: floor between the robot's front edge and the charger face at Point A, metres.
         arrive_tolerance: a start closer than this to A skips the drive to A (Moving₃'s P-control takes the
             rest), metres.
+        papers_min_standoff, papers_max_standoff: the papers' planner puts Point A where the robot's heading line
+            crosses the approach axis when that leaves this much floor (metres) before the face; otherwise it
+            turns first, to the stand-off above.
     """
 
     standoff: float = 1.0
     arrive_tolerance: float = 0.10
+    papers_min_standoff: float = 0.5
+    papers_max_standoff: float = 2.0
+    kind: str = "monodock"
 
     def __post_init__(self) -> None:
+        if self.kind not in PLANNERS:
+            raise ConfigError(f"planner: kind must be one of {', '.join(PLANNERS)}, got {self.kind!r}")
         if not self.standoff > 0:
             raise ConfigError(f"the stand-off of Point A must be positive, got {self.standoff}")
+        if not 0 < self.papers_min_standoff < self.papers_max_standoff:
+            raise ConfigError(
+                "the papers' planner needs 0 < papers_min_standoff < papers_max_standoff, got "
+                f"{self.papers_min_standoff} and {self.papers_max_standoff}"
+            )
 
 
 def point_a(config: PlannerConfig, front_offset: float) -> Pose2D:
@@ -153,3 +182,30 @@ def plan(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre
     first = wrap_angle(heading - robot.theta)
     second = wrap_angle(a.theta - heading)
     return Manoeuvre(case, robot, a, heading, reverse, first, distance, second)
+
+
+def plan_papers(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre:
+    """The papers' manoeuvre as written: Moving₁ straight to Point A, Moving₂ the turn by Θab, no other turn.
+
+    Point A is where the robot's heading line meets the approach axis (y = 0), so driving straight along the
+    heading (forward if A is ahead, in reverse if behind) reaches it with no turn; Θab, the angle between the
+    heading and the axis, is then turned at A. When the heading line meets the axis nowhere usable (parallel to
+    it, or leaving less than ``papers_min_standoff`` or more than ``papers_max_standoff`` of floor before the
+    face), the papers' Fig. 15 cases turn first: this is ``plan``'s manoeuvre to the stand-off Point A.
+    """
+    sin_t, cos_t = math.sin(robot.theta), math.cos(robot.theta)
+    if abs(sin_t) > 1e-6:
+        along = -robot.y / sin_t  # signed distance along the heading to the axis
+        a = Pose2D(robot.x + along * cos_t, 0.0, 0.0)
+        floor = -(a.x + front_offset)
+        if config.papers_min_standoff <= floor <= config.papers_max_standoff:
+            reverse = along < 0.0
+            return Manoeuvre(
+                classify(robot, a), robot, a, robot.theta, reverse, 0.0, abs(along), wrap_angle(-robot.theta)
+            )
+    return plan(robot, config, front_offset)
+
+
+def plan_for(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre:
+    """The configured planner's manoeuvre (``config.kind``)."""
+    return (plan_papers if config.kind == "papers" else plan)(robot, config, front_offset)

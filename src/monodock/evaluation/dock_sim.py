@@ -489,17 +489,40 @@ class RunGroup:
 
 @dataclass(frozen=True)
 class MethodRuns:
-    """One method's runs: every run together, and per case (in the order of the config's cases)."""
+    """One method's runs: every run together, per start region (``cases``, in the order of the config's cases),
+    and per case the mission executed (``executed``; 0: it never planned, e.g. the dock was not found).
+
+    The two differ: a start that first turns to face the dock changes its heading, and so its case. ``cases``
+    says how the starts fared; ``executed`` how each case's manoeuvre fared.
+    """
 
     overall: RunGroup
     cases: Mapping[int, RunGroup]
+    executed: Mapping[int, RunGroup] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, results: Sequence[TrialResult], cases: Sequence[int]) -> MethodRuns:
+        executed = sorted({r.classified_case or 0 for r in results})
+        return cls(
+            RunGroup.of(results),
+            {c: RunGroup.of([r for r in results if r.case == c]) for c in cases},
+            {c: RunGroup.of([r for r in results if (r.classified_case or 0) == c]) for c in executed},
+        )
 
     def to_dict(self) -> dict[str, Any]:
-        return {"overall": self.overall.to_dict(), "cases": {str(c): g.to_dict() for c, g in self.cases.items()}}
+        return {
+            "overall": self.overall.to_dict(),
+            "cases": {str(c): g.to_dict() for c, g in self.cases.items()},
+            "executed": {str(c): g.to_dict() for c, g in self.executed.items()},
+        }
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> MethodRuns:
-        return cls(RunGroup.from_dict(d["overall"]), {int(c): RunGroup.from_dict(g) for c, g in d["cases"].items()})
+        return cls(
+            RunGroup.from_dict(d["overall"]),
+            {int(c): RunGroup.from_dict(g) for c, g in d["cases"].items()},
+            {int(c): RunGroup.from_dict(g) for c, g in d.get("executed", {}).items()},  # absent before issue 16
+        )
 
 
 FILTER_BANDS_CM = tuple(range(25, 251, 25))  # camera depth band edges of the filter figures
@@ -663,6 +686,7 @@ class DockSimSettings:
     distance_m: tuple[float, float]
     max_heading_deg: float
     standoff_m: float
+    planner: str
     tolerance_lateral_cm: float
     tolerance_longitudinal_cm: float
     tolerance_heading_deg: float
@@ -676,6 +700,7 @@ class DockSimSettings:
             "distance_m": list(self.distance_m),
             "max_heading_deg": self.max_heading_deg,
             "standoff_m": self.standoff_m,
+            "planner": self.planner,
             "tolerances": {
                 "lateral_cm": self.tolerance_lateral_cm,
                 "longitudinal_cm": self.tolerance_longitudinal_cm,
@@ -695,6 +720,7 @@ class DockSimSettings:
             distance_m=(float(lo), float(hi)),
             max_heading_deg=float(d["max_heading_deg"]),
             standoff_m=float(d["standoff_m"]),
+            planner=str(d.get("planner", "monodock")),  # summaries written before the papers' planner
             tolerance_lateral_cm=float(t["lateral_cm"]),
             tolerance_longitudinal_cm=float(t["longitudinal_cm"]),
             tolerance_heading_deg=float(t["heading_deg"]),
@@ -811,8 +837,7 @@ def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> DockSimS
     """The summary.json contract: per method its runs overall and per case, the filter's accuracy, the settings."""
     methods: dict[str, MethodRuns] = {}
     for m in config.methods:
-        rs = [r for r in results if r.method == m]
-        methods[m] = MethodRuns(RunGroup.of(rs), {c: RunGroup.of([r for r in rs if r.case == c]) for c in config.cases})
+        methods[m] = MethodRuns.of([r for r in results if r.method == m], config.cases)
     c = config.mission
     return DockSimSummary(
         method=config.methods[0],
@@ -827,6 +852,7 @@ def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> DockSimS
             distance_m=config.distance,
             max_heading_deg=config.max_heading_deg,
             standoff_m=c.planner.standoff,
+            planner=c.planner.kind,
             tolerance_lateral_cm=c.tolerance_lateral * 100,
             tolerance_longitudinal_cm=c.tolerance_longitudinal * 100,
             tolerance_heading_deg=c.tolerance_heading_deg,

@@ -422,7 +422,7 @@ def dock_settings(config: DockSimConfig) -> dict[str, object]:
             "max_heading_deg": config.max_heading_deg,
             "marker 2 in view": True,
         },
-        "Point A": {"standoff_m": c.planner.standoff},
+        "Point A": {"planner": c.planner.kind, "standoff_m": c.planner.standoff},
         "robot": {
             "camera_rate_hz": d.camera_rate,
             "camera_latency_ms": round(d.camera_latency * 1000, 3),

@@ -1,0 +1,90 @@
+"""The docking config file: the mission's gains, speeds, tolerances, time-outs and retries as one YAML mapping.
+
+The file mirrors ``MissionConfig`` field by field, its nested sections (``planner``, ``track`` with its
+``odometry``, ``measurement``) as nested mappings. Every key is optional (a missing one keeps its default) and
+every key must be known: a misspelt gain is refused, not ignored. Values are checked for type and finiteness
+here and for their ranges by the dataclasses themselves; any error is one line naming the file and the key.
+``monodock dock-sim --config`` and the docking node's parameters read the same schema.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+from monodock.core.config import Fields, load_yaml, write_text_atomic
+from monodock.dock.controller import MissionConfig
+from monodock.errors import ConfigError
+
+__all__ = ["load_mission_config", "mission_config_from_dict", "mission_config_to_dict", "save_mission_config"]
+
+D = TypeVar("D")
+
+
+def _from_fields(cls: type[D], f: Fields) -> D:
+    """An instance of the dataclass ``cls`` from a mapping: known keys typed like their defaults, others refused."""
+    defaults = cls()
+    known = {x.name: x for x in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(str(k) for k in f.data if k not in known)
+    if unknown:
+        raise f.error(unknown[0], f"unknown key (known: {', '.join(known)})")
+    values: dict[str, Any] = {}
+    for name in known:
+        if not f.has(name):
+            continue
+        default = getattr(defaults, name)
+        if dataclasses.is_dataclass(default):
+            values[name] = _from_fields(type(default), f.child(name))
+        elif isinstance(default, bool):
+            value = f.raw(name)
+            if not isinstance(value, bool):
+                raise f.error(name, f"expected true or false, got {value!r}")
+            values[name] = value
+        elif isinstance(default, int):
+            values[name] = f.integer(name, minimum=0)
+        elif isinstance(default, float):
+            values[name] = f.number(name)
+        elif isinstance(default, str):
+            values[name] = f.string(name)
+        else:  # pragma: no cover - every MissionConfig field is one of the above
+            raise f.error(name, f"cannot be set from a file ({type(default).__name__})")
+    try:
+        return dataclasses.replace(defaults, **values)  # type: ignore[type-var]
+    except ConfigError as exc:
+        raise ConfigError(f"{f.source}: {exc}") from None
+
+
+def mission_config_from_dict(data: dict[str, Any], source: str = "docking config") -> MissionConfig:
+    """A MissionConfig from a mapping (defaults for the keys it leaves out)."""
+    return _from_fields(MissionConfig, Fields(data, source))
+
+
+def load_mission_config(path: str | os.PathLike[str]) -> MissionConfig:
+    """Read a docking config YAML file."""
+    return mission_config_from_dict(load_yaml(path, "docking config"), str(path))
+
+
+def _plain(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"docking config: cannot write a non-finite value ({value})")
+    return value
+
+
+def mission_config_to_dict(config: MissionConfig) -> dict[str, Any]:
+    """Every field of the config as a nested mapping (what a config file may hold)."""
+    out = _plain(config)
+    assert isinstance(out, dict)
+    return out
+
+
+def save_mission_config(config: MissionConfig, path: str | os.PathLike[str], *, force: bool = False) -> None:
+    """Write the config as YAML, atomically (refused over an existing file without ``force``)."""
+    text = yaml.safe_dump(mission_config_to_dict(config), sort_keys=False, default_flow_style=False)
+    write_text_atomic(Path(path), text, force=force)
