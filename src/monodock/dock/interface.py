@@ -58,6 +58,16 @@ class RobotInterface(Protocol):
         """Whether the charger contacts (or a bumper) report touch; None when the robot cannot tell."""
         ...
 
+    def charging(self) -> bool | None:
+        """Whether the charger delivers current (a battery's CHARGING status); None when the robot cannot tell."""
+        ...
+
+    def rear_range(self) -> float | None:
+        """Distance (m) from the robot's back edge to the nearest obstacle behind it, as a ``sensor_msgs/Range``
+        or a LaserScan's rear sector reports it: ``math.inf`` when nothing is in range, None without a rear
+        sensor (reversing is then bounded by distance and speed only)."""
+        ...
+
     def sleep(self, seconds: float) -> None:
         """Let ``seconds`` of robot time pass (the simulator steps its physics; a real robot waits)."""
         ...

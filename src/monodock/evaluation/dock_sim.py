@@ -159,6 +159,9 @@ class TrialResult:
     log: tuple[tuple[float, str], ...]
     filter_frames: tuple[FilterFrame, ...] = ()
     failure: str = ""  # the mission's FailureReason ("" when it docked by its own estimate)
+    planner: str = "monodock"
+    point_a: tuple[float, float] | None = None  # the planned Point A (x, y) in the dock frame, by the truth's axes
+    path_t: tuple[float, ...] = ()  # the time of each ``path`` sample, seconds since the start
 
 
 def case_distances(case: int, config: DockSimConfig) -> tuple[float, float]:
@@ -297,7 +300,9 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         and abs(gap) <= c.tolerance_longitudinal
         and abs(heading) <= math.radians(c.tolerance_heading_deg)
     )
-    path = tuple((s.pose.x, s.pose.y, s.pose.theta) for s in robot.truth[::10])
+    samples = robot.truth[::10]
+    path = tuple((s.pose.x, s.pose.y, s.pose.theta) for s in samples)
+    m = mission.manoeuvre
     return TrialResult(
         case=task.case,
         trial=task.trial,
@@ -319,8 +324,11 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         render_s=robot.render_seconds,
         perceive_s=perceive_s,
         path=(*path, (p.x, p.y, p.theta)),
+        path_t=(*(s.t for s in samples), robot.t),
         log=tuple(result.log),
         filter_frames=tuple(frames),
+        planner=config.mission.planner.kind,
+        point_a=None if m is None else (m.point_a.x, m.point_a.y),
     )
 
 

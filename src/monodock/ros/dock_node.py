@@ -94,6 +94,12 @@ class Ros2Robot:
     def contact(self) -> bool | None:
         return self._contact
 
+    def charging(self) -> bool | None:
+        return None  # the charging topic comes with the long-running node (issue 17)
+
+    def rear_range(self) -> float | None:
+        return None
+
     def sleep(self, seconds: float) -> None:
         end = self.now() + seconds
         while (left := end - self.now()) > 0:
