@@ -91,6 +91,7 @@ class DockSimConfig:
     cases: tuple[int, ...] = tuple(CASES)
     trials: int = 25
     methods: tuple[str, ...] = ("regression",)
+    planners: tuple[str, ...] = ()  # PLANNERS to run from the same starts; () = the mission config's planner
     seed: int = 0
     distance: tuple[float, float] = (1.0, 2.5)  # base_link's distance from the face along the axis, metres
     max_heading_deg: float = 30.0
@@ -104,6 +105,11 @@ class DockSimConfig:
     robot: RobotConfig = field(default_factory=RobotConfig.default)
     nuisances: Nuisances = field(default_factory=Nuisances)
     bundle: Path | None = None  # the regression's model bundle
+
+    @property
+    def planner_kinds(self) -> tuple[str, ...]:
+        """The planners that run, each from every start."""
+        return self.planners or (self.mission.planner.kind,)
 
     def simulator(self, seed: int = 0) -> Simulator:
         # supersample is the renderer's sampling where surfaces meet, not a nuisance (Nuisances.supersample).
@@ -254,6 +260,7 @@ class _Task:
     trial: int
     method: str
     start: Pose2D
+    planner: str = "monodock"
 
 
 def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
@@ -265,6 +272,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     robot = SimulatedRobot(sim, task.start, config.drive, rng)
     mission_config = dataclasses.replace(
         config.mission,
+        planner=dataclasses.replace(config.mission.planner, kind=task.planner),
         measurement=MeasurementNoise.for_method(task.method),
         track=dataclasses.replace(config.mission.track, odometry=odometry_noise(config.drive)),
     )
@@ -327,7 +335,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         path_t=(*(s.t for s in samples), robot.t),
         log=tuple(result.log),
         filter_frames=tuple(frames),
-        planner=config.mission.planner.kind,
+        planner=task.planner,
         point_a=None if m is None else (m.point_a.x, m.point_a.y),
     )
 
@@ -376,7 +384,7 @@ def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialR
         rng = np.random.default_rng([config.seed, case, 5])
         for trial in range(config.trials):
             start = sample_start(case, sim, planner, rng, config)
-            tasks.extend(_Task(case, trial, m, start) for m in config.methods)
+            tasks.extend(_Task(case, trial, m, start, p) for p in config.planner_kinds for m in config.methods)
     results = map_with_state(_run_trial, config, tasks, jobs=config.jobs, chunksize=1)
     bar = tqdm(results, total=len(tasks), desc="docking runs", unit="run", disable=not progress)
     return list(bar)
