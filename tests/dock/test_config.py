@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from monodock.dock.config import load_mission_config, mission_config_to_dict, save_mission_config
-from monodock.dock.controller import MissionConfig
+from monodock.dock.config import docking_config_to_dict, load_docking_config, save_docking_config
+from monodock.dock.controller import DockingConfig
 from monodock.errors import ConfigError
 
 
@@ -21,26 +21,26 @@ def _write(tmp_path: Path, data: object) -> Path:
 
 
 def test_a_saved_config_loads_back_equal_and_refuses_to_overwrite(tmp_path: Path) -> None:
-    config = dataclasses.replace(MissionConfig(), approach_speed=0.08, max_retries=4, acquire=False)
+    config = dataclasses.replace(DockingConfig(), approach_speed=0.08, max_retries=4, acquire=False)
     path = tmp_path / "docking.yaml"
-    save_mission_config(config, path)
-    assert load_mission_config(path) == config
-    assert set(yaml.safe_load(path.read_text())) == {f.name for f in dataclasses.fields(MissionConfig)}
+    save_docking_config(config, path)
+    assert load_docking_config(path) == config
+    assert set(yaml.safe_load(path.read_text())) == {f.name for f in dataclasses.fields(DockingConfig)}
     with pytest.raises(Exception, match="exists"):
-        save_mission_config(MissionConfig(), path)
+        save_docking_config(DockingConfig(), path)
 
 
 def test_a_partial_file_sets_only_its_keys_nested_ones_included(tmp_path: Path) -> None:
     path = _write(tmp_path, {"k_lateral": 3, "planner": {"standoff": 0.8}, "track": {"odometry": {"track_width": 0.5}}})
-    config = load_mission_config(path)
-    default = MissionConfig()
+    config = load_docking_config(path)
+    default = DockingConfig()
     assert config.k_lateral == 3.0
     assert isinstance(config.k_lateral, float)
     assert config.planner.standoff == 0.8
     assert config.planner.arrive_tolerance == default.planner.arrive_tolerance
     assert config.track.odometry.track_width == 0.5
     assert config.track.gate_chi2 == default.track.gate_chi2
-    changed = {k for k, v in mission_config_to_dict(config).items() if v != mission_config_to_dict(default)[k]}
+    changed = {k for k, v in docking_config_to_dict(config).items() if v != docking_config_to_dict(default)[k]}
     assert changed == {"k_lateral", "planner", "track"}
 
 
@@ -62,7 +62,7 @@ def test_a_partial_file_sets_only_its_keys_nested_ones_included(tmp_path: Path) 
 )
 def test_bad_values_and_keys_are_refused_naming_the_key(tmp_path: Path, data: object, message: str) -> None:
     with pytest.raises(ConfigError, match=message) as info:
-        load_mission_config(_write(tmp_path, data))
+        load_docking_config(_write(tmp_path, data))
     assert "\n" not in str(info.value)
 
 

@@ -20,8 +20,8 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
 from monodock.dock import (
     CASES,
+    DockingConfig,
     DockingMission,
-    MissionConfig,
     Observation,
     PlannerConfig,
     Pose2D,
@@ -226,7 +226,7 @@ def test_the_face_is_solid() -> None:
 
 def _mission(robot: SimulatedRobot, **config: object) -> DockingMission:
     sim = robot.sim
-    cfg = MissionConfig(measurement=MeasurementNoise.for_method("board"), **config)  # type: ignore[arg-type]
+    cfg = DockingConfig(measurement=MeasurementNoise.for_method("board"), **config)  # type: ignore[arg-type]
     return DockingMission(cfg, sim.robot, blind_gap(sim.camera, sim.layout, sim.robot))
 
 
@@ -408,7 +408,7 @@ def test_failure_reasons_map_to_nav2_docking_error_codes() -> None:
 
 def test_every_state_has_its_own_handler() -> None:
     """The dispatch table covers every state; each state that is not final has a handler of its own."""
-    mission = DockingMission(MissionConfig(), RobotConfig.default(), 0.1)
+    mission = DockingMission(DockingConfig(), RobotConfig.default(), 0.1)
     handlers = mission._handlers
     assert set(handlers) == set(State)
     working = [s for s in State if not s.final]

@@ -54,4 +54,3 @@ def test_without_a_usable_crossing_it_turns_first_as_fig15(start: Pose2D) -> Non
     m = plan_papers(start, config, FRONT)
     assert m == plan(start, config, FRONT)
     assert m.point_a.x == pytest.approx(-(config.standoff + FRONT))
-

@@ -22,7 +22,7 @@ from scipy.stats import chi2
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
-from monodock.dock.controller import DockingMission, MissionConfig, Observation
+from monodock.dock.controller import DockingConfig, DockingMission, Observation
 from monodock.dock.pose_filter import (
     GATE_CHI2_3DOF,
     DockFilter,
@@ -274,7 +274,7 @@ def test_coasting_through_a_blackout_stays_bounded_and_grows_the_covariance() ->
 def test_mission_reads_the_observation_covariance() -> None:
     """The controller folds a frame in with the covariance it came with, and falls back to the defaults."""
     robot = RobotConfig.default()
-    mission = DockingMission(MissionConfig(measurement=NOISE), robot, 0.1)
+    mission = DockingMission(DockingConfig(measurement=NOISE), robot, 0.1)
     pose = DockPose(1.2, 0.05, 0.02)
     own = np.diag([1e-4, 4e-6, 1e-4])
     assert mission.measurement_covariance(Observation(0.0, pose, 3, own)) is not None

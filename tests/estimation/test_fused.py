@@ -84,8 +84,6 @@ class _CountingRegression:
         return self.answer
 
 
-
-
 def test_the_regression_runs_only_where_it_can_improve_the_answer() -> None:
     """Three markers at 1 m: a regression 1 cm / 1 degree good cannot improve the planar fit and is not run; one
     as good as the corners is run and pulls the answer; a lone far marker always asks it (the yaw sign). The
@@ -155,8 +153,6 @@ def test_the_covariance_floor_only_changes_what_is_below_it() -> None:
     w = np.linalg.eigvalsh(got / np.outer(s, s))
     assert w.min() == pytest.approx(1.0, rel=1e-9)
     np.testing.assert_allclose(got[0, 0] + got[1, 1] + 2 * got[0, 1], 4e-6, rtol=1e-6)
-
-
 
 
 def test_the_warm_up_runs_both_refiner_paths_on_valid_views() -> None:

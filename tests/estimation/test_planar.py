@@ -27,14 +27,8 @@ from shared import pose_at
 ROLE_SETS = [("center",), ("left", "center"), ("left", "center", "right")]
 
 
-
-
 def _errors(a: DockPose, b: DockPose) -> np.ndarray:
     return np.array([a.x - b.x, a.y - b.y, wrap_angle(a.yaw - b.yaw)])
-
-
-
-
 
 
 @pytest.mark.parametrize("lens", ["default", "k1=-0.2"])

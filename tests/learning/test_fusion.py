@@ -145,8 +145,6 @@ def test_the_camera_mount_pitch_and_height_are_learned_from_the_images() -> None
     assert depth_error(FusionTables(0.2, mount_pitch_offset=pitch, mount_z_offset=height)) < 0.003
 
 
-
-
 def test_the_camera_mount_roll_is_learned_from_the_images() -> None:
     """The robot file says the camera is 1 degree less rolled than it is: the 3-DoF fit is centimetres off, the
     roll-offset fits of a few dozen views give the error back, and the fit with it is as good as the truth's."""
@@ -182,8 +180,6 @@ def test_the_camera_mount_roll_is_learned_from_the_images() -> None:
 
     assert errors(FusionTables(0.2)).mean(axis=0).max() > 0.01  # the 3-DoF fit on the wrong mount
     assert errors(FusionTables(0.2, mount_roll_offset=roll)).mean(axis=0).max() < 0.002
-
-
 
 
 def test_the_geometry_excess_ignores_label_and_regression_sharing_an_error() -> None:

@@ -756,7 +756,6 @@ def _target_board_pose(
 ) -> NDArray[np.float64] | None:
     """optical_T_target from the target's markers in an image (two markers at least), or None."""
 
-
     corners, ids, _ = detector.detectMarkers(as_gray(image))
     if ids is None:
         return None

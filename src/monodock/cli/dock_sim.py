@@ -14,8 +14,8 @@ from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.dock.config import load_mission_config
-from monodock.dock.controller import MissionConfig
+from monodock.dock.config import load_docking_config
+from monodock.dock.controller import DockingConfig
 from monodock.dock.planner import CASES, PLANNERS
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
@@ -143,7 +143,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
 
     if args.out:
         check_writable(args.out, force=args.force)
-    mission = load_mission_config(args.config) if args.config else MissionConfig()
+    mission = load_docking_config(args.config) if args.config else DockingConfig()
     if args.max_retries is not None:
         if args.max_retries < 0:
             raise InputError(f"--max-retries must not be negative, got {args.max_retries}")

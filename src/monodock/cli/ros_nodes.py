@@ -20,8 +20,6 @@ from monodock.ros.dock_node import DockOptions, run_dock
 __all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser"]
 
 
-
-
 def _add_image_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image-topic", default="/camera/image_raw")
     p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")

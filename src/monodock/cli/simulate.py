@@ -213,5 +213,3 @@ def _simulate_recording(args: argparse.Namespace, sim: Simulator, estimator: Est
                 (tmp / name).write_bytes(png)
         print(f"preview overlays: {target}")
     return 0
-
-

@@ -3,25 +3,36 @@ tracked in odometry (pose_filter) and the robot interface; what runs on the robo
 
 from monodock.core.pose2d import Pose2D
 from monodock.dock.controller import (
+    DockingConfig,
     DockingMission,
     FailureReason,
-    MissionConfig,
     MissionResult,
     Observation,
     State,
     run_mission,
 )
 from monodock.dock.interface import CameraFrame, Odometry, RobotInterface
-from monodock.dock.planner import CASES, CaseSpec, Manoeuvre, PlannerConfig, classify, plan, point_a
+from monodock.dock.planner import (
+    CASES,
+    CaseSpec,
+    Manoeuvre,
+    PlannerConfig,
+    classify,
+    plan,
+    plan_for,
+    plan_monodock,
+    plan_papers,
+    point_a,
+)
 
 __all__ = [
     "CASES",
     "CameraFrame",
     "CaseSpec",
+    "DockingConfig",
     "DockingMission",
     "FailureReason",
     "Manoeuvre",
-    "MissionConfig",
     "MissionResult",
     "Observation",
     "Odometry",
@@ -31,6 +42,9 @@ __all__ = [
     "State",
     "classify",
     "plan",
+    "plan_for",
+    "plan_monodock",
+    "plan_papers",
     "point_a",
     "run_mission",
 ]

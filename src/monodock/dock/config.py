@@ -1,6 +1,6 @@
 """The docking config file: the mission's gains, speeds, tolerances, time-outs and retries as one YAML mapping.
 
-The file mirrors ``MissionConfig`` field by field, its nested sections (``planner``, ``track`` with its
+The file mirrors ``DockingConfig`` field by field, its nested sections (``planner``, ``track`` with its
 ``odometry``, ``measurement``) as nested mappings. Every key is optional (a missing one keeps its default) and
 every key must be known: a misspelt gain is refused, not ignored. Values are checked for type and finiteness
 here and for their ranges by the dataclasses themselves; any error is one line naming the file and the key.
@@ -18,10 +18,10 @@ from typing import Any, TypeVar
 import yaml
 
 from monodock.core.config import Fields, load_yaml, write_text_atomic
-from monodock.dock.controller import MissionConfig
+from monodock.dock.controller import DockingConfig
 from monodock.errors import ConfigError
 
-__all__ = ["load_mission_config", "mission_config_from_dict", "mission_config_to_dict", "save_mission_config"]
+__all__ = ["docking_config_from_dict", "docking_config_to_dict", "load_docking_config", "save_docking_config"]
 
 D = TypeVar("D")
 
@@ -51,7 +51,7 @@ def _from_fields(cls: type[D], f: Fields) -> D:
             values[name] = f.number(name)
         elif isinstance(default, str):
             values[name] = f.string(name)
-        else:  # pragma: no cover - every MissionConfig field is one of the above
+        else:  # pragma: no cover - every DockingConfig field is one of the above
             raise f.error(name, f"cannot be set from a file ({type(default).__name__})")
     try:
         return dataclasses.replace(defaults, **values)  # type: ignore[type-var]
@@ -59,14 +59,14 @@ def _from_fields(cls: type[D], f: Fields) -> D:
         raise ConfigError(f"{f.source}: {exc}") from None
 
 
-def mission_config_from_dict(data: dict[str, Any], source: str = "docking config") -> MissionConfig:
-    """A MissionConfig from a mapping (defaults for the keys it leaves out)."""
-    return _from_fields(MissionConfig, Fields(data, source))
+def docking_config_from_dict(data: dict[str, Any], source: str = "docking config") -> DockingConfig:
+    """A DockingConfig from a mapping (defaults for the keys it leaves out)."""
+    return _from_fields(DockingConfig, Fields(data, source))
 
 
-def load_mission_config(path: str | os.PathLike[str]) -> MissionConfig:
+def load_docking_config(path: str | os.PathLike[str]) -> DockingConfig:
     """Read a docking config YAML file."""
-    return mission_config_from_dict(load_yaml(path, "docking config"), str(path))
+    return docking_config_from_dict(load_yaml(path, "docking config"), str(path))
 
 
 def _plain(value: Any) -> Any:
@@ -77,14 +77,14 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def mission_config_to_dict(config: MissionConfig) -> dict[str, Any]:
+def docking_config_to_dict(config: DockingConfig) -> dict[str, Any]:
     """Every field of the config as a nested mapping (what a config file may hold)."""
     out = _plain(config)
     assert isinstance(out, dict)
     return out
 
 
-def save_mission_config(config: MissionConfig, path: str | os.PathLike[str], *, force: bool = False) -> None:
+def save_docking_config(config: DockingConfig, path: str | os.PathLike[str], *, force: bool = False) -> None:
     """Write the config as YAML, atomically (refused over an existing file without ``force``)."""
-    text = yaml.safe_dump(mission_config_to_dict(config), sort_keys=False, default_flow_style=False)
+    text = yaml.safe_dump(docking_config_to_dict(config), sort_keys=False, default_flow_style=False)
     write_text_atomic(Path(path), text, force=force)

@@ -40,9 +40,9 @@ from monodock.errors import ConfigError
 from monodock.estimation.estimator import Estimator
 
 __all__ = [
+    "DockingConfig",
     "DockingMission",
     "FailureReason",
-    "MissionConfig",
     "MissionResult",
     "Observation",
     "Perceive",
@@ -57,7 +57,7 @@ class State(StrEnum):
     """The mission's states: what the robot does in each and what ends it.
 
     Every state that is not final also ends in ``FAILED`` (``FailureReason.TIMEOUT``) when the mission has run
-    longer than ``MissionConfig.mission_timeout``. The values are what the mission's log and dock-sim's
+    longer than ``DockingConfig.mission_timeout``. The values are what the mission's log and dock-sim's
     ``runs.csv`` print.
     """
 
@@ -77,36 +77,63 @@ class State(StrEnum):
     twice in a row); in ``MOVING1_TURN`` with the plan (the case, Point A, the targets in odometry; the dock filter
     seeded); back in ``ACQUIRE`` when no frame came within ``calculate_timeout``."""
 
+    MOVING1_BACK = "moving1-back"
+    """monodock's planner only: back out straight along the start heading (the camera keeps the dock in view) by
+    the plan's ``back_out``, on odometry. Ends in ``MOVING1_TURN`` on arrival."""
+
     MOVING1_TURN = "moving1-turn"
-    """Moving₁'s first part: turn on the spot, on odometry, to the heading of the straight leg to Point A. Ends in
-    ``MOVING1_DRIVE`` when there and still."""
+    """Moving₁'s first part: turn on the spot, on odometry, to the heading of the straight leg to Point A (no turn
+    with the papers' planner). Ends in ``MOVING1_DRIVE`` when there and still."""
 
     MOVING1_DRIVE = "moving1-drive"
-    """Moving₁: drive straight to Point A on odometry (backwards in the cases past A), steering on the bearing.
-    Ends in ``MOVING2`` on arrival (within ``arrive_tolerance``)."""
+    """Moving₁: drive straight to Point A on odometry (backwards where the plan says so), steering on the
+    bearing. Ends in ``MOVING2`` on arrival (within ``arrive_tolerance``)."""
 
     MOVING2 = "moving2"
-    """Moving₂: turn on the spot, on odometry, to face the charger square from Point A. Ends in ``MOVING3`` when
-    there and still; the lost-markers clock starts then."""
+    """Moving₂: turn on the spot, on odometry, to face the charger square from Point A (by Θab). Ends in
+    ``MOVING3`` when there and still; the lost-markers clock starts then. From ``MOVING1_TURN`` to here, every
+    frame that sees the dock refines the dock filter, and Point A and the turns follow it
+    (``refine_while_moving``)."""
 
     MOVING3 = "moving3"
     """Moving₃: straight at the face; every frame refines the dock filter, a P-controller steers the lateral and
     heading errors, the speed falls towards the face, and the blind zone is driven on the filter alone at creep
     speed. Ends in ``SETTLE`` on contact or at the face by the estimate; in ``BACK_OFF`` at the checkpoint
-    (``checkpoint_gap``) when off the axis or the heading reference with retries left; in ``FAILED``
-    (``MARKERS_LOST``) when no frame updated the filter for ``lost_timeout`` outside the blind zone."""
+    (``checkpoint_gap``) when off the axis or the heading reference with retries left; in ``RECOVER`` when no
+    frame updated the filter for ``lost_timeout`` outside the blind zone with retries left, else in ``FAILED``
+    (``MARKERS_LOST``)."""
+
+    RECOVER = "recover"
+    """Markers lost mid-approach: stop, back off straight (along the approach) by ``recover_distance``, on
+    odometry. Ends in ``CALCULATE`` on arrival (which re-acquires when no frame comes)."""
 
     SETTLE = "settle"
-    """Stand still at the face (until the odometry reads still, at most ``settle_timeout``), then judge the robot's
-    own estimate of its pose. Ends in ``DOCKED`` inside the tolerances; outside them in ``BACK_OFF`` with retries
-    left, else in ``FAILED`` (``OUTSIDE_TOLERANCES``)."""
+    """Stand still at the face (until the odometry reads still, at most ``settle_timeout``), then judge. Ends in
+    ``DOCKED`` when the charger reports charging, or when the robot's own estimate of its pose is inside the
+    tolerances and the robot cannot tell whether it charges; in ``CHARGE_WAIT`` inside the tolerances when it
+    can; outside them in ``BACK_OFF`` with retries left, else in ``FAILED`` (``OUTSIDE_TOLERANCES``)."""
+
+    CHARGE_WAIT = "charge-wait"
+    """Stand on the contacts until the charger reports charging. Ends in ``DOCKED`` when it does; after
+    ``charge_timeout`` in ``RESEAT`` with re-seats left, else in ``FAILED`` (``NOT_CHARGING``)."""
+
+    RESEAT = "reseat"
+    """Back off ``reseat_distance`` straight, on odometry, and drive in again: ends in ``MOVING3``."""
 
     BACK_OFF = "back-off"
     """A retry: reverse straight to Point A (placed again from the filter's dock pose) on odometry. Ends in
     ``CALCULATE`` on arrival, with the dock filter reset."""
 
+    UNDOCK = "undock"
+    """Undocking (``DockingMission(..., task="undock")``): back out straight from the face to the staging pose,
+    Point A (``planner.standoff`` of floor before the face), on odometry. Ends in ``UNDOCKED`` on arrival."""
+
     DOCKED = "docked"
-    """Final: at the face inside the tolerances by the robot's own estimate; every command is zero."""
+    """Final: at the face, charging (or inside the tolerances by the robot's own estimate when it cannot tell);
+    every command is zero."""
+
+    UNDOCKED = "undocked"
+    """Final: undocked, standing at the staging pose; every command is zero."""
 
     FAILED = "failed"
     """Final: the mission gave up (``DockingMission.failure`` says why); every command is zero."""
@@ -114,7 +141,7 @@ class State(StrEnum):
     @property
     def final(self) -> bool:
         """Whether the mission has ended in this state."""
-        return self in (State.DOCKED, State.FAILED)
+        return self in (State.DOCKED, State.UNDOCKED, State.FAILED)
 
 
 class FailureReason(StrEnum):
@@ -130,11 +157,13 @@ class FailureReason(StrEnum):
     ``NOT_FOUND``           ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, initial perception)
     ``MARKERS_LOST``        ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, during the approach)
     ``OUTSIDE_TOLERANCES``  ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, all retries used)
+    ``OBSTACLE_BEHIND``     ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, cannot reverse)
+    ``REVERSE_LIMIT``       ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, a reverse leg too long)
+    ``NOT_CHARGING``        ``FAILED_TO_CHARGE`` = 906 (``FailedToCharge``, all re-seats used)
     ``TIMEOUT``             ``TIMEOUT`` = 907
     ======================  ==============================================================================
 
-    Nav2's ``FAILED_TO_CHARGE`` (906) has no counterpart: the mission ends at the face and does not wait for the
-    charger. ``MissionResult.reason`` carries the human detail (the numbers) next to the member.
+    ``MissionResult.reason`` carries the human detail (the numbers) next to the member.
     """
 
     NOT_IN_VIEW = "not-in-view"
@@ -149,6 +178,16 @@ class FailureReason(StrEnum):
     OUTSIDE_TOLERANCES = "outside-tolerances"
     """At the face, the robot's own estimate of its final pose is outside the tolerances after ``max_retries``."""
 
+    OBSTACLE_BEHIND = "obstacle-behind"
+    """The rear range sensor saw something within ``rear_safety_distance`` for ``blocked_timeout`` while the robot
+    had to reverse: it stopped short and gave up."""
+
+    REVERSE_LIMIT = "reverse-limit"
+    """A reverse leg would be, or became, longer than ``max_reverse_distance``."""
+
+    NOT_CHARGING = "not-charging"
+    """At the face inside the tolerances, the charger never reported charging, after ``max_reseats`` re-seats."""
+
     TIMEOUT = "timeout"
     """The mission ran longer than ``mission_timeout``."""
 
@@ -159,12 +198,15 @@ class FailureReason(StrEnum):
 
 
 # nav2_msgs/action/DockRobot.action's result codes.
-_FAILED_TO_DETECT_DOCK, _FAILED_TO_CONTROL, _TIMEOUT = 904, 905, 907
+_FAILED_TO_DETECT_DOCK, _FAILED_TO_CONTROL, _FAILED_TO_CHARGE, _TIMEOUT = 904, 905, 906, 907
 _NAV2_ERROR_CODE = {
     FailureReason.NOT_IN_VIEW: _FAILED_TO_DETECT_DOCK,
     FailureReason.NOT_FOUND: _FAILED_TO_DETECT_DOCK,
     FailureReason.MARKERS_LOST: _FAILED_TO_DETECT_DOCK,
     FailureReason.OUTSIDE_TOLERANCES: _FAILED_TO_CONTROL,
+    FailureReason.OBSTACLE_BEHIND: _FAILED_TO_CONTROL,
+    FailureReason.REVERSE_LIMIT: _FAILED_TO_CONTROL,
+    FailureReason.NOT_CHARGING: _FAILED_TO_CHARGE,
     FailureReason.TIMEOUT: _TIMEOUT,
 }
 
@@ -196,8 +238,12 @@ def make_perceive(estimator: Estimator, method: str) -> Perceive:
 
 
 @dataclass(frozen=True)
-class MissionConfig:
-    """Limits, gains, tolerances and time-outs of the docking mission (SI units, angles in degrees)."""
+class DockingConfig:
+    """Every gain, speed, acceleration, tolerance, time-out and retry count of docking (SI units, angles in degrees).
+
+    The docking config file (``monodock.dock.config``, ``--config``) and the docking node's ROS parameters set
+    these by name; docs/docking.md lists every field with its unit, default and what it does.
+    """
 
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     control_period: float = 0.02
@@ -221,25 +267,36 @@ class MissionConfig:
     turn_tolerance_deg: float = 0.3
     k_bearing: float = 2.0
     arrive_tolerance: float = 0.005
+    refine_while_moving: bool = True  # frames during Moving₁ and Moving₂ refine Point A and the turns
     # Acquire and calculate.
     acquire: bool = True
     acquire_turn_rate: float = 0.3
     first_frame_wait: float = 0.5
+    reacquire_wait: float = 3.0  # after losing the markers: stand and look this long before turning to search
     acquire_max_turn_deg: float = 370.0
     calculate_frames: int = 9
     center_tolerance_deg: float = 5.0
     calculate_timeout: float = 3.0
     settle_speed: float = 0.005
     settle_timeout: float = 1.5
-    # Retry and tolerances.
+    # Retry, recovery and tolerances.
     checkpoint_gap: float = 0.25  # end of Moving₃'s early part: front edge this far from the face
     retry_lateral: float = 0.02
     retry_heading_deg: float = 4.0  # off the P-controller's heading reference
-    max_retries: int = 2
+    max_retries: int = 2  # retries and recoveries together
+    recover_distance: float = 0.30  # markers lost mid-approach: back off this far before looking again
     tolerance_lateral: float = 0.02
     tolerance_longitudinal: float = 0.02
     tolerance_heading_deg: float = 3.0
+    # Charging.
+    charge_timeout: float = 2.0  # at the face: the charger must report charging within this
+    reseat_distance: float = 0.05  # not charging: back off this far and drive in again
+    max_reseats: int = 2
     # Safety.
+    max_reverse_speed: float = 0.10
+    max_reverse_distance: float = 1.5  # no reverse leg is longer
+    rear_safety_distance: float = 0.25  # stop reversing short of anything this close behind the back edge
+    blocked_timeout: float = 5.0  # wait this long for the space behind to clear, then fail
     lost_timeout: float = 1.0
     mission_timeout: float = 120.0
     blind_margin: float = 0.04
@@ -247,11 +304,32 @@ class MissionConfig:
     measurement: MeasurementNoise = field(default_factory=MeasurementNoise)  # frames without a covariance
 
     def __post_init__(self) -> None:
-        for name in ("control_period", "cruise_speed", "approach_speed", "turn_rate", "linear_accel", "angular_accel"):
+        positive = (
+            "control_period",
+            "cruise_speed",
+            "approach_speed",
+            "turn_rate",
+            "linear_accel",
+            "angular_accel",
+            "max_reverse_speed",
+            "max_reverse_distance",
+            "recover_distance",
+            "reseat_distance",
+        )
+        for name in positive:
             if not getattr(self, name) > 0:
-                raise ConfigError(f"mission: {name} must be positive, got {getattr(self, name)}")
+                raise ConfigError(f"docking config: {name} must be positive, got {getattr(self, name)}")
+        for name in ("rear_safety_distance", "blocked_timeout", "charge_timeout", "reacquire_wait", "lost_timeout"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"docking config: {name} must not be negative, got {getattr(self, name)}")
         if self.min_speed > self.approach_speed:
-            raise ConfigError("mission: min_speed must not exceed approach_speed")
+            raise ConfigError("docking config: min_speed must not exceed approach_speed")
+        if self.min_speed > self.max_reverse_speed:
+            raise ConfigError("docking config: min_speed must not exceed max_reverse_speed")
+        if self.recover_distance > self.max_reverse_distance or self.reseat_distance > self.max_reverse_distance:
+            raise ConfigError(
+                "docking config: recover_distance and reseat_distance must not exceed max_reverse_distance"
+            )
 
 
 @dataclass
@@ -267,10 +345,18 @@ class MissionResult:
     estimated_final: Pose2D | None  # the robot's pose in the dock frame by its own estimate
     impact_speed: float | None = None
     log: list[tuple[float, str]] = field(default_factory=list)
+    reseats: int = 0
+    charging: bool | None = None  # whether the charger confirmed charging; None when the robot cannot tell
+    recoveries: int = 0  # of ``retries``: those after the markers were lost
 
     @property
     def docked(self) -> bool:
         return self.state is State.DOCKED
+
+    @property
+    def succeeded(self) -> bool:
+        """Docked, or undocked for an undocking mission."""
+        return self.state in (State.DOCKED, State.UNDOCKED)
 
 
 def blind_gap(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> float:
@@ -346,12 +432,18 @@ class _Targets:
 
 @dataclass(frozen=True)
 class _Tick:
-    """What a state's handler gets each control tick: the time, the odometry and the contact switch, if any."""
+    """What a state's handler gets each control tick: the time, the odometry and the robot's other sensors (None
+    where it has none): the contact switch, the charger's charging signal and the rear range, metres."""
 
     now: float
     odom: Odometry
     contact: bool | None
+    charging: bool | None = None
+    rear_range: float | None = None
 
+
+# The states that move towards Point A on the plan, in which frames refine it.
+_MOVING_TO_A = (State.MOVING1_BACK, State.MOVING1_TURN, State.MOVING1_DRIVE, State.MOVING2)
 
 # One state's work for one tick: the desired velocity command (m/s, rad/s), before the limits.
 _Handler = Callable[[_Tick], tuple[float, float]]
@@ -364,7 +456,10 @@ class DockingMission:
     desired command and moves to the next state with ``_enter`` or ``_fail``.
     """
 
-    def __init__(self, config: MissionConfig, robot: RobotConfig, blind: float) -> None:
+    def __init__(self, config: DockingConfig, robot: RobotConfig, blind: float, *, task: str = "dock") -> None:
+        if task not in ("dock", "undock"):
+            raise ConfigError(f"a docking mission's task is dock or undock, got {task!r}")
+        self.task = task
         self.config = config
         self.robot = robot
         self.blind = blind + config.blind_margin
@@ -379,6 +474,9 @@ class DockingMission:
         self.manoeuvre: Manoeuvre | None = None
         self.heading_before_center: float | None = None  # odometry heading when a centring turn began
         self.retries = 0
+        self.recoveries = 0
+        self.reseats = 0
+        self.charging: bool | None = None
         self.log: list[tuple[float, str]] = []
         self.command = (0.0, 0.0)
         self.start_time: float | None = None
@@ -394,17 +492,26 @@ class DockingMission:
         self._last_odom: Pose2D | None = None
         self._last_stamp = 0.0
         self._targets = _Targets(Pose2D(0.0, 0.0, 0.0), 0.0, 0.0, False)
+        self._back_target: Pose2D | None = None  # where a straight reverse (back-out, recover, re-seat, undock) ends
+        self._reverse_from: Pose2D | None = None  # odometry pose where the current reverse leg began
+        self._blocked_since: float | None = None  # when the rear range first stopped the current reverse
         self._handlers: dict[State, _Handler] = {
             State.ACQUIRE: self._on_acquire,
             State.CENTER: self._on_center,
             State.CALCULATE: self._on_calculate,
+            State.MOVING1_BACK: self._on_moving1_back,
             State.MOVING1_TURN: self._on_moving1_turn,
             State.MOVING1_DRIVE: self._on_moving1_drive,
             State.MOVING2: self._on_moving2,
             State.MOVING3: self._on_moving3,
+            State.RECOVER: self._on_recover,
             State.SETTLE: self._on_settle,
+            State.CHARGE_WAIT: self._on_charge_wait,
+            State.RESEAT: self._on_reseat,
             State.BACK_OFF: self._on_back_off,
+            State.UNDOCK: self._on_undock,
             State.DOCKED: self._on_final,
+            State.UNDOCKED: self._on_final,
             State.FAILED: self._on_final,
         }
 
@@ -417,7 +524,9 @@ class DockingMission:
     @property
     def wants_frames(self) -> bool:
         """Whether this state uses camera frames (the simulator renders only frames that are used)."""
-        return self.state in (State.ACQUIRE, State.CALCULATE, State.MOVING3, State.SETTLE)
+        if self.state in (State.ACQUIRE, State.CALCULATE, State.MOVING3, State.SETTLE):
+            return True
+        return self.config.refine_while_moving and self.state in _MOVING_TO_A
 
     def _enter(self, now: float, state: State, note: str = "") -> None:
         if state is State.CALCULATE:
@@ -436,12 +545,23 @@ class DockingMission:
     # --- the loop ---------------------------------------------------------------------------
 
     def step(
-        self, now: float, odom: Odometry, observation: Observation | None, contact: bool | None = None
+        self,
+        now: float,
+        odom: Odometry,
+        observation: Observation | None,
+        contact: bool | None = None,
+        *,
+        charging: bool | None = None,
+        rear_range: float | None = None,
     ) -> tuple[float, float]:
-        """One control tick: the velocity command (m/s, rad/s) for the next period."""
+        """One control tick: the velocity command (m/s, rad/s) for the next period.
+
+        ``contact``, ``charging`` and ``rear_range`` are the robot's optional sensors (None: it has none): the
+        contact switch, the charger's charging signal, the distance to the nearest thing behind it (metres).
+        """
         if self.start_time is None:
             self.start_time = now
-            self._enter(now, State.ACQUIRE)
+            self._enter(now, State.UNDOCK if self.task == "undock" else State.ACQUIRE)
         pose = odom.pose
         if self._last_odom is not None:
             # Predict: the dock stays put, its uncertainty in the odometry frame grows with the wheels' drift.
@@ -464,11 +584,47 @@ class DockingMission:
             return self._fail(
                 now, FailureReason.TIMEOUT, f"mission took longer than {self.config.mission_timeout:.0f} s"
             )
-        v, w = self._handlers[self.state](_Tick(now, odom, contact))
+        tick = _Tick(now, odom, contact, charging, rear_range)
+        v, w = self._handlers[self.state](tick)
+        if not self.finished:
+            v, w = self._guard_reverse(tick, v, w)
         if self.finished:
             return (0.0, 0.0)
         self.command = self._limit(v, w)
         return self.command
+
+    def _guard_reverse(self, tick: _Tick, v: float, w: float) -> tuple[float, float]:
+        """Reversing made safe: every reverse leg bounded in length; stop short of anything the rear range sees."""
+        c = self.config
+        if not (v < 0.0 or tick.odom.linear < -c.settle_speed):
+            self._reverse_from, self._blocked_since = None, None
+            return v, w
+        if self._reverse_from is None:
+            self._reverse_from = tick.odom.pose
+        reversed_by = self._reverse_from.distance(tick.odom.pose)
+        if reversed_by > c.max_reverse_distance + c.recover_distance:  # a leg that overran its plan: stop
+            self._fail(
+                tick.now,
+                FailureReason.REVERSE_LIMIT,
+                f"reversed {reversed_by:.2f} m in one leg (max_reverse_distance {c.max_reverse_distance:g} m)",
+            )
+            return 0.0, 0.0
+        if tick.rear_range is not None:
+            speed = abs(tick.odom.linear)
+            stopping = c.rear_safety_distance + speed * c.stop_lead + speed * speed / (2.0 * c.linear_accel)
+            if tick.rear_range < stopping:
+                if self._blocked_since is None:
+                    self._blocked_since = tick.now
+                    self.log.append((tick.now, f"{self.state.value}: obstacle {tick.rear_range:.2f} m behind; waiting"))
+                elif tick.now - self._blocked_since > c.blocked_timeout:
+                    self._fail(
+                        tick.now,
+                        FailureReason.OBSTACLE_BEHIND,
+                        f"obstacle {tick.rear_range:.2f} m behind for {c.blocked_timeout:g} s while reversing",
+                    )
+                return 0.0, 0.0
+        self._blocked_since = None
+        return v, w
 
     def measurement_covariance(self, observation: Observation) -> NDArray[np.float64]:
         """The frame's own covariance when it has a usable one, else the method's defaults at its pose."""
@@ -483,7 +639,7 @@ class DockingMission:
     def _limit(self, v: float, w: float) -> tuple[float, float]:
         """Speed and acceleration limits, and the minimum speed a real base still moves at."""
         c, dt = self.config, self.config.control_period
-        v = float(np.clip(v, -self.max_speed, self.max_speed))
+        v = float(np.clip(v, -min(self.max_speed, c.max_reverse_speed), self.max_speed))
         w = float(np.clip(w, -self.max_turn, self.max_turn))
         pv, pw = self.command
         want_v, want_w = v, w
@@ -509,8 +665,9 @@ class DockingMission:
             self._enter(tick.now, State.CALCULATE, "markers in view")
             self.track.reset()
             return (0.0, 0.0)
-        if tick.now - self.start_time < c.first_frame_wait:
-            return (0.0, 0.0)  # the first frames are still on their way
+        wait = c.first_frame_wait if self.recoveries == 0 else c.reacquire_wait
+        if tick.now - self.state_since < wait:
+            return (0.0, 0.0)  # the first frames are still on their way, or whatever hid the dock may move
         if not c.acquire:
             return self._fail(tick.now, FailureReason.NOT_IN_VIEW, "no markers in view (acquire is off)")
         if self.turned >= math.radians(c.acquire_max_turn_deg):
@@ -557,8 +714,18 @@ class DockingMission:
             self._enter(tick.now, State.CALCULATE, "dock centred")
         return (0.0, w)
 
+    def _on_moving1_back(self, tick: _Tick) -> tuple[float, float]:
+        """``MOVING1_BACK``: back out straight along the heading the robot calculated from."""
+        assert self._back_target is not None
+        v, w, arrived = self._drive_to(self._back_target, tick.odom.pose, reverse=True)
+        if arrived:
+            self._enter(tick.now, State.MOVING1_TURN)
+            return (0.0, 0.0)
+        return (v, w)
+
     def _on_moving1_turn(self, tick: _Tick) -> tuple[float, float]:
         """``MOVING1_TURN``: turn to the heading of the straight leg to Point A."""
+        self._refine(tick.odom.pose, aim=True)
         done, w = self._turn_to(self._targets.drive_heading, tick.odom)
         if done:
             self._enter(tick.now, State.MOVING1_DRIVE)
@@ -566,6 +733,7 @@ class DockingMission:
 
     def _on_moving1_drive(self, tick: _Tick) -> tuple[float, float]:
         """``MOVING1_DRIVE``: drive straight to Point A, backwards when the plan says so."""
+        self._refine(tick.odom.pose)
         v, w, arrived = self._drive_to(self._targets.a, tick.odom.pose, self._targets.reverse)
         if arrived:
             self._enter(tick.now, State.MOVING2)
@@ -574,6 +742,7 @@ class DockingMission:
 
     def _on_moving2(self, tick: _Tick) -> tuple[float, float]:
         """``MOVING2``: turn to face the charger square, then start the approach."""
+        self._refine(tick.odom.pose)
         done, w = self._turn_to(self._targets.final_heading, tick.odom)
         if done:
             self.checked = False
@@ -589,9 +758,14 @@ class DockingMission:
         gap = -robot.x - self.robot.front_offset
         lateral, heading = robot.y, robot.theta
         if gap > self.blind and now - self.last_seen > c.lost_timeout:
-            return self._fail(
-                now, FailureReason.MARKERS_LOST, f"markers lost for {now - self.last_seen:.1f} s during the approach"
-            )
+            why = f"markers lost for {now - self.last_seen:.1f} s during the approach"
+            if self.retries >= c.max_retries:
+                return self._fail(now, FailureReason.MARKERS_LOST, why)
+            self.retries += 1
+            self.recoveries += 1
+            self._back_target = odom.pose.compose(Pose2D(-c.recover_distance, 0.0, 0.0))
+            self._enter(now, State.RECOVER, f"retry {self.retries}: {why}; backing off {c.recover_distance:g} m")
+            return (0.0, 0.0)
         if tick.contact or gap <= abs(odom.linear) * c.stop_lead:
             if self.impact_speed is None:
                 self.impact_speed = abs(odom.linear)
@@ -613,11 +787,63 @@ class DockingMission:
             v = c.min_speed
         return v, w
 
+    def _on_recover(self, tick: _Tick) -> tuple[float, float]:
+        """``RECOVER``: back off straight, then look again (Calculate, which re-acquires if nothing comes)."""
+        assert self._back_target is not None
+        v, w, arrived = self._drive_to(self._back_target, tick.odom.pose, reverse=True)
+        if arrived:
+            self.track.reset()
+            self._enter(tick.now, State.CALCULATE, "backed off; looking again")
+            return (0.0, 0.0)
+        return (v, w)
+
     def _on_settle(self, tick: _Tick) -> tuple[float, float]:
         """``SETTLE``: stand still at the face, then judge the final pose."""
         if not self._stopped(tick.odom) and tick.now - self.state_since < self.config.settle_timeout:
             return (0.0, 0.0)
-        return self._judge(tick.now, tick.odom.pose)
+        return self._judge(tick.now, tick.odom.pose, tick.charging)
+
+    def _on_charge_wait(self, tick: _Tick) -> tuple[float, float]:
+        """``CHARGE_WAIT``: stand on the contacts until the charger reports charging; re-seat if it does not."""
+        c = self.config
+        if tick.charging:
+            self.charging = True
+            self._enter(tick.now, State.DOCKED, "charging")
+            return (0.0, 0.0)
+        if tick.now - self.state_since < c.charge_timeout:
+            return (0.0, 0.0)
+        self.charging = False
+        if self.reseats >= c.max_reseats:
+            return self._fail(
+                tick.now,
+                FailureReason.NOT_CHARGING,
+                f"no charging {c.charge_timeout:g} s after touching the contacts, after {self.reseats} re-seats",
+            )
+        self.reseats += 1
+        self._back_target = tick.odom.pose.compose(Pose2D(-c.reseat_distance, 0.0, 0.0))
+        self._enter(tick.now, State.RESEAT, f"re-seat {self.reseats}: not charging")
+        return (0.0, 0.0)
+
+    def _on_reseat(self, tick: _Tick) -> tuple[float, float]:
+        """``RESEAT``: back off a few centimetres, then drive in again under Moving₃'s control."""
+        assert self._back_target is not None
+        v, w, arrived = self._drive_to(self._back_target, tick.odom.pose, reverse=True)
+        if arrived:
+            self.checked = True  # no checkpoint this close
+            self.last_seen = max(self.last_seen, tick.now)
+            self._enter(tick.now, State.MOVING3, "driving in again")
+            return (0.0, 0.0)
+        return (v, w)
+
+    def _on_undock(self, tick: _Tick) -> tuple[float, float]:
+        """``UNDOCK``: back out straight from the face to the staging pose, Point A."""
+        if self._back_target is None:
+            self._back_target = tick.odom.pose.compose(Pose2D(-self.config.planner.standoff, 0.0, 0.0))
+        v, w, arrived = self._drive_to(self._back_target, tick.odom.pose, reverse=True)
+        if arrived:
+            self._enter(tick.now, State.UNDOCKED, "at the staging pose")
+            return (0.0, 0.0)
+        return (v, w)
 
     def _on_back_off(self, tick: _Tick) -> tuple[float, float]:
         """``BACK_OFF``: reverse straight to Point A, then calculate afresh."""
@@ -643,6 +869,14 @@ class DockingMission:
             # for a lone marker's ambiguity) is undone by Moving₁'s turn back to that heading.
             robot = Pose2D(robot.x, robot.y, wrap_angle(robot.theta + self.heading_before_center - pose.theta))
         m = plan_for(robot, self.config.planner, self.robot.front_offset)
+        longest = max(m.back_out, m.drive_distance if m.reverse else 0.0)
+        if longest > self.config.max_reverse_distance:
+            return self._fail(
+                now,
+                FailureReason.REVERSE_LIMIT,
+                f"case {m.case} would reverse {longest:.2f} m in one leg "
+                f"(max_reverse_distance {self.config.max_reverse_distance:g} m)",
+            )
         dock = self.track.mean
         self.manoeuvre = m
         if self.case is None:
@@ -655,11 +889,31 @@ class DockingMission:
         )
         note = (
             f"case {m.case}; robot at ({robot.x:+.3f}, {robot.y:+.3f}) m, {math.degrees(robot.theta):+.1f} deg in the "
-            f"dock frame; turn {math.degrees(m.first_turn):+.1f} deg, {'reverse' if m.reverse else 'drive'} "
+            f"dock frame; {m.planner} plan: "
+            + (f"back out {m.back_out:.3f} m, " if m.back_out > 0 else "")
+            + f"turn {math.degrees(m.first_turn):+.1f} deg, {'reverse' if m.reverse else 'drive'} "
             f"{m.drive_distance:.3f} m to A, turn {math.degrees(m.second_turn):+.1f} deg"
         )
-        self._enter(now, State.MOVING1_TURN, note)
+        if m.back_out > 0.0:
+            self._back_target = pose.compose(Pose2D(-m.back_out, 0.0, 0.0))
+            self._enter(now, State.MOVING1_BACK, note)
+        else:
+            self._enter(now, State.MOVING1_TURN, note)
         return (0.0, 0.0)
+
+    def _refine(self, pose: Pose2D, *, aim: bool = False) -> None:
+        """Moving₁ and Moving₂ follow the dock filter, which frames that see the dock keep refining: Point A and the
+        last turn move with it; with ``aim`` (before the leg), monodock's and the turn-first plan's leg heading is
+        aimed at the refined A again (the papers' leg keeps its heading: Moving₁ has no turn)."""
+        m, dock = self.manoeuvre, self.track.mean
+        if not self.config.refine_while_moving or m is None or dock is None:
+            return
+        a = dock.compose(m.point_a)
+        self._targets.a = a
+        self._targets.final_heading = wrap_angle(dock.theta + m.point_a.theta)
+        if aim and m.planner != "papers" and pose.distance(a) > self.config.arrive_tolerance:
+            heading = math.atan2(a.y - pose.y, a.x - pose.x)
+            self._targets.drive_heading = wrap_angle(heading + (math.pi if m.reverse else 0.0))
 
     def _turn_to(self, heading: float, odom: Odometry) -> tuple[bool, float]:
         """Turn in place towards ``heading`` (odometry frame): (there and still, turn rate)."""
@@ -693,8 +947,9 @@ class DockingMission:
         self._enter(now, State.BACK_OFF, f"retry {self.retries}: {why}")
         return (0.0, 0.0)
 
-    def _judge(self, now: float, pose: Pose2D) -> tuple[float, float]:
-        """At the face: docked if the robot's own estimate of its pose is inside the tolerances."""
+    def _judge(self, now: float, pose: Pose2D, charging: bool | None = None) -> tuple[float, float]:
+        """At the face: docked when charging, or when the robot's own estimate of its pose is inside the
+        tolerances (then, if it can tell, it waits for the charger to confirm)."""
         c = self.config
         robot = self.track.robot_in_dock(pose)
         gap = -robot.x - self.robot.front_offset
@@ -706,8 +961,13 @@ class DockingMission:
         summary = (
             f"lateral {robot.y * 100:+.1f} cm, gap {gap * 100:+.1f} cm, heading {math.degrees(robot.theta):+.1f} deg"
         )
-        if ok:
+        if charging:
+            self.charging = True
+            self._enter(now, State.DOCKED, "charging; " + summary)
+        elif ok and charging is None:
             self._enter(now, State.DOCKED, summary)
+        elif ok:
+            self._enter(now, State.CHARGE_WAIT, summary)
         elif self.retries < c.max_retries:
             self._retry(now, "final pose outside the tolerances: " + summary)
         else:
@@ -738,7 +998,9 @@ def run_mission(
             if frame is not None and frame.stamp > last_stamp:
                 last_stamp = frame.stamp
                 observation = perceive(frame.stamp, frame.image)
-        v, w = mission.step(robot.now(), odom, observation, robot.contact())
+        v, w = mission.step(
+            robot.now(), odom, observation, robot.contact(), charging=robot.charging(), rear_range=robot.rear_range()
+        )
         robot.send_velocity(v, w)
         if on_tick is not None:
             on_tick(mission, odom)
@@ -755,4 +1017,7 @@ def run_mission(
         estimated_final=mission.estimated_final(),
         impact_speed=mission.impact_speed,
         log=list(mission.log),
+        reseats=mission.reseats,
+        charging=mission.charging,
+        recoveries=mission.recoveries,
     )

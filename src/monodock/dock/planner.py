@@ -35,8 +35,10 @@ __all__ = [
     "Manoeuvre",
     "PlannerConfig",
     "classify",
+    "executed_case",
     "plan",
     "plan_for",
+    "plan_monodock",
     "plan_papers",
     "point_a",
 ]
@@ -96,14 +98,20 @@ class PlannerConfig:
     """Where Point A is.
 
     Attributes:
-        kind: "monodock" (``plan``: Point A at the stand-off, a turn to face it) or "papers" (``plan_papers``:
-            Point A on the heading line, Moving₁ straight with no turn).
+        kind: "monodock" (``plan_monodock``: Point A at the stand-off, reached continuously: back out straight if
+            needed, turn to face A, drive forward) or "papers" (``plan_papers``: Point A on the heading line,
+            Moving₁ straight with no turn).
         standoff: floor between the robot's front edge and the charger face at Point A, metres.
-        arrive_tolerance: a start closer than this to A skips the drive to A (Moving₃'s P-control takes the
-            rest), metres.
+        arrive_tolerance: for ``plan`` (the papers' turn-first fallback): a start closer than this to A skips the
+            drive to A (Moving₃'s P-control takes the rest), metres.
         papers_min_standoff, papers_max_standoff: the papers' planner puts Point A where the robot's heading line
             crosses the approach axis when that leaves this much floor (metres) before the face; otherwise it
             turns first, to the stand-off above.
+        max_leg_angle_deg: monodock's leg to A meets the approach axis at no more than this angle, degrees; a
+            start from which it would be steeper first backs out straight along its heading.
+        min_leg: monodock's leg to A is at least this long along the axis, metres (so that its direction is
+            defined, and changes smoothly, for starts at or next to A).
+        max_back_out: monodock backs out at most this far, metres.
     """
 
     standoff: float = 1.0
@@ -111,12 +119,19 @@ class PlannerConfig:
     papers_min_standoff: float = 0.5
     papers_max_standoff: float = 2.0
     kind: str = "monodock"
+    max_leg_angle_deg: float = 60.0
+    min_leg: float = 0.30
+    max_back_out: float = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in PLANNERS:
             raise ConfigError(f"planner: kind must be one of {', '.join(PLANNERS)}, got {self.kind!r}")
         if not self.standoff > 0:
             raise ConfigError(f"the stand-off of Point A must be positive, got {self.standoff}")
+        if not 0 < self.max_leg_angle_deg < 90:
+            raise ConfigError(f"planner: max_leg_angle_deg must be in (0, 90), got {self.max_leg_angle_deg}")
+        if not (self.min_leg > 0 and self.max_back_out >= 0):
+            raise ConfigError("planner: min_leg must be positive and max_back_out not negative")
         if not 0 < self.papers_min_standoff < self.papers_max_standoff:
             raise ConfigError(
                 "the papers' planner needs 0 < papers_min_standoff < papers_max_standoff, got "
@@ -154,6 +169,8 @@ class Manoeuvre:
         first_turn: Moving₁'s turn before the drive, radians, counter-clockwise positive.
         drive_distance: length of the drive to A, metres (0 when the start is already at A).
         second_turn: Moving₂'s turn at A to square up with the face, radians.
+        back_out: monodock's reverse straight along the start heading before the first turn, metres (0: none).
+        planner: which planner made it ("monodock", "papers", or "turn-first" for the papers' Fig. 15 fallback).
     """
 
     case: int
@@ -164,6 +181,13 @@ class Manoeuvre:
     first_turn: float
     drive_distance: float
     second_turn: float
+    back_out: float = 0.0
+    planner: str = "turn-first"
+
+    @property
+    def reverses(self) -> float:
+        """How far the manoeuvre drives backwards before Moving₃, metres."""
+        return self.back_out + (self.drive_distance if self.reverse else 0.0)
 
 
 def plan(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre:
@@ -184,6 +208,67 @@ def plan(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre
     return Manoeuvre(case, robot, a, heading, reverse, first, distance, second)
 
 
+def executed_case(robot: Pose2D, reverses: bool) -> int:
+    """The case a manoeuvre executes: side and heading of the start, "past" when it reverses before Moving₂."""
+    left = robot.y >= 0.0
+    towards = math.sin(robot.theta) * (1.0 if left else -1.0) < 0.0
+    for n, spec in CASES.items():
+        same_side, same_heading = (spec.side == "left") == left, (spec.heading == "towards") == towards
+        if same_side and same_heading and (spec.zone == "past") == reverses:
+            return n
+    raise AssertionError("the eight cases cover every manoeuvre")  # pragma: no cover
+
+
+def _first_root(g0: float, slope: float, kink: float | None, slope_after: float) -> float | None:
+    """The smallest r ≥ 0 where the piecewise linear g (g(0) = g0 < 0, a kink at ``kink``) reaches zero."""
+    end = math.inf if kink is None else kink
+    if slope > 0.0 and -g0 / slope <= end:
+        return -g0 / slope
+    if kink is None or slope_after <= 0.0:
+        return None
+    g_kink = g0 + slope * kink
+    return kink + max(0.0, -g_kink) / slope_after
+
+
+def plan_monodock(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre:
+    """monodock's manoeuvre: back out straight if needed, turn to face Point A, drive forward to it, turn square.
+
+    Point A is fixed at the stand-off on the approach axis. The leg to A must meet the axis at no more than
+    ``max_leg_angle_deg`` and run at least ``min_leg`` along it; a start from which it would not backs out,
+    straight along its heading (the camera keeps the dock in view, the robot retraces floor it has seen), by the
+    shortest distance that makes it so (at most ``max_back_out``). Every quantity of the plan is a continuous
+    function of the start: there is no case boundary at which it jumps (for headings within
+    ``max_leg_angle_deg`` of square-on, where backing out gains room; beyond that the back-out is capped).
+    """
+    a = point_a(config, front_offset)
+    c, s = math.cos(robot.theta), math.sin(robot.theta)
+    slack = 1.0 / math.tan(math.radians(config.max_leg_angle_deg))
+    # g(r) >= 0: after backing out r, A lies far enough ahead along the axis for a leg no steeper than allowed.
+    # g(r) = (a.x - x + r c) - slack * |y - r s| - min_leg, piecewise linear in r with a kink where y - r s = 0.
+    g0 = a.x - robot.x - slack * abs(robot.y) - config.min_leg
+    back = 0.0
+    if g0 < 0.0:
+        sign = math.copysign(1.0, robot.y) if robot.y != 0.0 else -math.copysign(1.0, s)
+        kink = robot.y / s if s != 0.0 and robot.y / s > 0.0 else None
+        root = _first_root(g0, c + sign * s * slack, kink, c - sign * s * slack)
+        back = config.max_back_out if root is None else min(root, config.max_back_out)
+    bx, by = robot.x - back * c, robot.y - back * s
+    heading = math.atan2(a.y - by, a.x - bx)
+    distance = math.hypot(a.x - bx, a.y - by)
+    return Manoeuvre(
+        executed_case(robot, back > 0.0),
+        robot,
+        a,
+        heading,
+        False,
+        wrap_angle(heading - robot.theta),
+        distance,
+        wrap_angle(a.theta - heading),
+        back,
+        "monodock",
+    )
+
+
 def plan_papers(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre:
     """The papers' manoeuvre as written: Moving₁ straight to Point A, Moving₂ the turn by Θab, no other turn.
 
@@ -201,11 +286,19 @@ def plan_papers(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Ma
         if config.papers_min_standoff <= floor <= config.papers_max_standoff:
             reverse = along < 0.0
             return Manoeuvre(
-                classify(robot, a), robot, a, robot.theta, reverse, 0.0, abs(along), wrap_angle(-robot.theta)
+                executed_case(robot, reverse),
+                robot,
+                a,
+                robot.theta,
+                reverse,
+                0.0,
+                abs(along),
+                wrap_angle(-robot.theta),
+                planner="papers",
             )
     return plan(robot, config, front_offset)
 
 
 def plan_for(robot: Pose2D, config: PlannerConfig, front_offset: float) -> Manoeuvre:
     """The configured planner's manoeuvre (``config.kind``)."""
-    return (plan_papers if config.kind == "papers" else plan)(robot, config, front_offset)
+    return (plan_papers if config.kind == "papers" else plan_monodock)(robot, config, front_offset)

@@ -46,7 +46,6 @@ INPUT_NAME = "input"
 _SAFE_FILE = re.compile(r"^[A-Za-z0-9_.-]+\.onnx$")
 
 
-
 def ort_session(model: bytes) -> Any:
     """An ONNX Runtime session tuned for one-row latency: one thread, sequential execution, CPU only."""
     import onnxruntime as ort

@@ -25,7 +25,6 @@ from monodock.estimation.planar import planar_model
 __all__ = ["crlb", "pose_jacobian", "visible_roles"]
 
 
-
 def visible_roles(
     pose: DockPose, camera: CameraModel, layout: DockLayout, robot: RobotConfig, margin_px: float = 0.0
 ) -> tuple[str, ...]:

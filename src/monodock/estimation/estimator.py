@@ -27,6 +27,7 @@ Method = Callable[[Detection, CameraModel, DockLayout, RobotConfig], PoseEstimat
 # The geometric methods; the regression of the papers joins them with its model bundle.
 METHODS: dict[str, Method] = {"pnp": estimate_single_marker, "board": estimate_board}
 
+
 @dataclass(frozen=True)
 class FrameEstimates:
     """One frame's detection and every method's estimate."""

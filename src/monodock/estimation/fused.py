@@ -180,6 +180,7 @@ class Correction:
         c, s = math.cos(self.yaw_offset), math.sin(self.yaw_offset)
         return np.array([[self.x_scale * c, -self.x_scale * s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
+
 @dataclass(frozen=True)
 class FusionTables:
     """What the fused estimator learned at training time (kept in the bundle, ``metadata.fusion``).

@@ -33,8 +33,8 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.controller import (
+    DockingConfig,
     DockingMission,
-    MissionConfig,
     Observation,
     Perceive,
     State,
@@ -98,7 +98,7 @@ class DockSimConfig:
     view_margin_px: float = 10.0
     supersample: int = 16
     jobs: int = 2
-    mission: MissionConfig = field(default_factory=MissionConfig)
+    mission: DockingConfig = field(default_factory=DockingConfig)
     drive: DiffDriveConfig = field(default_factory=DiffDriveConfig)
     layout: DockLayout = field(default_factory=DockLayout.default)
     camera: CameraModel = field(default_factory=CameraModel.default)
@@ -451,9 +451,7 @@ class RunGroup:
         runs = len(results)
         successes = sum(r.success for r in results)
         failures = Counter(
-            (r.failure if r.state == "failed" else "docked outside the tolerances")
-            for r in results
-            if not r.success
+            (r.failure if r.state == "failed" else "docked outside the tolerances") for r in results if not r.success
         )
         return cls(
             runs=runs,

@@ -303,7 +303,6 @@ def label_recording(
     recording without them needs them given. Returns the dataset, the counts and the reader's warnings.
     """
 
-
     if not (tolerance_s > 0 and math.isfinite(tolerance_s)):
         raise InputError(f"pairing tolerance must be a positive number of seconds, got {tolerance_s}")
     with open_recording(

@@ -33,6 +33,7 @@ TARGET_OPSET = {"": 17, "ai.onnx.ml": 3}
 
 _VERSIONED = ("monodock", "scikit-learn", "skl2onnx", "onnx", "onnxruntime", "numpy")
 
+
 def _float_input(model: Any) -> Any:
     """The model with its double input replaced by a float32 input and a Cast to double in front."""
     from onnx import TensorProto, helper

@@ -224,7 +224,6 @@ def _marker_planes(corners: NDArray[np.float64], camera: CameraModel, robot: Rob
     return _MarkerPlanes(base_T_optical[:3, 3], n_left, n_right, n_mid, mid)
 
 
-
 @dataclasses.dataclass(frozen=True)
 class _Returns:
     """A scan's valid returns in beam order: base_link points (N, 3), beam indices, ranges (m)."""
@@ -435,7 +434,6 @@ def points_across_marker(
 ) -> NDArray[np.bool_]:
     """Which base_link points (N, 3) fall across marker 2 as the camera sees it (papers Fig. 9)."""
     return _marker_planes(corners_m2, camera, robot).across(points)
-
 
 
 def label_frame(

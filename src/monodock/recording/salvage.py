@@ -106,10 +106,8 @@ def _partial_decompress(data: bytes | memoryview, compression: str) -> bytes:
         return bytes(data)
     decompressor: Any
     if compression == "zstd":
-
         decompressor = zstd.ZstdDecompressor()
     elif compression == "lz4":
-
         decompressor = lz4.frame.LZ4FrameDecompressor()
     elif compression == "bz2":
         decompressor = bz2.BZ2Decompressor()

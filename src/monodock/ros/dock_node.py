@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import DockingMission, MissionConfig, blind_gap, make_perceive, run_mission
+from monodock.dock.controller import DockingConfig, DockingMission, blind_gap, make_perceive, run_mission
 from monodock.dock.interface import CameraFrame, Odometry
 from monodock.dock.planner import PlannerConfig
 from monodock.dock.pose_filter import MeasurementNoise
@@ -115,7 +115,7 @@ def run_dock(args: DockOptions, argv: Sequence[str]) -> int:
         estimator = args.estimator()
         method = estimator.method
         robot = Ros2Robot(node, args)
-        config = MissionConfig(planner=PlannerConfig(args.standoff), measurement=MeasurementNoise.for_method(method))
+        config = DockingConfig(planner=PlannerConfig(args.standoff), measurement=MeasurementNoise.for_method(method))
         blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
         result = run_mission(robot, make_perceive(estimator, method), DockingMission(config, estimator.robot, blind))
     except MonodockError as exc:

@@ -169,4 +169,3 @@ def drive_arc(linear: float, angular: float) -> Command:
         return linear, angular
 
     return command
-
