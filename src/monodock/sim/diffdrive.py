@@ -29,9 +29,10 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.dock.interface import CameraFrame, Odometry
 from monodock.errors import ConfigError
+from monodock.sim.faults import Obstacle, cone_range, footprint_clearance
 from monodock.sim.simulator import Simulator
 
-__all__ = ["DiffDriveConfig", "SimulatedRobot", "TruthSample"]
+__all__ = ["DiffDriveConfig", "Obstacle", "SimulatedRobot", "TruthSample"]
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,16 @@ class DiffDriveConfig:
         physics_dt: integration step.
         contact_sensor: whether the charger contacts report touch (``contact()``); otherwise None and the
             robot must stop on its own estimate.
+        rear_sensor: whether the robot has a rear range sensor (``rear_range()``); otherwise None.
+        rear_range_max: the sensor's maximum range, metres; farther reads ``math.inf``.
+        rear_fov_deg: its full cone angle, degrees (``sensor_msgs/Range.field_of_view``).
+        rear_range_noise_sd: standard deviation of its reading, metres.
+        charging_signal: whether the robot reads the charger's current (``charging()``); otherwise None.
+        contact_gap: the front edge charges from this far off the face, metres (the spring contacts' travel).
+        contact_lateral_tolerance: the largest |lateral offset| of base_link at which the springs still land
+            on the robot's pads, metres.
+        contact_heading_tolerance_deg: the largest |heading| at which both pads touch, degrees.
+        charge_delay: how long the contacts must hold before the charger reports current, seconds.
     """
 
     track_width: float = 0.40
@@ -64,11 +75,31 @@ class DiffDriveConfig:
     camera_latency: float = 0.05
     physics_dt: float = 0.005
     contact_sensor: bool = False
+    rear_sensor: bool = True
+    rear_range_max: float = 2.0
+    rear_fov_deg: float = 30.0
+    rear_range_noise_sd: float = 0.005
+    charging_signal: bool = True
+    contact_gap: float = 0.002
+    contact_lateral_tolerance: float = 0.015
+    contact_heading_tolerance_deg: float = 4.0
+    charge_delay: float = 0.3
 
     def __post_init__(self) -> None:
-        for name in ("track_width", "camera_rate", "physics_dt"):
+        for name in ("track_width", "camera_rate", "physics_dt", "rear_range_max"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"diff drive: {name} must be positive, got {getattr(self, name)}")
+        for name in (
+            "rear_range_noise_sd",
+            "contact_gap",
+            "contact_lateral_tolerance",
+            "contact_heading_tolerance_deg",
+            "charge_delay",
+        ):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"diff drive: {name} must not be negative, got {getattr(self, name)}")
+        if not 0 < self.rear_fov_deg < 180:
+            raise ConfigError(f"diff drive: rear_fov_deg must be in (0, 180), got {self.rear_fov_deg}")
 
 
 @dataclass(frozen=True)
@@ -91,6 +122,21 @@ class SimulatedRobot:
         rng: every random draw.
         hide_markers: ``hide_markers(t, pose)`` True hides the dock's markers from the frame exposed at time
             t with the robot at ``pose`` (someone standing in front of the charger).
+        obstacles: cylinders around the robot (``monodock.sim.faults.Obstacle``); append to it at any time.
+            They do not stop the robot: the rear sensor sees them and ``min_clearance`` / ``collided`` record
+            how close it came (the charger face is not one of them).
+
+    Charging: the charger reports current once its spring contacts have pressed the robot's pads for
+    ``charge_delay`` (0.3 s, the charger's current sense) without a break. They press when the front edge is
+    within ``contact_gap`` (2 mm, the springs' travel) of the face, base_link within
+    ``contact_lateral_tolerance`` of the dock's axis and the heading within ``contact_heading_tolerance_deg``.
+    The lateral tolerance is 15 mm, half the width of a 3 cm pad: a real robot 2 cm off the axis touches the
+    face but its springs land beside the pads, so it does not charge although ``contact()`` says touch. The
+    heading tolerance, 4 degrees, is where the second pad lifts off the springs' travel.
+
+    Safety truth: ``min_clearance`` is the smallest distance (m) over the run so far between the robot's
+    footprint (``front_offset`` ahead, ``rear_offset`` behind, ``footprint_width`` across) and any present
+    obstacle, checked every physics step; ``collided`` is whether it ever reached 0.
     """
 
     sim: Simulator
@@ -98,6 +144,7 @@ class SimulatedRobot:
     config: DiffDriveConfig = field(default_factory=DiffDriveConfig)
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
     hide_markers: Callable[[float, Pose2D], bool] | None = None
+    obstacles: list[Obstacle] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         c = self.config
@@ -118,6 +165,11 @@ class SimulatedRobot:
         self.truth: list[TruthSample] = [TruthSample(0.0, self.pose, self.odom)]
         self.frames_rendered = 0
         self.render_seconds = 0.0  # wall time spent rendering, for the speed figures
+        self.min_clearance = math.inf
+        self.collided = False
+        self._pressed_since: float | None = None  # when the contacts last closed
+        self.is_charging = False
+        self._check_clearance()
 
     # --- the robot interface ------------------------------------------------------------------
 
@@ -134,6 +186,23 @@ class SimulatedRobot:
 
     def contact(self) -> bool | None:
         return self.touching if self.config.contact_sensor else None
+
+    def charging(self) -> bool | None:
+        return self.is_charging if self.config.charging_signal else None
+
+    def rear_range(self) -> float | None:
+        """The rear sensor's reading from the back edge's centre, metres; inf when nothing is within range."""
+        c = self.config
+        if not c.rear_sensor:
+            return None
+        x, y = self.pose.point(-c.rear_offset, 0.0)
+        origin = Pose2D(x, y, wrap_angle(self.pose.theta + math.pi))
+        d = cone_range(origin, math.radians(c.rear_fov_deg), self.obstacles, self.t)
+        if d > c.rear_range_max:
+            return math.inf
+        if c.rear_range_noise_sd > 0:
+            d += float(self.rng.normal(0.0, c.rear_range_noise_sd))
+        return max(d, 0.0)
 
     def latest_frame(self) -> CameraFrame | None:
         """The newest frame whose exposure has arrived; rendered on first request."""
@@ -220,9 +289,36 @@ class SimulatedRobot:
             self.pushed += -gap
         self.touching = touching
         self.t += dt
+        self._check_contacts()
+        self._check_clearance()
         if self.t >= self.next_exposure:
             self.exposures.append((self.next_exposure, self.pose))
             self.next_exposure += 1.0 / c.camera_rate
+
+    def _check_contacts(self) -> None:
+        c = self.config
+        pressed = (
+            self.front_gap() <= c.contact_gap
+            and abs(self.pose.y) <= c.contact_lateral_tolerance
+            and abs(self.pose.theta) <= math.radians(c.contact_heading_tolerance_deg)
+        )
+        if not pressed:
+            self._pressed_since = None
+        elif self._pressed_since is None:
+            self._pressed_since = self.t
+        since = self._pressed_since
+        # A hair under the delay: the time is a sum of physics steps.
+        self.is_charging = since is not None and self.t - since >= c.charge_delay - 1e-9
+
+    def _check_clearance(self) -> None:
+        if not self.obstacles:
+            return
+        c = self.config
+        d = footprint_clearance(
+            self.pose, self.sim.robot.front_offset, c.rear_offset, c.footprint_width, self.obstacles, self.t
+        )
+        self.min_clearance = min(self.min_clearance, d)
+        self.collided = self.collided or self.min_clearance <= 0.0
 
     def _integrate(self, pose: Pose2D, wheels: NDArray[np.float64], dt: float) -> Pose2D:
         v = float(wheels.mean())
