@@ -12,8 +12,13 @@ from numpy.typing import NDArray
 from monodock.cli.main import parser
 from monodock.core.camera import CameraModel
 from monodock.core.pose import DockPose
+from monodock.core.pose2d import Pose2D
+from monodock.dock.controller import Observation
 from monodock.learning.train import TrainingSet
 from monodock.perception.detect import Detection, MarkerObservation
+from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
+from monodock.sim.nuisance import Nuisances
+from monodock.sim.simulator import Simulator
 
 # The video drive of the live and ROS tests (conftest.drive).
 FRAMES = 30
@@ -88,3 +93,40 @@ def in_view(sim: object, pose: object, role: str) -> bool:
     """Whether a marker's true corners are all in the image (2 px margin)."""
     corners = sim.true_corners(pose)[role]  # type: ignore[attr-defined]
     return bool(np.all(np.isfinite(corners)) and sim.in_view(corners, 2.0))  # type: ignore[attr-defined]
+
+
+# --- docking missions without the camera ------------------------------------------------------------------
+
+
+class TruthfulRobot(SimulatedRobot):
+    """The simulated base whose camera renders nothing: the state machine's own tests see the true pose.
+
+    A frame's "image" is empty; ``perceive_truth`` turns its stamp into the exact DockPose at that exposure and
+    the number of markers wholly in the image (none: no pose). The base, its odometry, latency and the face
+    are the simulator's as usual; only the vision, tested elsewhere, is left out, which makes a mission seconds.
+    """
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.exposed: dict[float, Pose2D] = {}
+
+    def render(self, stamp: float, pose: Pose2D) -> np.ndarray:
+        self.exposed[stamp] = pose
+        self.frames_rendered += 1
+        return np.zeros((1, 1), np.uint8)
+
+    def perceive_truth(self, stamp: float, _image: np.ndarray) -> Observation:
+        if self.hide_markers is not None and self.hide_markers(stamp, self.exposed[stamp]):
+            return Observation(stamp, None)
+        dock = self.dock_pose(self.exposed[stamp])
+        markers = sum(self.sim.in_view(quad) for quad in self.sim.true_corners(dock).values())
+        return Observation(stamp, dock if markers else None, markers)
+
+
+def truthful_robot(start: Pose2D, **drive: object) -> TruthfulRobot:
+    return TruthfulRobot(
+        Simulator(nuisances=Nuisances.clean(), seed=1),
+        start,
+        DiffDriveConfig(**drive),  # type: ignore[arg-type]
+        np.random.default_rng(3),
+    )

@@ -51,7 +51,7 @@ def test_a_partial_file_sets_only_its_keys_nested_ones_included(tmp_path: Path) 
         ({"planner": {"standof": 1.0}}, r"docking.yaml: planner.standof: unknown key"),
         ({"cruise_speed": "fast"}, r"docking.yaml: cruise_speed: expected a number, got 'fast'"),
         ({"cruise_speed": float("nan")}, r"docking.yaml: cruise_speed: expected a finite number"),
-        ({"cruise_speed": -0.1}, r"docking.yaml: mission: cruise_speed must be positive, got -0.1"),
+        ({"cruise_speed": -0.1}, r"docking.yaml: docking config: cruise_speed must be positive, got -0.1"),
         ({"max_retries": 1.5}, r"docking.yaml: max_retries: expected an integer, got 1.5"),
         ({"max_retries": -1}, r"docking.yaml: max_retries: must be at least 0"),
         ({"acquire": "yes"}, r"docking.yaml: acquire: expected true or false, got 'yes'"),

@@ -36,6 +36,7 @@ from monodock.dock.pose_filter import DockFilter, MeasurementNoise
 from monodock.estimation.estimator import Estimator
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
+from shared import truthful_robot
 
 FRONT = RobotConfig.default().front_offset
 
@@ -145,35 +146,6 @@ def test_filter_averages_frames_and_gates_outliers() -> None:
 def _robot(start: Pose2D, **drive: object) -> SimulatedRobot:
     sim = Simulator(nuisances=Nuisances().updated(supersample=4), seed=1)
     return SimulatedRobot(sim, start, DiffDriveConfig(**drive), np.random.default_rng(3))  # type: ignore[arg-type]
-
-
-class _TruthfulRobot(SimulatedRobot):
-    """The simulated base whose camera renders nothing: the state machine's own tests see the true pose.
-
-    A frame's "image" is empty; ``perceive_truth`` turns its stamp into the exact DockPose at that exposure and
-    the number of markers wholly in the image (none: no pose). The base, its odometry, latency and the face
-    are the simulator's as usual; only the vision, tested elsewhere, is left out, which makes a mission seconds.
-    """
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.exposed: dict[float, Pose2D] = {}
-
-    def render(self, stamp: float, pose: Pose2D) -> np.ndarray:
-        self.exposed[stamp] = pose
-        self.frames_rendered += 1
-        return np.zeros((1, 1), np.uint8)
-
-    def perceive_truth(self, stamp: float, _image: np.ndarray) -> Observation:
-        dock = self.dock_pose(self.exposed[stamp])
-        markers = sum(self.sim.in_view(quad) for quad in self.sim.true_corners(dock).values())
-        return Observation(stamp, dock if markers else None, markers)
-
-
-def _truthful_robot(start: Pose2D) -> _TruthfulRobot:
-    return _TruthfulRobot(
-        Simulator(nuisances=Nuisances.clean(), seed=1), start, DiffDriveConfig(), np.random.default_rng(3)
-    )
 
 
 def test_ideal_base_drives_as_commanded_and_odometry_is_exact() -> None:
@@ -293,6 +265,7 @@ def test_the_papers_planner_drives_straight_along_its_heading_line_and_docks(sta
 
 
 def test_markers_hidden_mid_approach_stop_the_robot_within_the_timeout() -> None:
+    """With no retries left, markers lost mid-approach end the mission: stopped within the lost-markers timeout."""
     robot = _robot(Pose2D(-1.6, 0.0, 0.0))
     hidden_from: list[float] = []
 
@@ -304,7 +277,7 @@ def test_markers_hidden_mid_approach_stop_the_robot_within_the_timeout() -> None
         return False
 
     robot.hide_markers = hide
-    mission = _mission(robot)
+    mission = _mission(robot, max_retries=0)
     result = run_mission(robot, make_perceive(_board(robot), "board"), mission)
     assert result.state is State.FAILED
     assert result.failure is FailureReason.MARKERS_LOST
@@ -364,7 +337,7 @@ def test_acquire_finds_a_dock_out_of_view_and_docks() -> None:
 
 def test_mission_time_out_stops_the_robot_and_says_so() -> None:
     """Still searching when the mission's time is up: a zero command and ``TIMEOUT``, not a silent hang."""
-    robot = _truthful_robot(Pose2D(-1.5, 0.1, 0.0))
+    robot = truthful_robot(Pose2D(-1.5, 0.1, 0.0))
     mission = _mission(robot, mission_timeout=2.0)
     result = run_mission(robot, _nothing, mission)
     assert result.state is State.FAILED
@@ -379,7 +352,7 @@ def test_mission_time_out_stops_the_robot_and_says_so() -> None:
 
 def test_final_pose_outside_the_tolerances_fails_after_the_retries() -> None:
     """A tolerance nothing meets: one retry from Point A, then ``OUTSIDE_TOLERANCES``, stopped at the face."""
-    robot = _truthful_robot(Pose2D(-1.6, 0.0, 0.0))
+    robot = truthful_robot(Pose2D(-1.6, 0.0, 0.0))
     result = run_mission(robot, robot.perceive_truth, _mission(robot, tolerance_lateral=0.0, max_retries=1))
     assert result.state is State.FAILED, result.log
     assert result.failure is FailureReason.OUTSIDE_TOLERANCES
@@ -395,13 +368,17 @@ def test_final_pose_outside_the_tolerances_fails_after_the_retries() -> None:
 
 
 def test_failure_reasons_map_to_nav2_docking_error_codes() -> None:
-    """Each reason has the nearest ``nav2_msgs/action/DockRobot`` result code (904 detect, 905 control, 907 time)."""
+    """Each reason has the nearest ``nav2_msgs/action/DockRobot`` result code (904 detect, 905 control, 906 charge,
+    907 time)."""
     codes = {reason: reason.nav2_error_code for reason in FailureReason}
     assert codes == {
         FailureReason.NOT_IN_VIEW: 904,
         FailureReason.NOT_FOUND: 904,
         FailureReason.MARKERS_LOST: 904,
         FailureReason.OUTSIDE_TOLERANCES: 905,
+        FailureReason.OBSTACLE_BEHIND: 905,
+        FailureReason.REVERSE_LIMIT: 905,
+        FailureReason.NOT_CHARGING: 906,
         FailureReason.TIMEOUT: 907,
     }
 
@@ -412,7 +389,7 @@ def test_every_state_has_its_own_handler() -> None:
     handlers = mission._handlers
     assert set(handlers) == set(State)
     working = [s for s in State if not s.final]
-    assert {s for s in State if s.final} == {State.DOCKED, State.FAILED}
+    assert {s for s in State if s.final} == {State.DOCKED, State.UNDOCKED, State.FAILED}
     assert len({handlers[s].__name__ for s in working}) == len(working)
     for s in working:
         assert handlers[s].__name__ == f"_on_{s.name.lower()}"
@@ -420,17 +397,21 @@ def test_every_state_has_its_own_handler() -> None:
 
 def test_a_docking_with_a_retry_goes_through_every_state() -> None:
     """From a start with the dock out of view and a checkpoint nothing passes (one retry allowed), the log of a
-    successful docking visits every state that is not final, in the order the handlers hand over."""
-    robot = _truthful_robot(Pose2D(-1.8, -0.1, math.radians(-60)))  # the dock out of view, to the left
+    successful docking visits every state of a docking that went well but for the checkpoint, in the order the
+    handlers hand over. (Recovering from lost markers, re-seating and undocking have tests of their own, in
+    test_mission_recovery.py.)"""
+    robot = truthful_robot(Pose2D(-1.8, -0.1, math.radians(-60)))  # the dock out of view, to the left
     mission = _mission(robot, retry_lateral=0.0, max_retries=1)
     result = run_mission(robot, robot.perceive_truth, mission)
     assert result.state is State.DOCKED, result.log
     assert (result.failure, result.retries) == (None, 1)
     states = [State(entry.split(":")[0]) for _, entry in result.log]
-    assert set(states) == set(State) - {State.FAILED}
+    assert set(states) == set(State) - {State.FAILED, State.RECOVER, State.RESEAT, State.UNDOCK, State.UNDOCKED}
     assert states[:2] == [State.ACQUIRE, State.CALCULATE]
     for before, after in (
         (State.CENTER, State.CALCULATE),
+        (State.MOVING1_BACK, State.MOVING1_TURN),
+        (State.CHARGE_WAIT, State.DOCKED),
         (State.MOVING1_TURN, State.MOVING1_DRIVE),
         (State.MOVING1_DRIVE, State.MOVING2),
         (State.MOVING2, State.MOVING3),

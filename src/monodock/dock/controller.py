@@ -118,7 +118,8 @@ class State(StrEnum):
     ``charge_timeout`` in ``RESEAT`` with re-seats left, else in ``FAILED`` (``NOT_CHARGING``)."""
 
     RESEAT = "reseat"
-    """Back off ``reseat_distance`` straight, on odometry, and drive in again: ends in ``MOVING3``."""
+    """Back off ``reseat_distance`` straight, on odometry, and drive in again, each time ``reseat_push`` farther
+    than the estimate's face (contacts that did not mate are most often not pressed home): ends in ``MOVING3``."""
 
     BACK_OFF = "back-off"
     """A retry: reverse straight to Point A (placed again from the filter's dock pose) on odometry. Ends in
@@ -291,6 +292,7 @@ class DockingConfig:
     # Charging.
     charge_timeout: float = 2.0  # at the face: the charger must report charging within this
     reseat_distance: float = 0.05  # not charging: back off this far and drive in again
+    reseat_push: float = 0.005  # each re-seat drives this much farther in than the last (the contacts' springs)
     max_reseats: int = 2
     # Safety.
     max_reverse_speed: float = 0.10
@@ -319,7 +321,15 @@ class DockingConfig:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"docking config: {name} must be positive, got {getattr(self, name)}")
-        for name in ("rear_safety_distance", "blocked_timeout", "charge_timeout", "reacquire_wait", "lost_timeout"):
+        not_negative = (
+            "rear_safety_distance",
+            "blocked_timeout",
+            "charge_timeout",
+            "reacquire_wait",
+            "lost_timeout",
+            "reseat_push",
+        )
+        for name in not_negative:
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"docking config: {name} must not be negative, got {getattr(self, name)}")
         if self.min_speed > self.approach_speed:
@@ -766,7 +776,9 @@ class DockingMission:
             self._back_target = odom.pose.compose(Pose2D(-c.recover_distance, 0.0, 0.0))
             self._enter(now, State.RECOVER, f"retry {self.retries}: {why}; backing off {c.recover_distance:g} m")
             return (0.0, 0.0)
-        if tick.contact or gap <= abs(odom.linear) * c.stop_lead:
+        # A re-seat drives on past where the estimate puts the face (the face is solid, the springs give).
+        push = c.reseat_push * self.reseats
+        if tick.contact or gap <= abs(odom.linear) * c.stop_lead - push:
             if self.impact_speed is None:
                 self.impact_speed = abs(odom.linear)
             self._enter(now, State.SETTLE, "contact" if tick.contact else "at the face by the estimate")
