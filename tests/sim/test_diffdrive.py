@@ -6,14 +6,16 @@ the true pose), never by calling the code under test a second way.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
 import pytest
 
+from monodock.core.camera import CameraModel
 from monodock.core.pose2d import Pose2D
 from monodock.sim import Nuisances, Simulator
-from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
+from monodock.sim.diffdrive import DiffDriveConfig, Exposure, SimulatedRobot
 from monodock.sim.faults import Obstacle
 
 SIM = Simulator(nuisances=Nuisances.clean(), seed=1)
@@ -142,3 +144,161 @@ def test_no_charging_off_the_pads() -> None:
 def test_charging_is_none_without_the_signal() -> None:
     _, said = _press(0.0, charging_signal=False)
     assert said == [None] * 20
+
+
+# --- motion blur ----------------------------------------------------------------------------------------------
+
+CLEAN = Simulator(nuisances=Nuisances.clean(), seed=1)  # no lens blur, no noise: a still edge is a pixel wide
+
+
+def _turning(sim: Simulator, exposure: float, omega: float = 0.6) -> tuple[SimulatedRobot, Exposure]:
+    """A robot turning on the spot 1 m before the charger, its steady speed reached; its newest arrived exposure."""
+    robot = SimulatedRobot(
+        sim, Pose2D(-1.0, 0.0, -0.25), DiffDriveConfig(exposure_time=exposure), np.random.default_rng(5)
+    )
+    robot.send_velocity(0.0, omega)
+    robot.sleep(0.35)
+    return robot, next(e for e in reversed(robot.exposure_log) if e.arrival <= robot.t)
+
+
+def _edge_width(image: np.ndarray, corners: np.ndarray) -> float:
+    """Contrast over the steepest step (px) across the marker's left outer edge, median over its middle rows:
+    a box blur of b px gives b, a sharp edge about 1."""
+    x = int(round(0.5 * (corners[0, 0] + corners[3, 0])))
+    top, bottom = corners[0, 1], corners[3, 1]
+    rows = range(int(top + 0.3 * (bottom - top)), int(top + 0.7 * (bottom - top)))
+    widths = []
+    for r in rows:
+        profile = image[r, x - 10 : x + 11].astype(float)
+        widths.append((profile.max() - profile.min()) / np.abs(np.diff(profile)).max())
+    return float(np.median(widths))
+
+
+def test_turning_blurs_the_markers_by_the_truths_streak() -> None:
+    robot, e = _turning(CLEAN, 0.02)
+    frame = robot.latest_frame()
+    assert frame is not None
+    assert frame.stamp == e.stamp
+    still = CLEAN.render(robot.dock_pose(e.mid))  # the same pose, not moving
+    corners = CLEAN.true_corners(robot.dock_pose(e.mid))
+    box = np.concatenate(list(corners.values()))
+    (x0, y0), (x1, y1) = np.floor(box.min(axis=0)).astype(int) - 5, np.ceil(box.max(axis=0)).astype(int) + 5
+
+    def energy(image: np.ndarray) -> float:
+        return float(np.sum(np.diff(image[y0:y1, x0:x1].astype(float), axis=1) ** 2))
+
+    assert energy(frame.image) < 0.5 * energy(still)
+    # The streak by the truth: how far the marker's corners moved in the image during the exposure.
+    centre = corners["center"]
+    moved = (
+        CLEAN.true_corners(robot.dock_pose(e.end))["center"] - CLEAN.true_corners(robot.dock_pose(e.start))["center"]
+    )
+    streak = float(np.mean(np.abs(moved[:, 0])))
+    omega = (e.end.theta - e.start.theta) / 0.02
+    assert omega == pytest.approx(0.6, rel=0.15)  # the wheels are noisy step to step
+    assert 0.8 < streak / (CLEAN.camera.fx * omega * 0.02) < 1.5  # f w T, plus the camera's sideways motion
+    assert _edge_width(still, centre) < 2.0
+    assert _edge_width(frame.image, centre) == pytest.approx(streak, rel=0.25)
+
+
+def test_no_exposure_time_or_no_motion_renders_exactly_as_before() -> None:
+    noisy = Simulator(seed=1)
+    for exposure, omega in ((0.0, 0.6), (0.008, 0.0)):
+        robot, e = _turning(noisy, exposure, omega)
+        rng = copy.deepcopy(robot.rng)
+        frame = robot.latest_frame()
+        assert frame is not None
+        assert frame.stamp == e.stamp
+        assert np.array_equal(frame.image, noisy.render(robot.dock_pose(e.mid), rng=rng))
+
+
+# --- frame faults -------------------------------------------------------------------------------------------
+
+TINY = Simulator(camera=CameraModel.from_intrinsics(64, 48, 60.0, 60.0, 32.0, 24.0), nuisances=Nuisances.clean())
+
+
+def _watch(robot: SimulatedRobot, until: float) -> list[tuple[float, float]]:
+    """(stamp, when first seen) of every frame ``latest_frame`` hands over, polled every 10 ms."""
+    seen: list[tuple[float, float]] = []
+    while robot.t < until:
+        robot.sleep(0.01)
+        f = robot.latest_frame()
+        if f is not None and (not seen or f.stamp != seen[-1][0]):
+            seen.append((f.stamp, robot.t))
+    return seen
+
+
+def _tiny(**drive: object) -> SimulatedRobot:
+    config = DiffDriveConfig(**drive)  # type: ignore[arg-type]
+    return SimulatedRobot(TINY, Pose2D(-1.0, 0.0, 0.0), config, np.random.default_rng(7))
+
+
+def test_dropped_frames_never_arrive() -> None:
+    robot = _tiny()
+    robot.drop_frames(1.0, 2.0)
+    seen = _watch(robot, 3.0)
+    stamps = [s for s, _ in seen]
+    exposed = [e.stamp for e in robot.exposure_log if e.stamp + 0.05 < 2.99]
+    assert stamps == [s for s in exposed if not 1.0 <= s < 2.0]
+    assert all(t - s == pytest.approx(0.05, abs=0.011) for s, t in seen)
+
+    robot = _tiny(frame_drop_rate=0.3)
+    seen = _watch(robot, 6.0)
+    exposed = [e.stamp for e in robot.exposure_log if e.stamp + 0.05 < 5.99]
+    assert 0.55 < len(seen) / len(exposed) < 0.85
+
+
+def test_late_frames_arrive_late_or_are_superseded() -> None:
+    robot = _tiny()
+    robot.delay_frames(1.0, 1.5, 0.3)
+    seen = _watch(robot, 3.0)
+    stamps = [s for s, _ in seen]
+    assert stamps == sorted(stamps)
+    assert len(set(stamps)) == len(stamps)
+    late = [(s, t) for s, t in seen if 1.0 <= s < 1.5]
+    assert late  # the first of them arrive before any newer frame ...
+    assert all(t - s == pytest.approx(0.35, abs=0.011) for s, t in late)
+    assert len(late) < sum(1.0 <= e.stamp < 1.5 for e in robot.exposure_log)  # ... the last are superseded
+    assert all(t - s == pytest.approx(0.05, abs=0.011) for s, t in seen if not 1.0 <= s < 1.5)
+    exposed = [e.stamp for e in robot.exposure_log if e.stamp + 0.05 < 2.99]
+    assert set(exposed) - set(stamps) <= {s for s in exposed if 1.0 <= s < 1.5}
+
+    robot = _tiny(latency_spike_rate=0.5, latency_spike=0.3)
+    seen = _watch(robot, 4.0)
+    stamps = [s for s, _ in seen]
+    assert stamps == sorted(stamps)
+    delays = np.array([t - s for s, t in seen])
+    on_time = np.abs(delays - 0.05) < 0.011
+    assert np.all(on_time | (np.abs(delays - 0.35) < 0.011))
+    assert 0 < np.count_nonzero(~on_time) < np.count_nonzero(on_time)  # late ones are often superseded
+
+
+# --- odometry faults ------------------------------------------------------------------------------------------
+
+
+def test_an_odometry_jump_moves_odometry_not_the_robot() -> None:
+    robot = _robot(Pose2D(-1.5, 0.1, 0.05))
+    robot.sleep(0.1)
+    odom, pose = robot.odometry().pose, robot.pose
+    robot.jump_odometry(0.1, -0.05, 0.2)
+    assert robot.odometry().pose == pytest.approx((odom.x + 0.1, odom.y - 0.05, odom.theta + 0.2))
+    assert robot.pose == pose
+    robot.send_velocity(0.2, 0.0)
+    robot.sleep(1.0)
+    o, p = robot.odometry().pose, robot.pose
+    assert math.atan2(o.y - odom.y + 0.05, o.x - odom.x - 0.1) == pytest.approx(odom.theta + 0.2, abs=0.02)
+    assert math.atan2(p.y - pose.y, p.x - pose.x) == pytest.approx(0.05, abs=0.02)
+
+
+def test_a_slipping_wheel_turns_the_robot_behind_the_odometrys_back() -> None:
+    robot = _robot(Pose2D(-2.5, 0.0, 0.0))
+    robot.slip_wheel("left", 0.5, 1.0, 2.0)
+    robot.send_velocity(0.2, 0.0)
+    robot.sleep(1.0)
+    assert abs(robot.pose.theta) < 0.02
+    robot.sleep(2.0)
+    # The left wheel at 0.1 m/s, the right at 0.2 m/s on a 0.4 m track: 0.25 rad/s for 1 s.
+    assert robot.pose.theta == pytest.approx(0.25, abs=0.04)
+    assert abs(robot.odometry().pose.theta) < 0.01
+    with pytest.raises(ValueError, match="left"):
+        robot.slip_wheel("front", 0.5, 0.0, 1.0)

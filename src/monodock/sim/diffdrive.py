@@ -4,12 +4,16 @@ What a cheap base does that an ideal one does not, each from the seeded generato
 - commands arrive after a latency and the motors follow them with a first-order lag;
 - each wheel's ground speed differs from what its encoder reports, by a fixed per-run factor (tyre wear,
   slip, wheel-radius error) and per-step noise, so odometry drifts, in heading most of all;
-- the camera exposes at its own rate and phase, and a frame arrives a latency after its exposure;
+- the camera exposes at its own rate and phase, and a frame arrives a latency after its exposure; the robot's
+  own motion during the exposure blurs it; frames can be dropped or arrive late;
 - the charger face is solid: the robot cannot drive through it, and its wheels slip when it pushes.
 
 The pose truth lives in the dock frame. The controller sees only odometry (the integral of the encoders,
 in a frame that starts at the robot's start pose) and camera images rendered from the true pose. Frames are
 rendered when the controller first asks for them, so states that do not look cost nothing.
+
+Fault hooks, for fault tables: ``drop_frames``, ``delay_frames``, ``jump_odometry``, ``slip_wheel``; with
+``hide_markers`` (occlusion) and ``Obstacle(appear=...)`` (someone stepping behind the robot).
 """
 
 from __future__ import annotations
@@ -29,10 +33,12 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.dock.interface import CameraFrame, Odometry
 from monodock.errors import ConfigError
-from monodock.sim.faults import Obstacle, cone_range, footprint_clearance
+from monodock.sim.faults import DelayWindow, Obstacle, SlipWindow, cone_range, footprint_clearance
+from monodock.sim.nuisance import apply_nuisances
+from monodock.sim.render import render_radiance
 from monodock.sim.simulator import Simulator
 
-__all__ = ["DiffDriveConfig", "Obstacle", "SimulatedRobot", "TruthSample"]
+__all__ = ["DiffDriveConfig", "Exposure", "Obstacle", "SimulatedRobot", "TruthSample"]
 
 
 @dataclass(frozen=True)
@@ -48,7 +54,11 @@ class DiffDriveConfig:
         wheel_scale_sd: per-run relative error of each wheel's ground speed against its encoder.
         wheel_noise_sd: per-step relative noise on each wheel's ground speed.
         camera_rate: frames per second; the phase of the first frame is random.
-        camera_latency: from exposure to the frame's arrival.
+        camera_latency: from the middle of the exposure (the frame's stamp) to the frame's arrival.
+        exposure_time: how long the shutter is open, seconds (0: no motion blur). Must be shorter than a frame.
+        frame_drop_rate: chance that an exposure is never delivered (USB bandwidth, a driver that lost it).
+        latency_spike_rate: chance that a frame arrives ``latency_spike`` seconds later than ``camera_latency``.
+        latency_spike: that extra delay, seconds.
         physics_dt: integration step.
         contact_sensor: whether the charger contacts report touch (``contact()``); otherwise None and the
             robot must stop on its own estimate.
@@ -73,6 +83,10 @@ class DiffDriveConfig:
     wheel_noise_sd: float = 0.05
     camera_rate: float = 15.0
     camera_latency: float = 0.05
+    exposure_time: float = 0.008
+    frame_drop_rate: float = 0.0
+    latency_spike_rate: float = 0.0
+    latency_spike: float = 0.3
     physics_dt: float = 0.005
     contact_sensor: bool = False
     rear_sensor: bool = True
@@ -95,11 +109,40 @@ class DiffDriveConfig:
             "contact_lateral_tolerance",
             "contact_heading_tolerance_deg",
             "charge_delay",
+            "exposure_time",
+            "latency_spike",
         ):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"diff drive: {name} must not be negative, got {getattr(self, name)}")
+        if not self.exposure_time < 1.0 / self.camera_rate:
+            raise ConfigError(f"diff drive: exposure_time {self.exposure_time} s is not shorter than a frame")
+        for name in ("frame_drop_rate", "latency_spike_rate"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"diff drive: {name} must be in [0, 1], got {getattr(self, name)}")
         if not 0 < self.rear_fov_deg < 180:
             raise ConfigError(f"diff drive: rear_fov_deg must be in (0, 180), got {self.rear_fov_deg}")
+
+
+@dataclass(frozen=True)
+class Exposure:
+    """One exposure of the camera: the robot's true poses at its start, middle (the stamp) and end, and when
+    its frame arrives (seconds of robot time).
+
+    Attributes:
+        stamp: the middle of the exposure, the frame's stamp.
+        start, mid, end: the robot's true pose in the dock frame at ``stamp - exposure_time / 2``, ``stamp`` and
+            ``stamp + exposure_time / 2``.
+        arrival: when the frame reaches the robot without the fault hooks: ``stamp + camera_latency``, plus
+            ``latency_spike`` for a spiked frame (never before the exposure's end).
+        dropped: the camera's own drop (``frame_drop_rate``); ``drop_frames`` windows come on top.
+    """
+
+    stamp: float
+    start: Pose2D
+    mid: Pose2D
+    end: Pose2D
+    arrival: float
+    dropped: bool = False
 
 
 @dataclass(frozen=True)
@@ -134,6 +177,14 @@ class SimulatedRobot:
     face but its springs land beside the pads, so it does not charge although ``contact()`` says touch. The
     heading tolerance, 4 degrees, is where the second pad lifts off the springs' travel.
 
+    Camera: each exposure lasts ``exposure_time``; its stamp is its middle. ``exposure_log`` keeps the true
+    poses at its start, middle and end (``exposures`` the stamp and middle pose, dropped frames included: the
+    camera took them). A frame is blurred by the robot's motion over its exposure (``_MotionBlur``: one
+    render, a few warps induced by the charger's face plane; skipped when the streak is under 0.2 px, so a
+    still robot's frame is the plain render). ``latest_frame`` applies the frame faults (``frame_drop_rate``,
+    ``latency_spike_rate``, ``drop_frames``, ``delay_frames``). ``RealTimeRunner`` paces its own deliveries:
+    it renders every exposure and delivers it ``camera_latency`` later, so the frame faults do not reach it.
+
     Safety truth: ``min_clearance`` is the smallest distance (m) over the run so far between the robot's
     footprint (``front_offset`` ahead, ``rear_offset`` behind, ``footprint_width`` across) and any present
     obstacle, checked every physics step; ``collided`` is whether it ever reached 0.
@@ -157,8 +208,15 @@ class SimulatedRobot:
         self.commands: deque[tuple[float, float, float]] = deque()  # (time it takes effect, v, w)
         self.target = (0.0, 0.0)
         self.next_exposure = float(self.rng.uniform(0.0, 1.0 / c.camera_rate))
-        self.exposures: deque[tuple[float, Pose2D]] = deque(maxlen=64)
+        self.exposures: deque[tuple[float, Pose2D]] = deque(maxlen=64)  # (stamp, mid pose), every exposure
+        # The exposures' windows and arrivals; long enough to hold a frame delayed by seconds.
+        self.exposure_log: deque[Exposure] = deque(maxlen=256)
+        self._open: tuple[float, Pose2D, Pose2D | None] | None = None  # (stamp, start, mid) being exposed
         self._frame: CameraFrame | None = None
+        self._blur = _MotionBlur(self.sim)
+        self._drops: list[tuple[float, float]] = []
+        self._delays: list[DelayWindow] = []
+        self._slips: list[SlipWindow] = []
         self.touching = False
         self.impact_speed: float | None = None
         self.pushed = 0.0  # how far the wheels drove on while the front edge pressed the face, metres
@@ -205,24 +263,66 @@ class SimulatedRobot:
         return max(d, 0.0)
 
     def latest_frame(self) -> CameraFrame | None:
-        """The newest frame whose exposure has arrived; rendered on first request."""
-        arrived = [e for e in self.exposures if e[0] + self.config.camera_latency <= self.t]
-        if not arrived:
-            return self._frame
-        stamp, pose = arrived[-1]
-        if self._frame is None or self._frame.stamp != stamp:
-            self._frame = CameraFrame(stamp, self.render(stamp, pose))
+        """The newest frame that has arrived; rendered on first request.
+
+        Like a camera driver that keeps only the newest image: a late frame that arrives after a newer one is
+        discarded, so the frames the robot sees never go back in time, and a late frame holds back nothing.
+        """
+        held = self._frame.stamp if self._frame is not None else -math.inf
+        for e in reversed(self.exposure_log):
+            if e.stamp <= held:
+                break
+            if not self._is_dropped(e) and self.arrival(e) <= self.t:
+                self._frame = CameraFrame(e.stamp, self.render(e.stamp, e.mid))
+                break
         return self._frame
 
     def deliver(self, frame: CameraFrame) -> None:
         """Hand over a frame rendered ahead (the real-time runner renders each exposure when it happens)."""
         self._frame = frame
 
+    def arrival(self, exposure: Exposure) -> float:
+        """When the frame of this exposure reaches the robot, with the ``delay_frames`` windows, seconds."""
+        extra = sum(w.extra for w in self._delays if w.t0 <= exposure.stamp < w.t1)
+        return exposure.arrival + extra
+
+    def _is_dropped(self, exposure: Exposure) -> bool:
+        return exposure.dropped or any(t0 <= exposure.stamp < t1 for t0, t1 in self._drops)
+
     def sleep(self, seconds: float) -> None:
         steps = max(1, round(seconds / self.config.physics_dt))
         for _ in range(steps):
             self._step(self.config.physics_dt)
         self.truth.append(TruthSample(self.t, self.pose, self.odom))
+
+    # --- fault hooks ----------------------------------------------------------------------------
+
+    def drop_frames(self, t0: float, t1: float) -> None:
+        """No frame exposed (stamped) in [t0, t1) seconds is ever delivered by ``latest_frame``."""
+        self._drops.append((float(t0), float(t1)))
+
+    def delay_frames(self, t0: float, t1: float, extra: float) -> None:
+        """Frames exposed in [t0, t1) seconds arrive ``extra`` seconds later than they would (windows add up);
+        a newer frame that arrives first supersedes them."""
+        if not extra >= 0:
+            raise ValueError(f"frame delay must not be negative, got {extra}")
+        self._delays.append(DelayWindow(float(t0), float(t1), float(extra)))
+
+    def jump_odometry(self, dx: float, dy: float, dtheta: float) -> None:
+        """The odometry pose jumps by (dx m, dy m, dtheta rad) in the odometry frame, now (an encoder glitch,
+        a reset); the true pose does not move."""
+        o = self.odom
+        self.odom = Pose2D(o.x + dx, o.y + dy, wrap_angle(o.theta + dtheta))
+
+    def slip_wheel(self, side: str, factor: float, t0: float, t1: float) -> None:
+        """During [t0, t1) seconds the ``side`` ("left" or "right") wheel's ground speed is ``factor`` times what
+        it would be (a wet patch, a cable under the tyre); its encoder does not know, so odometry does not
+        either."""
+        if side not in ("left", "right"):
+            raise ValueError(f"wheel side must be 'left' or 'right', got {side!r}")
+        if not factor >= 0:
+            raise ValueError(f"slip factor must not be negative, got {factor}")
+        self._slips.append(SlipWindow(0 if side == "left" else 1, float(factor), float(t0), float(t1)))
 
     # --- what the simulator knows ---------------------------------------------------------------
 
@@ -232,10 +332,19 @@ class SimulatedRobot:
         return DockPose.from_robot_in_dock(p.x, p.y, p.theta)
 
     def render(self, stamp: float, pose: Pose2D) -> NDArray[np.uint8]:
-        """The camera image of a robot at ``pose`` (dock frame), exposed at ``stamp``."""
+        """The camera image of a robot at ``pose`` (dock frame), exposed at ``stamp``.
+
+        When ``stamp`` is one of the robot's exposures (``exposure_log``) with ``pose`` its middle, the image is
+        motion-blurred by the robot's motion during that exposure.
+        """
         dock_pose = self.dock_pose(pose)
         t0 = time.perf_counter()
-        image = self.sim.render(dock_pose, rng=self.rng)
+        exposure = next((e for e in reversed(self.exposure_log) if e.stamp == stamp and e.mid == pose), None)
+        streak = self._blur.streak(exposure) if exposure is not None else None
+        if streak is not None:
+            image = self._blur.render(dock_pose, streak, self.rng)
+        else:
+            image = self.sim.render(dock_pose, rng=self.rng)
         self.render_seconds += time.perf_counter() - t0
         self.frames_rendered += 1
         if self.hide_markers is not None and self.hide_markers(stamp, pose):
@@ -271,6 +380,9 @@ class SimulatedRobot:
         wanted = np.array([v - w * half, v + w * half])
         self.wheel_speed += (wanted - self.wheel_speed) * (1.0 - math.exp(-dt / c.motor_time_constant))
         ground = self.wheel_speed * self.wheel_scale * (1.0 + self.rng.normal(0.0, c.wheel_noise_sd, size=2))
+        for slip in self._slips:
+            if slip.t0 <= self.t < slip.t1:
+                ground[slip.wheel] *= slip.factor
         self.odom = self._integrate(self.odom, self.wheel_speed, dt)
         self.odom_velocity = (
             float(self.wheel_speed.mean()),
@@ -288,11 +400,40 @@ class SimulatedRobot:
             self.pose = Pose2D(self.pose.x + gap, self.pose.y, self.pose.theta)
             self.pushed += -gap
         self.touching = touching
+        t_before = self.t
         self.t += dt
         self._check_contacts()
         self._check_clearance()
-        if self.t >= self.next_exposure:
-            self.exposures.append((self.next_exposure, self.pose))
+        self._expose(t_before, before)
+
+    def _expose(self, t_before: float, before: Pose2D) -> None:
+        """Record the exposures' poses that fell in the step from ``t_before`` (pose ``before``) to now."""
+        c = self.config
+        half = 0.5 * c.exposure_time
+
+        def at(t: float) -> Pose2D:  # the pose at a time within the step, interpolated
+            f = min(max((t - t_before) / (self.t - t_before), 0.0), 1.0)
+            return _lerp(before, self.pose, f)
+
+        while True:
+            stamp = self.next_exposure
+            if self._open is None:
+                if self.t < stamp - half:
+                    return
+                self._open = (stamp, at(stamp - half), None)
+            _, start, mid = self._open
+            if mid is None and self.t >= stamp:
+                mid = at(stamp)
+                self._open = (stamp, start, mid)
+            if mid is None or self.t < stamp + half:
+                return
+            # Both draws only when asked for, so that a robot without these faults keeps its random sequence.
+            dropped = c.frame_drop_rate > 0 and bool(self.rng.random() < c.frame_drop_rate)
+            spiked = c.latency_spike_rate > 0 and bool(self.rng.random() < c.latency_spike_rate)
+            arrival = max(stamp + c.camera_latency + (c.latency_spike if spiked else 0.0), stamp + half)
+            self.exposure_log.append(Exposure(stamp, start, mid, at(stamp + half), arrival, dropped))
+            self.exposures.append((stamp, mid))
+            self._open = None
             self.next_exposure += 1.0 / c.camera_rate
 
     def _check_contacts(self) -> None:
@@ -325,3 +466,121 @@ class SimulatedRobot:
         w = float((wheels[1] - wheels[0]) / self.config.track_width)
         mid = pose.theta + 0.5 * w * dt
         return Pose2D(pose.x + v * dt * math.cos(mid), pose.y + v * dt * math.sin(mid), wrap_angle(pose.theta + w * dt))
+
+
+def _lerp(a: Pose2D, b: Pose2D, f: float) -> Pose2D:
+    """The pose a fraction ``f`` of the way from a to b (straight, heading the short way round)."""
+    return Pose2D(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), wrap_angle(a.theta + f * wrap_angle(b.theta - a.theta)))
+
+
+_BLUR_MIN_PX = 0.2  # a streak shorter than this is invisible under the lens blur and the noise: skip the warps
+_BLUR_MAX_SAMPLES = 8
+_BLUR_SPACING_PX = 1.5
+_BLUR_GRID_PX = 32  # the warp is computed exactly every 32 px and interpolated between: it is smooth
+_FAR = 20.0  # metres: rays that miss the face plane, or meet it farther, move as if at this distance
+
+
+class _MotionBlur:
+    """Motion blur from the robot's own motion during an exposure, for the price of one render and a few warps.
+
+    The scene is rendered once at the exposure's middle pose, as radiance (linear light, before the sensor's
+    noise and 8-bit rounding: a real sensor integrates light while it moves and adds its noise once). The
+    images at poses spread evenly over the exposure are then warps of it, and the blurred image is their mean.
+    Each warp is the one the charger's face plane (x = 0 in the dock frame, where the markers lie) induces
+    between the two camera poses, H = K (R - t n^T / d) K^-1, computed point by point through the lens
+    (undistort, move, distort again) on a coarse grid and interpolated: exact on the face plane at any lens
+    distortion. Other surfaces (floor, walls) are warped as if they lay in that plane; their streaks are
+    wrong in length by the ratio of depths, which matters little for a blur of a few pixels.
+    """
+
+    def __init__(self, sim: Simulator) -> None:
+        self.sim = sim
+        cam = sim.camera
+        w, h = cam.width, cam.height
+        gw, gh = -(-w // _BLUR_GRID_PX), -(-h // _BLUR_GRID_PX)
+        # Grid nodes where cv2.resize's linear interpolation puts them, so that resizing reproduces them.
+        gx = (np.arange(gw) + 0.5) * w / gw - 0.5
+        gy = (np.arange(gh) + 0.5) * h / gh - 0.5
+        self.grid = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
+        self.grid_shape = (gh, gw)
+        self.rays: NDArray[np.float64] | None = None  # the grid's undistorted rays (z = 1); computed when needed
+        ix, iy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+        self.identity = np.stack([ix, iy], axis=-1)  # the map that moves nothing, (h, w, 2)
+
+    def _optical(self, pose: Pose2D) -> NDArray[np.float64]:
+        """world_T_optical of the robot at ``pose`` in the dock frame."""
+        return self.sim.world_T_optical(DockPose.from_robot_in_dock(*pose))
+
+    def _shift(self, mid: NDArray[np.float64], sub: NDArray[np.float64]) -> NDArray[np.float64]:
+        """For the grid's pixels in the image at ``sub`` (a world_T_optical), how far (px, shape (N, 2)) the
+        same points of the face plane lie in the image at ``mid``."""
+        if self.rays is None:
+            n = self.sim.camera.normalize(self.grid)
+            self.rays = np.column_stack([n, np.ones(len(n))])
+        R, o = sub[:3, :3], sub[:3, 3]
+        dirs = self.rays @ R.T  # in the dock frame
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = -o[0] / dirs[:, 0]  # where each ray meets x = 0
+        depth = np.where((depth > 0) & (depth < _FAR), depth, _FAR)
+        points = o + depth[:, None] * dirs
+        mid_inv = np.linalg.inv(mid)
+        in_mid = points @ mid_inv[:3, :3].T + mid_inv[:3, 3]
+        px = self.sim.camera.project(in_mid)
+        return np.asarray(px - self.grid, dtype=np.float64)
+
+    def streak(self, e: Exposure) -> _Streak | None:
+        """Where the grid's pixels of the middle image were at the exposure's start and end; None when the streak
+        is under ``_BLUR_MIN_PX`` everywhere (a still robot's frame is then the plain render, bit for bit)."""
+        if e.start == e.end:
+            return None
+        mid = self._optical(e.mid)
+        start = self._shift(mid, self._optical(e.start))
+        end = self._shift(mid, self._optical(e.end))
+        length = float(np.max(np.hypot(*(end - start).T), initial=0.0))
+        if not length >= _BLUR_MIN_PX:  # also when the geometry gave NaN
+            return None
+        return _Streak(start, end, length)
+
+    def render(self, pose: DockPose, streak: _Streak, rng: np.random.Generator) -> NDArray[np.uint8]:
+        """The mono8 image at DockPose ``pose`` (the exposure's middle), blurred along ``streak``; the same random
+        draws as ``Simulator.render``.
+
+        The samples sit at the centres of equal parts of the exposure, at most 1.5 px apart (the lens blur fills
+        the gaps; streaks longer than ``_BLUR_MAX_SAMPLES`` x 1.5 px show as ghosts rather than a smooth
+        streak). A sample's shift is the start's or the end's scaled: over a few milliseconds the pose, and so
+        the shift, moves along a straight line to first order.
+        """
+        sim = self.sim
+        radiance = render_radiance(
+            sim.world, sim.camera, sim.world_T_optical(pose), supersample=sim.nuisances.supersample
+        )
+        w, h = sim.camera.width, sim.camera.height
+        # Interpolate the shift, not the map: resize's clamped borders then keep the shift, not the pixel.
+        dense = [
+            cv2.resize(s.reshape(*self.grid_shape, 2).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+            for s in (streak.start, streak.end)
+        ]
+        k = min(_BLUR_MAX_SAMPLES, max(2, math.ceil(streak.length / _BLUR_SPACING_PX)))
+        total = np.zeros_like(radiance, dtype=np.float32)
+        warped = np.empty_like(total)
+        where = np.empty_like(self.identity)
+        for i in range(k):
+            u = (i + 0.5) / k - 0.5  # -1/2 at the start, 0 mid, 1/2 at the end
+            if abs(u) < 1e-9:
+                total += radiance
+                continue
+            cv2.scaleAdd(dense[u > 0], 2.0 * abs(u), self.identity, dst=where)
+            cv2.remap(radiance, where, None, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE)  # type: ignore[call-overload]
+            total += warped
+        total *= np.float32(1.0 / k)
+        return apply_nuisances(total, sim.nuisances, rng)
+
+
+@dataclass(frozen=True)
+class _Streak:
+    """Shifts (px, (N, 2)) of the blur grid's pixels from the middle image to the exposure's start and end, and
+    the longest start-to-end streak, px."""
+
+    start: NDArray[np.float64]
+    end: NDArray[np.float64]
+    length: float
