@@ -22,6 +22,7 @@ from monodock.estimation.bundle import load_bundle
 from monodock.evaluation.dock_sim import (
     ALL_METHODS,
     BUNDLE_METHODS,
+    FAULTS,
     DockSimConfig,
     case_distances,
     run_dock_sim,
@@ -60,6 +61,40 @@ def _methods(value: str) -> tuple[str, ...]:
             f"unknown method '{bad[0] if bad else value}' (available: {', '.join(ALL_METHODS)})"
         )
     return methods
+
+
+def _planners(value: str) -> tuple[str, ...]:
+
+    planners = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
+    bad = [p for p in planners if p not in PLANNERS]
+    if bad or not planners:
+        raise argparse.ArgumentTypeError(
+            f"unknown planner '{bad[0] if bad else value}' (available: {', '.join(PLANNERS)})"
+        )
+    return planners
+
+
+def _faults(value: str) -> tuple[str, ...]:
+
+    if value == "all":
+        return tuple(FAULTS)
+    faults = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
+    bad = [f for f in faults if f not in FAULTS]
+    if bad or not faults:
+        raise argparse.ArgumentTypeError(
+            f"unknown fault '{bad[0] if bad else value}' (available: all, {', '.join(FAULTS)})"
+        )
+    return faults
+
+
+def _rate(value: str) -> float:
+    try:
+        r = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got '{value}'") from None
+    if not 0.0 <= r <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be within 0-1, got {value}")
+    return r
 
 
 def _positive_int(value: str) -> int:
@@ -102,9 +137,31 @@ def add_parser(subparsers: Any) -> None:
     )
     d.add_argument(
         "--planner",
-        choices=PLANNERS,
-        help="monodock (Point A at the stand-off, a turn to face it) or papers (Point A on the heading line, "
-        "straight there); default: the config's, monodock",
+        type=_planners,
+        help="monodock (Point A at the stand-off, reached without a jump at any boundary), papers (Point A on the "
+        "heading line, straight there), or both separated by a comma (each from the same starts); default: the "
+        "config's, monodock",
+    )
+    d.add_argument(
+        "--faults",
+        type=_faults,
+        help="run these faults from every start, for the fault table: 'all' or some of "
+        + ", ".join(FAULTS)
+        + " ('none' is the nominal run)",
+    )
+    d.add_argument(
+        "--redock", action="store_true", help="after each docking, undock to the staging pose and dock again"
+    )
+    d.add_argument(
+        "--exposure", type=float, default=0.008, help="camera exposure, s: motion blur from the robot's motion (0.008)"
+    )
+    d.add_argument("--frame-drop-rate", type=_rate, default=0.0, help="chance that a frame never arrives (0)")
+    d.add_argument("--latency-spike-rate", type=_rate, default=0.0, help="chance that a frame arrives 0.3 s late (0)")
+    d.add_argument("--no-rear-sensor", action="store_true", help="the robot has no rear range sensor")
+    d.add_argument(
+        "--no-charging-signal",
+        action="store_true",
+        help="the robot cannot tell whether it charges: docked is its own estimate inside the tolerances",
     )
     d.add_argument("--standoff", type=float, help="Point A: floor between front edge and face, m (the config's: 1.0)")
     d.add_argument(
@@ -149,7 +206,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
             raise InputError(f"--max-retries must not be negative, got {args.max_retries}")
         mission = dataclasses.replace(mission, max_retries=args.max_retries)
     if args.planner is not None:
-        mission = dataclasses.replace(mission, planner=dataclasses.replace(mission.planner, kind=args.planner))
+        mission = dataclasses.replace(mission, planner=dataclasses.replace(mission.planner, kind=args.planner[0]))
     if args.standoff is not None:
         if not args.standoff > 0:
             raise InputError(f"--standoff must be positive, got {args.standoff:g}")
@@ -160,18 +217,31 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         raise InputError(f"--max-heading must be in (0, 60] degrees, got {args.max_heading:g}")
     if not args.camera_rate > 0:
         raise InputError(f"--camera-rate must be positive, got {args.camera_rate}")
+    if not 0 <= args.exposure < 1.0 / args.camera_rate:
+        raise InputError(f"--exposure must be within 0 and one frame (1/--camera-rate), got {args.exposure:g}")
     jobs = args.jobs if args.jobs and args.jobs > 0 else max(1, min(4, os.cpu_count() or 1))
     config = DockSimConfig(
         cases=args.cases,
         trials=args.trials,
         methods=args.method,
+        planners=args.planner or (),
+        faults=args.faults or (),
+        redock=args.redock,
         seed=args.seed,
         distance=(args.distance[0], args.distance[1]),
         max_heading_deg=args.max_heading,
         supersample=args.supersample,
         jobs=jobs,
         mission=mission,
-        drive=DiffDriveConfig(contact_sensor=args.contact_sensor, camera_rate=args.camera_rate),
+        drive=DiffDriveConfig(
+            contact_sensor=args.contact_sensor,
+            camera_rate=args.camera_rate,
+            exposure_time=args.exposure,
+            frame_drop_rate=args.frame_drop_rate,
+            latency_spike_rate=args.latency_spike_rate,
+            rear_sensor=not args.no_rear_sensor,
+            charging_signal=not args.no_charging_signal,
+        ),
         layout=DockLayout.load(args.layout) if args.layout else DockLayout.default(),
         camera=CameraModel.load(args.camera) if args.camera else CameraModel.default(),
         robot=RobotConfig.load(args.robot) if args.robot else RobotConfig.default(),

@@ -51,12 +51,14 @@ from monodock.estimation.estimator import METHODS, Estimator
 from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.regression import RegressionEstimator
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
+from monodock.sim.faults import Obstacle
 from monodock.sim.nuisance import Nuisances
 from monodock.sim.simulator import Simulator
 
 __all__ = [
     "ALL_METHODS",
     "BUNDLE_METHODS",
+    "FAULTS",
     "AbsStats",
     "DockSimConfig",
     "DockSimSettings",
@@ -80,6 +82,17 @@ __all__ = [
 ]
 
 ALL_METHODS = ("regression", *METHODS, "fused")
+
+# The faults of the fault table (``DockSimConfig.faults``); "none" is the nominal run from the same start.
+FAULTS = {
+    "none": "nothing goes wrong",
+    "occlusion": "a passer-by hides the markers for 2.5 s when the front edge is 0.7 m from the face",
+    "frame-drops": "no frame arrives for 1.5 s when the front edge is 0.8 m from the face",
+    "latency-spike": "frames exposed over 1 s arrive 0.4 s late, from 0.8 m before the face",
+    "odometry-jump": "the odometry jumps 5 cm sideways and 3° 0.5 s into the drive to Point A",
+    "wheel-slip": "the left wheel slips to 60 % of its speed for 1 s, 0.5 s into the drive to Point A",
+    "person-behind": "someone steps 0.5 m behind the robot as soon as it starts to reverse, for 4 s",
+}
 # The methods that need the model bundle.
 BUNDLE_METHODS = ("regression", "fused")
 
@@ -92,6 +105,8 @@ class DockSimConfig:
     trials: int = 25
     methods: tuple[str, ...] = ("regression",)
     planners: tuple[str, ...] = ()  # PLANNERS to run from the same starts; () = the mission config's planner
+    faults: tuple[str, ...] = ()  # FAULTS to run from the same starts; () = none
+    redock: bool = False  # after each docking: undock to the staging pose and dock again
     seed: int = 0
     distance: tuple[float, float] = (1.0, 2.5)  # base_link's distance from the face along the axis, metres
     max_heading_deg: float = 30.0
@@ -105,6 +120,27 @@ class DockSimConfig:
     robot: RobotConfig = field(default_factory=RobotConfig.default)
     nuisances: Nuisances = field(default_factory=Nuisances)
     bundle: Path | None = None  # the regression's model bundle
+
+    @property
+    def fault_kinds(self) -> tuple[str, ...]:
+        """The faults that run, each from every start ("none": the nominal run)."""
+        return self.faults or ("none",)
+
+    def variant(self, method: str, planner: str, fault: str = "none") -> str:
+        """A run's group in the summary: the method, with the planner and the fault when more than one ran."""
+        label = method
+        if len(self.planner_kinds) > 1:
+            label += f"/{planner}"
+        if len(self.fault_kinds) > 1 or fault != "none":
+            label += f"/{fault}"
+        return label
+
+    @property
+    def variants(self) -> list[tuple[str, str, str, str]]:
+        """(label, method, planner, fault) of every variant, in the order the summary lists them."""
+        return [
+            (self.variant(m, p, f), m, p, f) for f in self.fault_kinds for p in self.planner_kinds for m in self.methods
+        ]
 
     @property
     def planner_kinds(self) -> tuple[str, ...]:
@@ -168,6 +204,14 @@ class TrialResult:
     planner: str = "monodock"
     point_a: tuple[float, float] | None = None  # the planned Point A (x, y) in the dock frame, by the truth's axes
     path_t: tuple[float, ...] = ()  # the time of each ``path`` sample, seconds since the start
+    fault: str = "none"
+    fault_triggered: bool = False  # whether the fault's moment came (e.g. a reverse leg for person-behind)
+    charging: bool | None = None  # the mission's charging confirmation (None: it could not tell)
+    reseats: int = 0
+    recoveries: int = 0
+    collided: bool = False  # the footprint touched an obstacle (the simulator's truth)
+    redock: str = ""  # with redock: "redocked", "undock failed: ..." or "redock failed: ..."; "" when not run
+    variant: str = ""  # the summary's group (DockSimConfig.variant)
 
 
 def case_distances(case: int, config: DockSimConfig) -> tuple[float, float]:
@@ -261,6 +305,59 @@ class _Task:
     method: str
     start: Pose2D
     planner: str = "monodock"
+    fault: str = "none"
+    variant: str = ""
+
+
+class _FaultInjector:
+    """Springs the run's fault on the simulated robot at its moment, judged from the truth and the mission state."""
+
+    def __init__(self, fault: str, robot: SimulatedRobot) -> None:
+        self.fault, self.robot = fault, robot
+        self.triggered = False
+        self.drive_started: float | None = None
+
+    def tick(self, mission: DockingMission) -> None:
+        if self.triggered or self.fault == "none":
+            return
+        robot, t, state = self.robot, self.robot.now(), mission.state
+        gap = robot.front_gap()
+        if self.fault in ("odometry-jump", "wheel-slip") and state is State.MOVING1_DRIVE:
+            if self.drive_started is None:
+                self.drive_started = t
+            if t - self.drive_started >= 0.5:
+                self._spring(t)
+        elif (
+            self.fault == "person-behind"
+            and (
+                state in (State.MOVING1_BACK, State.BACK_OFF, State.RECOVER, State.RESEAT)
+                or (state is State.MOVING1_DRIVE and mission.manoeuvre is not None and mission.manoeuvre.reverse)
+            )
+        ) or (
+            state is State.MOVING3
+            and (
+                (self.fault == "occlusion" and gap < 0.7)
+                or (self.fault in ("frame-drops", "latency-spike") and gap < 0.8)
+            )
+        ):
+            self._spring(t)
+
+    def _spring(self, t: float) -> None:
+        robot, f = self.robot, self.fault
+        self.triggered = True
+        if f == "occlusion":
+            robot.hide_markers = lambda stamp, _pose: t <= stamp < t + 2.5
+        elif f == "frame-drops":
+            robot.drop_frames(t, t + 1.5)
+        elif f == "latency-spike":
+            robot.delay_frames(t, t + 1.0, 0.4)
+        elif f == "odometry-jump":
+            robot.jump_odometry(0.0, 0.05, math.radians(3.0))
+        elif f == "wheel-slip":
+            robot.slip_wheel("left", 0.6, t, t + 1.0)
+        elif f == "person-behind":
+            behind = robot.pose.compose(Pose2D(-(robot.config.rear_offset + 0.5 + 0.2), 0.0, 0.0))
+            robot.obstacles.append(Obstacle(behind.x, behind.y, 0.2, appear=t, vanish=t + 4.0))
 
 
 def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
@@ -277,6 +374,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         track=dataclasses.replace(config.mission.track, odometry=odometry_noise(config.drive)),
     )
     mission = DockingMission(mission_config, sim.robot, env.blind)
+    faults = _FaultInjector(task.fault, robot)
     perceive_s = 0.0
     inner = env.perceive[task.method]
     frames: list[FilterFrame] = []
@@ -293,6 +391,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
 
     def on_tick(m: DockingMission, _odom: Odometry) -> None:
         """After the mission took a frame in: the filter at the frame's exposure against the truth."""
+        faults.tick(m)
         while pending:
             record = _filter_frame(m, robot, pending.pop())
             if record is not None:
@@ -308,6 +407,9 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         and abs(gap) <= c.tolerance_longitudinal
         and abs(heading) <= math.radians(c.tolerance_heading_deg)
     )
+    redock = ""
+    if config.redock and result.docked:
+        redock = _undock_and_redock(robot, mission_config, env, inner)
     samples = robot.truth[::10]
     path = tuple((s.pose.x, s.pose.y, s.pose.theta) for s in samples)
     m = mission.manoeuvre
@@ -337,7 +439,32 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         filter_frames=tuple(frames),
         planner=task.planner,
         point_a=None if m is None else (m.point_a.x, m.point_a.y),
+        fault=task.fault,
+        fault_triggered=faults.triggered,
+        charging=result.charging,
+        reseats=result.reseats,
+        recoveries=result.recoveries,
+        collided=robot.collided,
+        redock=redock,
+        variant=task.variant,
     )
+
+
+def _undock_and_redock(robot: SimulatedRobot, config: DockingConfig, env: _Environment, perceive: Perceive) -> str:
+    """From docked: undock to the staging pose, then dock again; what happened, in words."""
+    undock = run_mission(robot, perceive, DockingMission(config, env.sim.robot, env.blind, task="undock"))
+    if not undock.succeeded:
+        return f"undock failed: {undock.reason}"
+    again = run_mission(robot, perceive, DockingMission(config, env.sim.robot, env.blind))
+    if not again.docked:
+        return f"redock failed: {again.reason}"
+    c, p = config, robot.pose
+    inside = (
+        abs(p.y) <= c.tolerance_lateral
+        and abs(robot.longitudinal_error()) <= c.tolerance_longitudinal
+        and abs(p.theta) <= math.radians(c.tolerance_heading_deg)
+    )
+    return "redocked" if inside else "redock outside the tolerances"
 
 
 def odometry_noise(drive: DiffDriveConfig) -> OdometryNoise:
@@ -384,7 +511,7 @@ def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialR
         rng = np.random.default_rng([config.seed, case, 5])
         for trial in range(config.trials):
             start = sample_start(case, sim, planner, rng, config)
-            tasks.extend(_Task(case, trial, m, start, p) for p in config.planner_kinds for m in config.methods)
+            tasks.extend(_Task(case, trial, m, start, p, f, label) for label, m, p, f in config.variants)
     results = map_with_state(_run_trial, config, tasks, jobs=config.jobs, chunksize=1)
     bar = tqdm(results, total=len(tasks), desc="docking runs", unit="run", disable=not progress)
     return list(bar)
@@ -445,6 +572,13 @@ class RunGroup:
     impact_speed_mps: AbsStats
     case_agreement: float | None
     failures: Mapping[str, int]
+    charging: int = 0  # runs the charger confirmed
+    reseats_total: int = 0
+    recoveries_total: int = 0  # retries after the markers were lost
+    collisions: int = 0  # runs whose footprint touched an obstacle
+    faults_triggered: int = 0
+    redock_tried: int = 0  # docked runs that undocked and docked again
+    redocked: int = 0  # of those: docked again within the tolerances
 
     @classmethod
     def of(cls, results: Sequence[TrialResult]) -> RunGroup:
@@ -466,6 +600,13 @@ class RunGroup:
             impact_speed_mps=AbsStats.of([r.impact_speed for r in results if r.impact_speed is not None]),
             case_agreement=sum(r.classified_case == r.case for r in results) / runs if runs else None,
             failures=dict(failures),
+            charging=sum(r.charging is True for r in results),
+            reseats_total=sum(r.reseats for r in results),
+            recoveries_total=sum(r.recoveries for r in results),
+            collisions=sum(r.collided for r in results),
+            faults_triggered=sum(r.fault_triggered for r in results),
+            redock_tried=sum(bool(r.redock) for r in results),
+            redocked=sum(r.redock == "redocked" for r in results),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -481,6 +622,12 @@ class RunGroup:
             "impact_speed_mps": self.impact_speed_mps.to_dict(),
             "case_agreement": self.case_agreement,
             "failures": dict(self.failures),
+            "charging": self.charging,
+            "reseats": self.reseats_total,
+            "recoveries": self.recoveries_total,
+            "collisions": self.collisions,
+            "faults_triggered": self.faults_triggered,
+            "redock": {"tried": self.redock_tried, "redocked": self.redocked},
         }
 
     @classmethod
@@ -498,6 +645,14 @@ class RunGroup:
             impact_speed_mps=AbsStats.from_dict(d["impact_speed_mps"]),
             case_agreement=_number(d["case_agreement"]),
             failures={str(k): int(v) for k, v in d["failures"].items()},
+            # absent before issue 16:
+            charging=int(d.get("charging", 0)),
+            reseats_total=int(d.get("reseats", 0)),
+            recoveries_total=int(d.get("recoveries", 0)),
+            collisions=int(d.get("collisions", 0)),
+            faults_triggered=int(d.get("faults_triggered", 0)),
+            redock_tried=int(d.get("redock", {}).get("tried", 0)),
+            redocked=int(d.get("redock", {}).get("redocked", 0)),
         )
 
 
@@ -849,24 +1004,22 @@ class DockSimSummary:
 
 def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> DockSimSummary:
     """The summary.json contract: per method its runs overall and per case, the filter's accuracy, the settings."""
-    methods: dict[str, MethodRuns] = {}
-    for m in config.methods:
-        methods[m] = MethodRuns.of([r for r in results if r.method == m], config.cases)
+    labels = [v[0] for v in config.variants]
+    groups = {
+        v: [r for r in results if (r.variant or config.variant(r.method, r.planner, r.fault)) == v] for v in labels
+    }
     c = config.mission
     return DockSimSummary(
-        method=config.methods[0],
-        methods=methods,
-        filter={
-            m: filter_accuracy([r for r in results if r.method == m], config.robot.camera_mount.x)
-            for m in config.methods
-        },
+        method=labels[0],
+        methods={v: MethodRuns.of(runs, config.cases) for v, runs in groups.items()},
+        filter={v: filter_accuracy(runs, config.robot.camera_mount.x) for v, runs in groups.items()},
         settings=DockSimSettings(
             trials_per_case=config.trials,
             seed=config.seed,
             distance_m=config.distance,
             max_heading_deg=config.max_heading_deg,
             standoff_m=c.planner.standoff,
-            planner=c.planner.kind,
+            planner=",".join(config.planner_kinds),
             tolerance_lateral_cm=c.tolerance_lateral * 100,
             tolerance_longitudinal_cm=c.tolerance_longitudinal * 100,
             tolerance_heading_deg=c.tolerance_heading_deg,
@@ -904,6 +1057,14 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
             "perceive_s",
             "reason",
             "failure",
+            "planner",
+            "fault",
+            "fault_triggered",
+            "charging",
+            "reseats",
+            "recoveries",
+            "collided",
+            "redock",
         ]
     )
     for r in results:
@@ -930,6 +1091,14 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
                 f"{r.perceive_s:.2f}",
                 r.reason,
                 r.failure,
+                r.planner,
+                r.fault,
+                str(r.fault_triggered).lower(),
+                "" if r.charging is None else str(r.charging).lower(),
+                r.reseats,
+                r.recoveries,
+                str(r.collided).lower(),
+                r.redock,
             ]
         )
     return buf.getvalue()
