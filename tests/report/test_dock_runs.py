@@ -167,6 +167,8 @@ def test_the_executed_case_is_counted_against_the_start_region(runs: tuple[list[
     vs = variants(monodock)
     assert vs == [("pnp", "monodock")]
     table = agreement_table(monodock, vs)
+    head, rule = table.splitlines()[:2]
+    assert head.count("|") == rule.count("|")
     rows = {cells[1]: cells for cells in (re.split(r"\s*\|\s*", ln.strip("| ")) for ln in table.splitlines()[2:])}
     # Four runs: regions 1 and 5 ran their own case, region 3 ran case 4, region 2 never planned.
     assert rows["all"][-1] == "2/4 (50 %)"

@@ -235,7 +235,7 @@ def agreement_table(results: Sequence[TrialResult], variant_list: Sequence[Varia
     share that executed their start region's case; ``regions=False`` keeps only each variant's "all" row."""
     planners = [p for _, p in variant_list]
     head = "| variant | start region | runs | " + " | ".join(f"ran {c}" for c in CASES) + " | none | agree |"
-    lines = [head, "|---|---|" + "---:|" * (len(CASES) + 4)]
+    lines = [head, "|---|---|" + "---:|" * (len(CASES) + 3)]
     for v in variant_list:
         runs = [r for r in results if variant_of(r) == v]
         groups = [(str(c), [r for r in runs if r.case == c]) for c in sorted({r.case for r in runs})] if regions else []

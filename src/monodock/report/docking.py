@@ -698,10 +698,11 @@ def dock_section(
     variant_list = variants(results, config)
     if results:
         report.paragraph(
-            "The case executed is the one the mission classified from its own estimate at Calculate (and planned "
-            "for); the start region is the case whose region the start was drawn in. They differ when the estimate "
-            "puts a start near a region's border on the other side, or (the papers' planner) when Point A lies "
-            "elsewhere than the stand-off. Agreement: runs that executed their start region's case."
+            "The case executed is the one the mission classified from its own estimate at Calculate and planned "
+            "for; the start region is the case whose region the start was drawn in. They differ when the robot "
+            "first turned to face the dock (Center: the heading, and so the case, changes) or when the estimate "
+            "puts a start near a border on its other side. Agreement: the runs that executed their start region's "
+            "case."
         )
         report.table(agreement_table(results, variant_list, regions=False))
         with report.details("Executed case against start region, region by region"):
