@@ -262,7 +262,7 @@ def trajectory_plot(
     """The true paths of the runs that executed ``case`` (None: the runs that never planned), a panel per variant
     (a column per method, a row per planner). Blue paths docked within the tolerances, red ones did not; dashed
     purple legs the robot reversed; arrows every 0.4 m the way it moved; crosses each run's Point A; grey
-    footprints the starts (orange: a start in another case's region), green or red where runs ended."""
+    footprints the starts (orange: a start in another case's region), red where failed runs ended."""
     variant_list = list(runs)
     methods, planners, cell = _variant_grid(variant_list)
     rows, cols = len(planners), len(methods)
@@ -278,6 +278,7 @@ def trajectory_plot(
         ax.set_visible(True)
         draw_dock(ax, layout, None)
         ok = 0
+        faint = 0.3 if len(runs[v]) <= 8 else 0.16  # many footprints would hide the paths
         for r in runs[v]:
             ok += r.success
             if not r.path:
@@ -285,8 +286,9 @@ def trajectory_plot(
             draw_path(ax, r.path, color="tab:blue" if r.success else "tab:red", lw=0.8, alpha=0.6, arrow_size=8.0)
             _mark_point_a(ax, r)
             other = case is not None and r.case != case
-            draw_robot(ax, Pose2D(*r.path[0]), robot, drive, color="tab:orange" if other else "0.4", alpha=0.3)
-            draw_robot(ax, Pose2D(*r.path[-1]), robot, drive, color="tab:green" if r.success else "tab:red", alpha=0.45)
+            draw_robot(ax, Pose2D(*r.path[0]), robot, drive, color="tab:orange" if other else "0.4", alpha=faint)
+            if not r.success:  # a docked run ends at the face, like every other docked run
+                draw_robot(ax, Pose2D(*r.path[-1]), robot, drive, color="tab:red", alpha=0.45)
         ax.set_aspect("equal")
         ax.set_xlim(u0, u1)
         ax.set_ylim(v0, v1)
@@ -731,7 +733,7 @@ def dock_section(
         report.paragraph(
             "A panel per variant (method and planner). Blue: docked within the tolerances, red: not; dashed purple: "
             "legs driven in reverse; arrows every 0.4 m point the way the robot moved; crosses: each run's Point A; "
-            "grey footprints: starts (orange: started in another case's region), green or red: where runs ended."
+            "grey footprints: starts (orange: started in another case's region), red: where failed runs ended."
         )
         for case in trajectory_cases(results, config):
             title = "Runs that never planned" if case is None else f"Executed case {case}: {CASES[case].title}"
