@@ -360,7 +360,7 @@ def trajectory_overview(
     u0, u1, v0, v1 = _limits(results)
     width = max(panel_px * cols, 280) / dpi
     # Panels of equal aspect over the floor drawn, plus room for the titles and labels.
-    height = rows * (0.85 * panel_px / dpi * (v1 - v0) / (u1 - u0) + 0.45) + 0.15
+    height = rows * (0.85 * panel_px / dpi * (v1 - v0) / (u1 - u0) + 0.6) + 0.15
     fig, axes = plt.subplots(rows, cols, figsize=(width, height), squeeze=False, sharex=True, sharey=True)
     for ax in axes.flat:
         ax.set_visible(False)
@@ -369,6 +369,7 @@ def trajectory_overview(
         ax.set_visible(True)
         draw_dock(ax, config.layout, None)
         runs = [r for r in results if variant_of(r) == v]
+        faint = 0.3 if len(runs) <= 8 else 0.15
         for r in runs:
             if not r.path:
                 continue
@@ -382,11 +383,11 @@ def trajectory_overview(
                 arrow_size=4.5,
             )
             _mark_point_a(ax, r, ms=3.0)
-            draw_robot(ax, Pose2D(*r.path[0]), config.robot, config.drive, color="0.45", alpha=0.3)
+            draw_robot(ax, Pose2D(*r.path[0]), config.robot, config.drive, color="0.45", alpha=faint)
         ax.set_aspect("equal")
         ax.set_xlim(u0, u1)
         ax.set_ylim(v0, v1)
-        ax.set_title(f"{variant_label(v, planners)}: {sum(r.success for r in runs)}/{len(runs)} docked", fontsize=9)
+        ax.set_title(f"{variant_label(v, planners)}\n{sum(r.success for r in runs)}/{len(runs)} docked", fontsize=8.5)
         ax.tick_params(labelsize=7)
         if cell[v][0] == rows - 1:
             ax.set_xlabel("lateral (m)", fontsize=7)
