@@ -15,7 +15,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
+from matplotlib.lines import Line2D
 from matplotlib.patches import FancyArrowPatch, Polygon, Rectangle
 
 from monodock.core.layout import DockLayout
@@ -30,6 +33,23 @@ from monodock.evaluation.dock_sim import (
     RunGroup,
     TrialResult,
     runs_csv,
+)
+from monodock.report.dock_runs import (
+    REVERSE_COLOUR,
+    Variant,
+    agreement_table,
+    draw_path,
+    executed_case_table,
+    nearest_index,
+    path_times,
+    phases,
+    run_file,
+    select_runs,
+    signed_speeds,
+    state_colour,
+    variant_label,
+    variant_of,
+    variants,
 )
 from monodock.report.html import HtmlReport, plain
 from monodock.report.plotting import METHOD_COLOURS, plt
@@ -47,6 +67,9 @@ __all__ = [
     "example_start",
     "filter_table",
     "final_error_plot",
+    "run_plot",
+    "trajectory_cases",
+    "trajectory_file",
     "trajectory_overview",
     "trajectory_plot",
     "write_case_diagrams",
@@ -195,36 +218,90 @@ def case_diagram(
     plt.close(fig)
 
 
+def _limits(
+    results: Sequence[TrialResult], default: tuple[float, float, float, float] = (-1.3, 1.3, -2.9, 0.4)
+) -> tuple[float, float, float, float]:
+    """A top view's (u0, u1, v0, v1): the default floor, grown to hold every path (and its footprint) and Point A."""
+    u0, u1, v0, v1 = default
+    for r in results:
+        pts = [(p[0], p[1]) for p in r.path] + ([r.point_a] if r.point_a is not None else [])
+        for x, y in pts:
+            u0, u1 = min(u0, -y - 0.3), max(u1, -y + 0.3)
+            v0, v1 = min(v0, x - 0.3), max(v1, x + 0.3)
+    return u0, u1, v0, v1
+
+
+def _mark_point_a(ax: Axes, r: TrialResult, *, ms: float = 5.0, label: bool = False) -> None:
+    """The run's own Point A: a small cross (the papers' planner puts A on the start's heading line)."""
+    if r.point_a is None:
+        return
+    u, v = _uv(*r.point_a)
+    ax.plot(u, v, marker="x", ms=ms, mew=1.2, color="tab:orange", zorder=5, ls="none")
+    if label:
+        ax.annotate("A", (u, v), xytext=(-14, -12), textcoords="offset points", fontsize=10, color="tab:orange")
+
+
+def _variant_grid(
+    variant_list: Sequence[Variant],
+) -> tuple[list[str], list[str], dict[Variant, tuple[int, int]]]:
+    """Panels: a column per method, a row per planner."""
+    methods = list(dict.fromkeys(m for m, _ in variant_list))
+    planners = list(dict.fromkeys(p for _, p in variant_list))
+    return methods, planners, {(m, p): (planners.index(p), methods.index(m)) for m, p in variant_list}
+
+
 def trajectory_plot(
-    case: int,
-    runs: Mapping[str, Sequence[tuple[Sequence[tuple[float, float, float]], bool]]],
+    case: int | None,
+    runs: Mapping[Variant, Sequence[TrialResult]],
     path: Path,
     *,
-    planner: PlannerConfig,
     layout: DockLayout,
     robot: RobotConfig,
     drive: DiffDriveConfig,
 ) -> None:
-    """The true paths of one case's runs, one panel per method; red paths did not dock within the tolerances."""
-    methods = list(runs)
-    fig, axes = plt.subplots(1, len(methods), figsize=(4.6 * len(methods), 6.0), squeeze=False)
-    a = point_a(planner, robot.front_offset)
-    for ax, method in zip(axes[0], methods, strict=True):
-        draw_dock(ax, layout, a)
+    """The true paths of the runs that executed ``case`` (None: the runs that never planned), a panel per variant
+    (a column per method, a row per planner). Blue paths docked within the tolerances, red ones did not; dashed
+    purple legs the robot reversed; arrows every 0.4 m the way it moved; crosses each run's Point A; grey
+    footprints the starts (orange: a start in another case's region), red where failed runs ended."""
+    variant_list = list(runs)
+    methods, planners, cell = _variant_grid(variant_list)
+    rows, cols = len(planners), len(methods)
+    every = [r for v in variant_list for r in runs[v]]
+    u0, u1, v0, v1 = _limits(every)
+    panel_w = 4.0
+    panel_h = 0.86 * panel_w * (v1 - v0) / (u1 - u0) + 0.75
+    fig, axes = plt.subplots(rows, cols, figsize=(panel_w * cols, panel_h * rows + 0.6), squeeze=False)
+    for ax in axes.flat:
+        ax.set_visible(False)
+    for v in variant_list:
+        ax = axes[cell[v]]
+        ax.set_visible(True)
+        draw_dock(ax, layout, None)
         ok = 0
-        for trail, success in runs[method]:
-            ok += success
-            us = [-p[1] for p in trail]
-            vs = [p[0] for p in trail]
-            ax.plot(us, vs, color="tab:blue" if success else "tab:red", lw=0.8, alpha=0.7, zorder=3)
-            draw_robot(ax, Pose2D(*trail[0]), robot, drive, color="0.4", alpha=0.25)
-            draw_robot(ax, Pose2D(*trail[-1]), robot, drive, color="tab:green" if success else "tab:red", alpha=0.5)
+        faint = 0.3 if len(runs[v]) <= 8 else 0.16  # many footprints would hide the paths
+        for r in runs[v]:
+            ok += r.success
+            if not r.path:
+                continue
+            draw_path(ax, r.path, color="tab:blue" if r.success else "tab:red", lw=0.8, alpha=0.6, arrow_size=8.0)
+            _mark_point_a(ax, r)
+            other = case is not None and r.case != case
+            draw_robot(ax, Pose2D(*r.path[0]), robot, drive, color="tab:orange" if other else "0.4", alpha=faint)
+            if not r.success:  # a docked run ends at the face, like every other docked run
+                draw_robot(ax, Pose2D(*r.path[-1]), robot, drive, color="tab:red", alpha=0.45)
         ax.set_aspect("equal")
-        ax.set_xlim(-1.3, 1.3)
-        ax.set_ylim(-2.9, 0.4)
-        ax.set_title(f"case {case}, {method}: {ok}/{len(runs[method])} docked", fontsize=10)
-        ax.set_xlabel("← left of the axis (m)   |   right →")
-    axes[0][0].set_ylabel("distance along the axis (m)")
+        ax.set_xlim(u0, u1)
+        ax.set_ylim(v0, v1)
+        label = variant_label(v, planners)
+        others = sum(case is not None and r.case != case for r in runs[v])
+        more = f"\n{others} from another region" if others else ""
+        ax.set_title(f"{label}: {ok}/{len(runs[v])} docked{more}", fontsize=10)
+        ax.set_xlabel("← left of the axis (m)   |   right →", fontsize=8)
+        ax.tick_params(labelsize=7)
+        if cell[v][1] == 0:
+            ax.set_ylabel("distance along the axis (m)", fontsize=8)
+    head = "never planned (no case executed)" if case is None else f"executed case {case}: {CASES[case].title}"
+    fig.suptitle(textwrap.fill(head, int(13 * panel_w * cols)), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -270,39 +347,173 @@ def trajectory_overview(
     *,
     panel_px: int = 220,
 ) -> None:
-    """Every run's true path in one small top view per method (all cases together), for a report's first screen.
+    """Every run's true path in one small top view per variant (all cases together; a column per method, a row per
+    planner), for a report's first screen.
 
-    Blue paths docked within the tolerances, red ones did not; grey footprints are the starts.
+    Blue paths docked within the tolerances, red ones did not, dashed purple legs were driven in reverse; arrows
+    point the way the robot moved; crosses are the runs' Points A; grey footprints are the starts.
     """
-    methods = list(config.methods)
+    variant_list = variants(results, config)
+    methods, planners, cell = _variant_grid(variant_list)
+    rows, cols = len(planners), len(methods)
     dpi = 100
-    width = max(panel_px * len(methods), 280) / dpi
-    # Panels of equal aspect over 2.6 m x 3.3 m of floor, plus room for the titles and labels.
-    height = 0.85 * panel_px / dpi * 3.3 / 2.6 + 0.6
-    fig, axes = plt.subplots(1, len(methods), figsize=(width, height), squeeze=False, sharey=True)
-    a = point_a(config.mission.planner, config.robot.front_offset)
-    for ax, method in zip(axes[0], methods, strict=True):
-        draw_dock(ax, config.layout, a)
-        runs = [r for r in results if r.method == method]
+    u0, u1, v0, v1 = _limits(results)
+    width = max(panel_px * cols, 280) / dpi
+    # Panels of equal aspect over the floor drawn, plus room for the titles and labels.
+    height = rows * (0.85 * panel_px / dpi * (v1 - v0) / (u1 - u0) + 0.6) + 0.15
+    fig, axes = plt.subplots(rows, cols, figsize=(width, height), squeeze=False, sharex=True, sharey=True)
+    for ax in axes.flat:
+        ax.set_visible(False)
+    for v in variant_list:
+        ax = axes[cell[v]]
+        ax.set_visible(True)
+        draw_dock(ax, config.layout, None)
+        runs = [r for r in results if variant_of(r) == v]
+        faint = 0.3 if len(runs) <= 8 else 0.15
         for r in runs:
-            ax.plot(
-                [-p[1] for p in r.path],
-                [p[0] for p in r.path],
+            if not r.path:
+                continue
+            draw_path(
+                ax,
+                r.path,
                 color="tab:blue" if r.success else "tab:red",
-                lw=0.9,
-                alpha=0.75,
-                zorder=3,
+                lw=0.7,
+                alpha=0.6,
+                arrow_every=0.8,
+                arrow_size=4.5,
             )
-            draw_robot(ax, Pose2D(*r.path[0]), config.robot, config.drive, color="0.45", alpha=0.3)
+            _mark_point_a(ax, r, ms=3.0)
+            draw_robot(ax, Pose2D(*r.path[0]), config.robot, config.drive, color="0.45", alpha=faint)
         ax.set_aspect("equal")
-        ax.set_xlim(-1.3, 1.3)
-        ax.set_ylim(-2.9, 0.4)
-        ax.set_title(f"{method}: {sum(r.success for r in runs)}/{len(runs)} docked", fontsize=9)
+        ax.set_xlim(u0, u1)
+        ax.set_ylim(v0, v1)
+        ax.set_title(f"{variant_label(v, planners)}\n{sum(r.success for r in runs)}/{len(runs)} docked", fontsize=8.5)
         ax.tick_params(labelsize=7)
-        ax.set_xlabel("lateral (m)", fontsize=7)
-    axes[0][0].set_ylabel("along the axis (m)", fontsize=7)
+        if cell[v][0] == rows - 1:
+            ax.set_xlabel("lateral (m)", fontsize=7)
+        if cell[v][1] == 0:
+            ax.set_ylabel("along the axis (m)", fontsize=7)
     fig.tight_layout(pad=0.4)
     fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
+def run_plot(
+    result: TrialResult,
+    path: Path,
+    *,
+    layout: DockLayout,
+    robot: RobotConfig,
+    drive: DiffDriveConfig,
+    label: str | None = None,
+    tolerances: tuple[float, float, float] | None = None,
+) -> None:
+    """One run: its top view (the path with arrows, dashed purple where it reversed; start and end footprints;
+    its Point A; a dot where each state of its log began) beside the lateral error, the gap to the face, the
+    heading and the signed speed along the heading over time, the states shaded.
+
+    ``tolerances``: the success box (lateral cm, gap cm, heading °), drawn dashed on the time series.
+    """
+    r = result
+    label = label or f"{r.method} · {r.planner}"
+    fig = plt.figure(figsize=(12.0, 6.6))
+    grid = fig.add_gridspec(4, 2, width_ratios=(1.0, 1.45), hspace=0.12, wspace=0.16)
+    top = fig.add_subplot(grid[:, 0])
+    series = [fig.add_subplot(grid[0, 1])]
+    series += [fig.add_subplot(grid[i, 1], sharex=series[0]) for i in (1, 2, 3)]
+    draw_dock(top, layout, None)
+    t = path_times(r)
+    ph = phases(r)
+    colour = "tab:blue" if r.success else "tab:red"
+    if r.path:
+        draw_path(top, r.path, color=colour, lw=1.4, alpha=0.85, arrow_every=0.25, arrow_size=10.0)
+        draw_robot(top, Pose2D(*r.path[0]), robot, drive, color="0.35", alpha=0.6)
+        draw_robot(top, Pose2D(*r.path[-1]), robot, drive, color="tab:green" if r.success else "tab:red")
+        # A dot where each state began; states that began at the same spot as concentric rings, the first outermost.
+        spots = [_uv(*r.path[nearest_index(t, phase.start)][:2]) for phase in ph]
+        clusters: list[list[int]] = []
+        for k, (u, v) in enumerate(spots):
+            near = [c for c in clusters if math.dist(spots[c[0]], (u, v)) < 0.03]
+            if near:
+                near[0].append(k)
+            else:
+                clusters.append([k])
+        for cluster in clusters:
+            for i, k in enumerate(cluster):
+                top.plot(
+                    *spots[k],
+                    marker="o",
+                    ms=6 + 4 * (len(cluster) - 1 - i),
+                    mec="0.15",
+                    mew=0.6,
+                    color=state_colour(ph[k].state),
+                    zorder=6 + 0.01 * i,
+                    ls="none",
+                )
+    _mark_point_a(top, r, ms=9.0, label=True)
+    u0, u1, v0, v1 = _limits([r], default=(-0.35, 0.35, -0.5, 0.25))
+    # Equal aspect in a tall panel: widen the narrower side so the panel is filled.
+    span_u, span_v = u1 - u0, v1 - v0
+    if span_u < span_v * 0.62:
+        grow = (span_v * 0.62 - span_u) / 2
+        u0, u1 = u0 - grow, u1 + grow
+    top.set_aspect("equal")
+    top.set_xlim(u0, u1)
+    top.set_ylim(v0, v1)
+    top.set_xlabel("← left of the axis (m)   |   right →", fontsize=8)
+    top.set_ylabel("distance along the axis (m); charger face at 0", fontsize=8)
+    top.tick_params(labelsize=7)
+    top.grid(alpha=0.2)
+
+    p = np.asarray(r.path, dtype=float).reshape(-1, 3)
+    lateral = p[:, 1] * 100
+    gap = (-p[:, 0] - robot.front_offset) * 100
+    heading = np.degrees(p[:, 2])
+    t0, t1, speed = signed_speeds(r)
+    # The speed as steps: constant over each step between samples.
+    ts, speed = np.column_stack([t0, t1]).ravel(), np.repeat(speed, 2)
+    data: list[tuple[str, np.ndarray, np.ndarray, int | None]] = [
+        ("lateral error, cm\n(+ left)", t, lateral, 0),
+        ("gap to the face, cm", t, gap, 1),
+        ("heading, °", t, heading, 2),
+        ("speed along the\nheading, m/s", ts, speed, None),
+    ]
+    for ax, (name, xs, ys, tol) in zip(series, data, strict=True):
+        for phase in ph:
+            ax.axvspan(phase.start, phase.end, color=state_colour(phase.state), alpha=0.35, lw=0, zorder=0)
+            ax.axvline(phase.start, color="0.5", lw=0.5, zorder=1)
+        if tol is None and len(ys):
+            ax.fill_between(xs, ys, 0, where=ys < 0, color=REVERSE_COLOUR, alpha=0.5, lw=0, zorder=2)
+        ax.plot(xs, ys, color="0.15", lw=1.1, zorder=3)
+        ax.axhline(0.0, color="0.4", lw=0.6, zorder=1)
+        if tolerances is not None and tol is not None:
+            band = tolerances[tol]
+            for s in (-1, 1) if tol != 1 else (1,):
+                ax.axhline(s * band, color="0.3", lw=0.7, ls="--", zorder=1)
+        ax.set_ylabel(name, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.2)
+        if ax is not series[-1]:
+            ax.tick_params(labelbottom=False)
+    series[-1].set_xlabel("time since the start, s", fontsize=8)
+    if len(t):
+        series[0].set_xlim(0.0, max(float(t[-1]), *(phase.end for phase in ph)) if ph else float(t[-1]) or 1.0)
+    # The states, in the order the run met them, as the legend of the dots and the shading.
+    seen = list(dict.fromkeys(phase.state for phase in ph))
+    handles: list[Artist] = [Rectangle((0, 0), 1, 1, color=state_colour(s), alpha=0.6) for s in seen]
+    handles.append(Line2D([], [], color=REVERSE_COLOUR, ls=(0, (3, 1.5)), lw=1.8))
+    fig.legend(handles, [*seen, "reversing"], loc="lower center", ncol=min(len(handles), 8), fontsize=8, frameon=False)
+    executed = "none (never planned)" if r.classified_case is None else str(r.classified_case)
+    agree = "" if r.classified_case in (None, r.case) else " (not the start region's)"
+    outcome = "docked" if r.success else f"failed{f' ({r.failure})' if r.failure else ''}"
+    fig.suptitle(
+        f"{label}, trial {r.trial}: start region {r.case}, executed case {executed}{agree} — {outcome}; "
+        f"final lateral {r.lateral_cm:+.1f} cm, gap {r.longitudinal_cm:+.1f} cm, heading {r.heading_deg:+.1f}°, "
+        f"{r.time_s:.1f} s, {r.retries} retries",
+        fontsize=9.5,
+    )
+    fig.subplots_adjust(left=0.06, right=0.985, top=0.93, bottom=0.13)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
@@ -394,21 +605,48 @@ def console_table(summary: DockSimSummary) -> str:
     return "\n".join(lines)
 
 
-def write_dock_files(out: Path, results: Sequence[TrialResult], config: DockSimConfig) -> None:
-    """runs.csv, one trajectory PNG per case and an overview, the case diagrams and the error scatter, into ``out``."""
+def trajectory_cases(results: Sequence[TrialResult], config: DockSimConfig) -> list[int | None]:
+    """The executed cases with a trajectory figure: the config's cases, any other a run executed, and None (the
+    runs that never planned) when there are such."""
+    cases: list[int | None] = list(config.cases)
+    cases += sorted({r.classified_case for r in results if r.classified_case is not None} - set(config.cases))
+    if any(r.classified_case is None for r in results):
+        cases.append(None)
+    return cases
+
+
+def trajectory_file(case: int | None) -> str:
+    return f"trajectories_case_{'none' if case is None else case}.png"
+
+
+def write_dock_files(out: Path, results: Sequence[TrialResult], config: DockSimConfig) -> list[TrialResult]:
+    """Into ``out``: runs.csv; the trajectories of every variant, one PNG per executed case (trajectory_file) and an
+    overview (trajectories.png); the case diagrams; the error scatter; and runs/*.png, a figure for each run of
+    select_runs. Returns those runs."""
     (out / "runs.csv").write_text(runs_csv(results), encoding="utf-8")
-    scene = {"planner": config.mission.planner, "layout": config.layout, "robot": config.robot, "drive": config.drive}
+    scene = {"layout": config.layout, "robot": config.robot, "drive": config.drive}
+    variant_list = variants(results, config)
+    for case in trajectory_cases(results, config):
+        runs = {v: [r for r in results if r.classified_case == case and variant_of(r) == v] for v in variant_list}
+        trajectory_plot(case, runs, out / trajectory_file(case), **scene)  # type: ignore[arg-type]
     for case in config.cases:
-        runs = {m: [(r.path, r.success) for r in results if r.case == case and r.method == m] for m in config.methods}
-        trajectory_plot(case, runs, out / f"trajectories_case_{case}.png", **scene)  # type: ignore[arg-type]
-        case_diagram(case, out / f"case_{case}.png", **scene)  # type: ignore[arg-type]
+        case_diagram(case, out / f"case_{case}.png", planner=config.mission.planner, **scene)  # type: ignore[arg-type]
     trajectory_overview(results, config, out / "trajectories.png")
     c = config.mission
+    tolerances = (c.tolerance_lateral * 100, c.tolerance_longitudinal * 100, c.tolerance_heading_deg)
     final_error_plot(
         [(r.method, r.lateral_cm, r.heading_deg, r.longitudinal_cm) for r in results],
         out / "final_errors.png",
-        (c.tolerance_lateral * 100, c.tolerance_heading_deg),
+        (tolerances[0], tolerances[2]),
     )
+    chosen = select_runs(results, variant_list)
+    if chosen:
+        (out / "runs").mkdir(exist_ok=True)
+    planners = [p for _, p in variant_list]
+    for r in chosen:
+        label = variant_label(variant_of(r), planners)
+        run_plot(r, out / run_file(r), label=label, tolerances=tolerances, **scene)  # type: ignore[arg-type]
+    return chosen
 
 
 def dock_settings(config: DockSimConfig) -> dict[str, object]:
@@ -447,16 +685,32 @@ def dock_section(
     folder: str = "",
     *,
     level: int = 3,
+    results: Sequence[TrialResult] = (),
 ) -> None:
     """The closed-loop docking section: the side-by-side table, error scatter, filter table and trajectories.
 
-    ``folder`` is where write_dock_files put the images, relative to the report (e.g. ``"docking/"``).
+    ``folder`` is where write_dock_files put the images, relative to the report (e.g. ``"docking/"``). With the
+    ``results``, also the executed case against the start region, success by executed case, and the figures of
+    the runs write_dock_files drew one by one.
     """
     with report.details("Settings of the docking runs"):
         report.settings(dock_settings(config))
     report.table(comparison_table(summary, cases=False))
-    with report.details("Every case"):
+    with report.details("Every case (by start region)"):
         report.table(comparison_table(summary))
+    variant_list = variants(results, config)
+    if results:
+        report.paragraph(
+            "The case executed is the one the mission classified from its own estimate at Calculate and planned "
+            "for; the start region is the case whose region the start was drawn in. They differ when the robot "
+            "first turned to face the dock (Center: the heading, and so the case, changes) or when the estimate "
+            "puts a start near a border on its other side. Agreement: the runs that executed their start region's "
+            "case."
+        )
+        report.table(agreement_table(results, variant_list, regions=False))
+        with report.details("Executed case against start region, region by region"):
+            report.table(agreement_table(results, variant_list), wrap=True)
+        report.table(executed_case_table(results, variant_list))
     report.paragraph(
         "Errors are absolute values against the simulator's truth at the end of each run: lateral is base_link's "
         "distance from the approach axis, gap the front edge's distance from the face when it stopped short, or "
@@ -475,19 +729,41 @@ def dock_section(
     )
     with report.details("The filter table, by 25 cm band of the depth from the camera"):
         report.table(filter_table(summary), wrap=True)
-    with report.details("Trajectories, case by case"):
-        for case in config.cases:
-            report.image(
-                f"{folder}trajectories_case_{case}.png",
-                f"{CASES[case].title}. Grey: starts; green: where docked runs ended; red: runs that failed.",
-                width=min(1200, 400 * len(config.methods)),
+    methods, _, _ = _variant_grid(variant_list)
+    with report.details("Trajectories, by the case executed"):
+        report.paragraph(
+            "A panel per variant (method and planner). Blue: docked within the tolerances, red: not; dashed purple: "
+            "legs driven in reverse; arrows every 0.4 m point the way the robot moved; crosses: each run's Point A; "
+            "grey footprints: starts (orange: started in another case's region), red: where failed runs ended."
+        )
+        for case in trajectory_cases(results, config):
+            title = "Runs that never planned" if case is None else f"Executed case {case}: {CASES[case].title}"
+            report.image(f"{folder}{trajectory_file(case)}", title, width=min(1200, 400 * len(methods)))
+    chosen = select_runs(results, variant_list)
+    if chosen:
+        planners = [p for _, p in variant_list]
+        with report.details(f"Runs one by one ({len(chosen)}: each variant's first run of each region, and failures)"):
+            report.paragraph(
+                "Left: the top view, a dot where each state of the mission's log began; right: the lateral error, "
+                "the gap to the face, the heading and the signed speed along the heading (negative, purple: "
+                "reversing), the states shaded; dashed: the tolerances."
             )
+            for r in chosen:
+                outcome = "docked" if r.success else f"failed ({r.failure or r.state})"
+                executed = "none" if r.classified_case is None else r.classified_case
+                report.image(
+                    f"{folder}{run_file(r)}",
+                    f"{variant_label(variant_of(r), planners)}, start region {r.case}, trial {r.trial}: executed case "
+                    f"{executed}, {outcome}.",
+                    width=1200,
+                )
 
 
 def write_dock_report(
     out: Path, results: Sequence[TrialResult], summary: DockSimSummary, config: DockSimConfig
 ) -> None:
-    """Everything of a dock-sim run into ``out`` (an existing, empty folder): files, report and summary.json."""
+    """Everything of a dock-sim run into ``out`` (an existing, empty folder): files (write_dock_files), report
+    and summary.json."""
     write_dock_files(out, results, config)
     report = HtmlReport(
         "monodock dock-sim: closed-loop docking, camera in the loop",
@@ -495,12 +771,15 @@ def write_dock_report(
         "only rendered camera frames and its wheel odometry; the truth is used only to measure where it ended. "
         "Every method docks from the same starts with the same wheel and camera draws.",
     )
+    variant_list = variants(results, config)
+    methods, _, _ = _variant_grid(variant_list)
     report.image(
         "trajectories.png",
-        "Every run's true path; blue: docked within the tolerances, red: not.",
-        width=max(220 * len(config.methods), 280),
+        "Every run's true path; blue: docked within the tolerances, red: not; dashed purple: reversing; crosses: "
+        "Point A.",
+        width=max(220 * len(methods), 280),
     )
-    dock_section(report, summary, config)
+    dock_section(report, summary, config, results=results)
     with report.details("The eight cases"):
         for case in config.cases:
             report.image(f"case_{case}.png", CASES[case].manoeuvre, width=420)
