@@ -29,7 +29,7 @@ from monodock.evaluation.dock_sim import (
     summarize,
 )
 from monodock.evaluation.selftrain import SelfTrainConfig, cached_bundle
-from monodock.report.docking import console_table, write_dock_report
+from monodock.report.docking import console_table, fault_table, write_dock_report
 from monodock.sim.diffdrive import DiffDriveConfig
 from monodock.sim.render import MAX_SUPERSAMPLE
 
@@ -258,6 +258,8 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         with atomic_directory(args.out, force=args.force) as tmp:
             write_dock_report(tmp, results, summary, config)
     print(console_table(summary))
+    if config.faults:
+        print(fault_table(summary, config))
     n = max(1, len(results))
     per_run = sum(r.wall_s for r in results) / n
     render = sum(r.render_s for r in results) / n

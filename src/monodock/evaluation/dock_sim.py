@@ -213,6 +213,18 @@ class TrialResult:
     redock: str = ""  # with redock: "redocked", "undock failed: ..." or "redock failed: ..."; "" when not run
     variant: str = ""  # the summary's group (DockSimConfig.variant)
 
+    @property
+    def recovered(self) -> bool:
+        """Docked within the tolerances after something went wrong: a retry, a recovery, a re-seat or a wait for
+        the space behind to clear."""
+        waited = any("obstacle" in entry for _, entry in self.log)
+        return self.success and (self.retries > 0 or self.reseats > 0 or waited)
+
+    @property
+    def failed_cleanly(self) -> bool:
+        """The mission gave up with its reason, stopped, and touched nothing."""
+        return self.state == "failed" and bool(self.failure) and not self.collided
+
 
 def case_distances(case: int, config: DockSimConfig) -> tuple[float, float]:
     """The range of base_link's distance from the face for the case's starts; InputError when it is empty."""
@@ -579,6 +591,8 @@ class RunGroup:
     faults_triggered: int = 0
     redock_tried: int = 0  # docked runs that undocked and docked again
     redocked: int = 0  # of those: docked again within the tolerances
+    recovered: int = 0  # of the successes: those after a retry, recovery, re-seat or wait
+    failed_cleanly: int = 0  # failed with a reason, stopped, nothing hit
 
     @classmethod
     def of(cls, results: Sequence[TrialResult]) -> RunGroup:
@@ -607,6 +621,8 @@ class RunGroup:
             faults_triggered=sum(r.fault_triggered for r in results),
             redock_tried=sum(bool(r.redock) for r in results),
             redocked=sum(r.redock == "redocked" for r in results),
+            recovered=sum(r.recovered for r in results),
+            failed_cleanly=sum(r.failed_cleanly for r in results),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -628,6 +644,8 @@ class RunGroup:
             "collisions": self.collisions,
             "faults_triggered": self.faults_triggered,
             "redock": {"tried": self.redock_tried, "redocked": self.redocked},
+            "recovered": self.recovered,
+            "failed_cleanly": self.failed_cleanly,
         }
 
     @classmethod
@@ -653,6 +671,8 @@ class RunGroup:
             faults_triggered=int(d.get("faults_triggered", 0)),
             redock_tried=int(d.get("redock", {}).get("tried", 0)),
             redocked=int(d.get("redock", {}).get("redocked", 0)),
+            recovered=int(d.get("recovered", 0)),
+            failed_cleanly=int(d.get("failed_cleanly", 0)),
         )
 
 

@@ -358,7 +358,9 @@ def write_demo_report(out: Path, page: DemoPage) -> None:
         "frames and its odometry, with the bundle trained above, with board PnP, and with the fused method "
         "through the EKF. A longer run: monodock dock-sim --method regression,board,fused --out DIR."
     )
-    dock_section(report, page.docking.summary, page.docking.config, folder=page.docking.folder)
+    dock_section(
+        report, page.docking.summary, page.docking.config, folder=page.docking.folder, results=page.docking.results
+    )
 
     if result.limit is not None:
         limit_section(report, result.limit, out)

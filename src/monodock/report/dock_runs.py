@@ -59,11 +59,15 @@ STATE_COLOURS = {
 }
 _SPARE_COLOURS = ("#f48fb1", "#bcaaa4", "#b0bec5", "#c5e1a5", "#ffab91", "#9fa8da", "#ffe082", "#80cbc4")
 
-Variant = tuple[str, str]  # (method, planner)
+Variant = tuple[str, str]  # (method, planner), the planner followed by the fault when the run had one
+
+
+def _planner_and_fault(planner: str, fault: str) -> str:
+    return planner if fault == "none" else f"{planner}, {fault}"
 
 
 def variant_of(r: TrialResult) -> Variant:
-    return r.method, r.planner
+    return r.method, _planner_and_fault(r.planner, r.fault)
 
 
 def variants(results: Sequence[TrialResult], config: DockSimConfig | None = None) -> list[Variant]:
@@ -71,7 +75,12 @@ def variants(results: Sequence[TrialResult], config: DockSimConfig | None = None
     result has."""
     out: list[Variant] = []
     if config is not None:
-        out = [(m, p) for m in config.methods for p in config.planner_kinds]
+        out = [
+            (m, _planner_and_fault(p, f))
+            for f in config.fault_kinds
+            for m in config.methods
+            for p in config.planner_kinds
+        ]
     for r in results:
         if variant_of(r) not in out:
             out.append(variant_of(r))

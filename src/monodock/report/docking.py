@@ -26,6 +26,7 @@ from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.planner import CASES, PlannerConfig, plan, point_a
 from monodock.evaluation.dock_sim import (
+    FAULTS,
     AbsStats,
     DockSimConfig,
     DockSimSummary,
@@ -578,19 +579,21 @@ def filter_table(summary: DockSimSummary) -> str:
 
 
 def console_table(summary: DockSimSummary) -> str:
-    """A few lines for the terminal: per method, success and median final errors."""
+    """A few lines for the terminal: per variant, success, median / p95 final errors, what went wrong and right."""
     lines = []
 
     def med(s: AbsStats) -> str:
-        v = s.median
-        return "-" if v is None or not math.isfinite(v) else f"{v:.2f}"
+        return "/".join("-" if v is None or not math.isfinite(v) else f"{v:.2f}" for v in (s.median, s.p95))
 
     for m, block in summary.methods.items():
         g = block.overall
+        extra = f"charging {g.charging}, re-seats {g.reseats_total}, recovered {g.recovered}, hit {g.collisions}"
+        if g.redock_tried:
+            extra += f", undock+redock {g.redocked}/{g.redock_tried}"
         lines.append(
-            f"{m:10s} docked {g.successes}/{g.runs} ({(g.success_rate or 0) * 100:.0f} %)  median final "
+            f"{m:10s} docked {g.successes}/{g.runs} ({(g.success_rate or 0) * 100:.0f} %)  median/p95 final "
             f"lateral {med(g.final_lateral_cm)} cm  gap {med(g.final_longitudinal_cm)} cm  heading "
-            f"{med(g.final_heading_deg)} deg  time {med(g.time_s)} s"
+            f"{med(g.final_heading_deg)} deg  time {med(g.time_s)} s  ({extra})"
         )
     for m, acc in summary.filter.items():
         b = acc.all
@@ -603,6 +606,28 @@ def console_table(summary: DockSimSummary) -> str:
             f"{r.lateral_cm:.2f} cm, yaw {f.yaw_deg:.2f} vs {r.yaw_deg:.2f} deg"
         )
     return "\n".join(lines)
+
+
+def fault_table(summary: DockSimSummary, config: DockSimConfig) -> str:
+    """Markdown: per fault and variant, how the runs ended: docked (of which after a recovery), failed cleanly
+    (with a reason, stopped), docked outside the tolerances by the truth, and anything hit."""
+    head = (
+        "| fault | what happens | variant | runs | fault sprung | docked | of which recovered | failed cleanly "
+        "| outside the tolerances | hit |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|"
+    )
+    rows = []
+    for label, method, planner, fault in config.variants:
+        block = summary.methods.get(label)
+        if block is None:
+            continue
+        g = block.overall
+        variant = method if len(config.planner_kinds) == 1 else f"{method} · {planner}"
+        outside = g.failures.get("docked outside the tolerances", 0)
+        rows.append(
+            f"| {fault} | {FAULTS[fault]} | {variant} | {g.runs} | {g.faults_triggered if fault != 'none' else '–'} "
+            f"| {g.successes} | {g.recovered} | {g.failed_cleanly} | {outside} | {g.collisions} |"
+        )
+    return "\n".join([head, *rows])
 
 
 def trajectory_cases(results: Sequence[TrialResult], config: DockSimConfig) -> list[int | None]:
@@ -660,7 +685,7 @@ def dock_settings(config: DockSimConfig) -> dict[str, object]:
             "max_heading_deg": config.max_heading_deg,
             "marker 2 in view": True,
         },
-        "Point A": {"planner": c.planner.kind, "standoff_m": c.planner.standoff},
+        "Point A": {"planners": ", ".join(config.planner_kinds), "standoff_m": c.planner.standoff},
         "robot": {
             "camera_rate_hz": d.camera_rate,
             "camera_latency_ms": round(d.camera_latency * 1000, 3),
@@ -668,6 +693,13 @@ def dock_settings(config: DockSimConfig) -> dict[str, object]:
             "wheel_scale_error_pct": round(d.wheel_scale_sd * 100, 6),
             "wheel_noise_pct_per_step": round(d.wheel_noise_sd * 100, 6),
             "contact_sensor": d.contact_sensor,
+            "exposure_ms": round(d.exposure_time * 1000, 3),
+            "frame_drop_rate": d.frame_drop_rate,
+            "latency_spike_rate": d.latency_spike_rate,
+            "rear_range_sensor": d.rear_sensor,
+            "charging_signal": d.charging_signal,
+            "charger_contacts": f"lateral within {d.contact_lateral_tolerance * 100:g} cm, heading within "
+            f"{d.contact_heading_tolerance_deg:g} deg, for {d.charge_delay:g} s",
         },
         "success (by the truth)": {
             "lateral_cm": c.tolerance_lateral * 100,
@@ -701,16 +733,30 @@ def dock_section(
     variant_list = variants(results, config)
     if results:
         report.paragraph(
-            "The case executed is the one the mission classified from its own estimate at Calculate and planned "
-            "for; the start region is the case whose region the start was drawn in. They differ when the robot "
-            "first turned to face the dock (Center: the heading, and so the case, changes) or when the estimate "
-            "puts a start near a border on its other side. Agreement: the runs that executed their start region's "
-            "case."
+            "The case executed is the manoeuvre the mission planned at Calculate, from its own estimate: the side "
+            "of the axis and the heading (towards or away from it) of the robot then, and whether the manoeuvre "
+            "drives backwards before Moving₂ (cases 5–8: the papers' planner reverses along its heading line to a "
+            "Point A behind it; monodock's backs out straight before turning to A). The start region is the case "
+            "whose region (relative to the stand-off Point A) the start was drawn in. They differ when the robot "
+            "first turned to face the dock (Center: the heading, and so the case, changes), when the papers' "
+            "heading line crosses the axis behind a start before the stand-off A, or when monodock needs no "
+            "back-out from a start just past A (or a run-up from one just before it). Agreement: the runs that "
+            "executed their start region's case."
         )
         report.table(agreement_table(results, variant_list, regions=False))
         with report.details("Executed case against start region, region by region"):
             report.table(agreement_table(results, variant_list), wrap=True)
         report.table(executed_case_table(results, variant_list))
+    if config.faults:
+        report.heading("Faults", level=level)
+        report.paragraph(
+            "Each fault strikes every start once, at its moment (judged from the truth and the mission's state); "
+            "'fault sprung' counts the runs where that moment came (a run with no reverse leg meets no one behind "
+            "it). Recovered: docked after a retry, a recovery from lost markers, a re-seat or a wait for the space "
+            "behind to clear. Failed cleanly: the mission stopped with its reason. Hit: the footprint touched an "
+            "obstacle (the simulator's truth)."
+        )
+        report.table(fault_table(summary, config), wrap=True)
     report.paragraph(
         "Errors are absolute values against the simulator's truth at the end of each run: lateral is base_link's "
         "distance from the approach axis, gap the front edge's distance from the face when it stopped short, or "
