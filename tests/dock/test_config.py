@@ -87,3 +87,40 @@ def test_dock_sim_runs_with_a_config_file_and_reports_its_tolerances(tmp_path: P
     bad.write_text("tolerance_heading: 3\n", encoding="utf-8")
     assert main([*argv[:-1], str(tmp_path / "run2"), "--config", str(bad)]) == 2
     assert not (tmp_path / "run2").exists()
+
+
+def _leaves(d: dict, prefix: str = "") -> dict[str, object]:  # type: ignore[type-arg]
+    out: dict[str, object] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_leaves(v, f"{prefix}{k}."))
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def test_every_field_is_documented_with_its_unit_and_default() -> None:
+    """docs/docking.md's config table has a row per field, with a unit and the default the code has."""
+    docs = Path(__file__).parents[2] / "docs"
+    rows = {}
+    for line in (docs / "docking.md").read_text(encoding="utf-8").splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 4 and cells[0].startswith("`") and cells[0].endswith("`"):
+            rows[cells[0].strip("`")] = cells
+    fields = _leaves(docking_config_to_dict(DockingConfig()))
+    assert set(fields) <= set(rows), f"undocumented: {sorted(set(fields) - set(rows))}"
+    for key, default in fields.items():
+        _, unit, documented, what = rows[key]
+        assert unit, key
+        assert what, key
+        if isinstance(default, bool):
+            assert documented == str(default).lower(), key
+        elif isinstance(default, (int, float)):
+            assert float(documented) == pytest.approx(float(default)), key
+        else:
+            assert documented == str(default), key
+
+
+def test_the_shipped_example_is_every_default() -> None:
+    docs = Path(__file__).parents[2] / "docs"
+    assert load_docking_config(docs / "docking.yaml") == DockingConfig()

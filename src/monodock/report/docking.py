@@ -8,6 +8,7 @@ frame's y (left) to the left. A dock-frame point (x, y) is drawn at (-y, x).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import textwrap
@@ -24,7 +25,7 @@ from matplotlib.patches import FancyArrowPatch, Polygon, Rectangle
 from monodock.core.layout import DockLayout
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
-from monodock.dock.planner import CASES, PlannerConfig, plan, point_a
+from monodock.dock.planner import CASES, PLANNERS, Manoeuvre, PlannerConfig, plan_for, point_a
 from monodock.evaluation.dock_sim import (
     FAULTS,
     AbsStats,
@@ -129,13 +130,26 @@ def draw_robot(
 
 
 def example_start(case: int, planner: PlannerConfig, robot: RobotConfig) -> Pose2D:
-    """A typical start of the case, for its diagram."""
+    """A typical start of the case for its diagram: in the case's region, and one from which the configured
+    planner executes that case (the papers' planner reaches some cases only from some starts of the region)."""
     spec = CASES[case]
     d_a = -point_a(planner, robot.front_offset).x
-    d = d_a + 0.7 if spec.zone == "before" else d_a - 0.2
     side = 1.0 if spec.side == "left" else -1.0
     turn = -side if spec.heading == "towards" else side
-    return Pose2D(-d, side * 0.45, turn * math.radians(20.0))
+    candidates = [
+        Pose2D(-(d_a + dd if spec.zone == "before" else d_a - dd), side * y, turn * math.radians(h))
+        for dd in ((0.7, 0.4, 1.0) if spec.zone == "before" else (0.2, 0.1, 0.3))
+        for y in (0.45, 0.3, 0.6, 0.2)
+        for h in (20.0, 30.0, 12.0, 40.0)
+    ]
+    matching = [(start, plan_for(start, planner, robot.front_offset)) for start in candidates]
+    matching = [(start, m) for start, m in matching if m.case == case]
+    # The most telling start: the papers' own heading-line manoeuvre where the case has one; monodock's back-out
+    # short of its cap.
+    for start, m in matching:
+        if (m.planner == "papers") if planner.kind == "papers" else m.back_out < planner.max_back_out:
+            return start
+    return matching[0][0] if matching else candidates[0]
 
 
 def case_diagram(
@@ -147,38 +161,48 @@ def case_diagram(
     robot: RobotConfig | None = None,
     drive: DiffDriveConfig | None = None,
 ) -> None:
-    """The case's region and its manoeuvre from a typical start: turn, drive (or reverse) to A, turn, approach."""
+    """The case's region and its manoeuvre by the configured planner from a typical start: (back out,) turn,
+    drive (or reverse) to A, turn, approach."""
     planner = planner or PlannerConfig()
     layout = layout or DockLayout.default()
     robot = robot or RobotConfig.default()
     drive = drive or DiffDriveConfig()
     start = example_start(case, planner, robot)
-    m = plan(start, planner, robot.front_offset)
+    m = plan_for(start, planner, robot.front_offset)
     a = m.point_a
+    fixed_a = point_a(planner, robot.front_offset)
     fig, ax = plt.subplots(figsize=(5.2, 6.4))
     draw_dock(ax, layout, a)
-    # The region: which side of the axis, and before or past A.
+    # The region: which side of the axis, and before or past the stand-off Point A.
     side = 1.0 if CASES[case].side == "left" else -1.0
     y0, y1 = sorted((0.0, -side * 1.2))
-    x0, x1 = (-3.0, a.x) if CASES[case].zone == "before" else (a.x, -robot.front_offset)
+    x0, x1 = (-3.0, fixed_a.x) if CASES[case].zone == "before" else (fixed_a.x, -robot.front_offset)
     ax.add_patch(Rectangle((y0, x0), y1 - y0, x1 - x0, color="tab:blue", alpha=0.06, zorder=0))
-    turned = Pose2D(start.x, start.y, m.drive_heading)
+    backed = start.compose(Pose2D(-m.back_out, 0.0, 0.0))
+    turned = Pose2D(backed.x, backed.y, m.drive_heading)
     at_a = Pose2D(a.x, a.y, m.drive_heading)
     docked = Pose2D(-robot.front_offset, 0.0, 0.0)
     draw_robot(ax, start, robot, drive, color="tab:blue")
-    draw_robot(ax, turned, robot, drive, color="tab:blue", alpha=0.35)
+    style: dict[str, Any] = {"arrowstyle": "-|>", "mutation_scale": 14, "lw": 2}
+    if m.back_out > 0:
+        draw_robot(ax, backed, robot, drive, color="tab:purple", alpha=0.35)
+        ax.add_patch(
+            FancyArrowPatch(_uv(start.x, start.y), _uv(backed.x, backed.y), color="tab:purple", ls="--", **style)
+        )
+    if abs(m.first_turn) > 1e-6:
+        draw_robot(ax, turned, robot, drive, color="tab:blue", alpha=0.35)
     draw_robot(ax, at_a, robot, drive, color="tab:orange", alpha=0.5)
     draw_robot(ax, Pose2D(a.x, a.y, 0.0), robot, drive, color="tab:orange")
     draw_robot(ax, docked, robot, drive, color="tab:green")
-    style: dict[str, Any] = {"arrowstyle": "-|>", "mutation_scale": 14, "lw": 2}
     ax.add_patch(
         FancyArrowPatch(
-            _uv(start.x, start.y), _uv(a.x, a.y), color="tab:purple", ls="--" if m.reverse else "-", **style
+            _uv(backed.x, backed.y), _uv(a.x, a.y), color="tab:purple", ls="--" if m.reverse else "-", **style
         )
     )
     ax.add_patch(FancyArrowPatch(_uv(a.x, a.y), _uv(docked.x, docked.y), color="tab:green", **style))
+    words = f"back out {m.back_out:.2f} m,\n" if m.back_out > 0 else ""
     ax.annotate(
-        f"Moving₁: turn {math.degrees(m.first_turn):+.0f}°,\n"
+        f"Moving₁: {words}turn {math.degrees(m.first_turn):+.0f}°,\n"
         f"{'reverse' if m.reverse else 'drive'} {m.drive_distance:.2f} m",
         _uv(start.x, start.y),
         xytext=(12 * side, -28),
@@ -212,11 +236,34 @@ def case_diagram(
     ax.set_ylim(-3.0, 0.45)
     ax.set_xlabel("← left of the axis (m)   |   right →")
     ax.set_ylabel("distance along the axis (m); charger face at 0")
-    ax.set_title(CASES[case].title, fontsize=10)
-    fig.text(0.5, 0.01, textwrap.fill(CASES[case].manoeuvre, 80), ha="center", va="bottom", fontsize=7.5)
+    ax.set_title(f"{CASES[case].title}\n{_PLANNER_TITLES[m.planner]}", fontsize=9.5)
+    fig.text(0.5, 0.01, textwrap.fill(_manoeuvre_words(m), 80), ha="center", va="bottom", fontsize=7.5)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+_PLANNER_TITLES = {
+    "monodock": "monodock's planner: A at the stand-off, no jumps",
+    "papers": "papers' planner: A on the heading line, Moving₁ straight",
+    "turn-first": "papers' planner, no usable crossing: Fig. 15's turn first",
+}
+
+
+def _manoeuvre_words(m: Manoeuvre) -> str:
+    """What the robot does, in words."""
+    turn1, turn2 = math.degrees(m.first_turn), math.degrees(m.second_turn)
+
+    def turn(deg: float) -> str:
+        return f"turn {'left' if deg > 0 else 'right'} {abs(deg):.0f}°"
+
+    legs = [f"back out straight {m.back_out:.2f} m along its heading"] if m.back_out > 0 else []
+    if abs(turn1) > 0.5:
+        legs.append(turn(turn1) + (" to put its back to A" if m.reverse else " to face A"))
+    legs.append(f"{'reverse' if m.reverse else 'drive forward'} {m.drive_distance:.2f} m to A")
+    legs.append(turn(turn2) + " square to the face (Θab)")
+    legs.append("straight in under P-control")
+    return "; ".join(legs)
 
 
 def _limits(
@@ -331,13 +378,15 @@ def final_error_plot(
 
 
 def write_case_diagrams(folder: Path, planner: PlannerConfig | None = None) -> list[Path]:
-    """case_1.png … case_8.png into ``folder``."""
+    """<planner>_case_1.png … <planner>_case_8.png into ``folder``: the configured planner's, or both planners'."""
     folder.mkdir(parents=True, exist_ok=True)
+    kinds = [planner] if planner is not None else [PlannerConfig(kind=k) for k in PLANNERS]
     out = []
-    for case in CASES:
-        p = folder / f"case_{case}.png"
-        case_diagram(case, p, planner=planner)
-        out.append(p)
+    for config in kinds:
+        for case in CASES:
+            p = folder / f"{config.kind}_case_{case}.png"
+            case_diagram(case, p, planner=config)
+            out.append(p)
     return out
 
 
@@ -654,8 +703,10 @@ def write_dock_files(out: Path, results: Sequence[TrialResult], config: DockSimC
     for case in trajectory_cases(results, config):
         runs = {v: [r for r in results if r.classified_case == case and variant_of(r) == v] for v in variant_list}
         trajectory_plot(case, runs, out / trajectory_file(case), **scene)  # type: ignore[arg-type]
-    for case in config.cases:
-        case_diagram(case, out / f"case_{case}.png", planner=config.mission.planner, **scene)  # type: ignore[arg-type]
+    for kind in config.planner_kinds:
+        planner = dataclasses.replace(config.mission.planner, kind=kind)
+        for case in config.cases:
+            case_diagram(case, out / f"{kind}_case_{case}.png", planner=planner, **scene)  # type: ignore[arg-type]
     trajectory_overview(results, config, out / "trajectories.png")
     c = config.mission
     tolerances = (c.tolerance_lateral * 100, c.tolerance_longitudinal * 100, c.tolerance_heading_deg)
@@ -826,9 +877,10 @@ def write_dock_report(
         width=max(220 * len(methods), 280),
     )
     dock_section(report, summary, config, results=results)
-    with report.details("The eight cases"):
-        for case in config.cases:
-            report.image(f"case_{case}.png", CASES[case].manoeuvre, width=420)
+    for kind in config.planner_kinds:
+        with report.details(f"The eight cases, {kind} planner"):
+            for case in config.cases:
+                report.image(f"{kind}_case_{case}.png", CASES[case].title, width=420)
     report.write(out, summary.to_json())
 
 
