@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from monodock.cli.options import int_in
+from monodock.cli.options import comma_list, int_in
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -52,41 +52,6 @@ def _cases(value: str) -> tuple[int, ...]:
     return tuple(dict.fromkeys(cases))
 
 
-def _methods(value: str) -> tuple[str, ...]:
-
-    methods = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
-    bad = [m for m in methods if m not in ALL_METHODS]
-    if bad or not methods:
-        raise argparse.ArgumentTypeError(
-            f"unknown method '{bad[0] if bad else value}' (available: {', '.join(ALL_METHODS)})"
-        )
-    return methods
-
-
-def _planners(value: str) -> tuple[str, ...]:
-
-    planners = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
-    bad = [p for p in planners if p not in PLANNERS]
-    if bad or not planners:
-        raise argparse.ArgumentTypeError(
-            f"unknown planner '{bad[0] if bad else value}' (available: {', '.join(PLANNERS)})"
-        )
-    return planners
-
-
-def _faults(value: str) -> tuple[str, ...]:
-
-    if value == "all":
-        return tuple(FAULTS)
-    faults = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
-    bad = [f for f in faults if f not in FAULTS]
-    if bad or not faults:
-        raise argparse.ArgumentTypeError(
-            f"unknown fault '{bad[0] if bad else value}' (available: all, {', '.join(FAULTS)})"
-        )
-    return faults
-
-
 def _rate(value: str) -> float:
     try:
         r = float(value)
@@ -113,11 +78,11 @@ def add_parser(subparsers: Any) -> None:
         "dock-sim",
         help="closed-loop docking in the simulator, camera in the loop: every case, many starts, every method",
     )
-    d.add_argument("--cases", type=_cases, default=_cases("all"), help="'all' (default) or e.g. 1,3,5")
+    d.add_argument("--cases", type=_cases, default=tuple(CASES), help="'all' (default) or e.g. 1,3,5")
     d.add_argument("--trials", type=_positive_int, default=25, help="random starts per case (25)")
     d.add_argument(
         "--method",
-        type=_methods,
+        type=comma_list("method", ALL_METHODS),
         default=("regression",),
         help="regression (default), board, pnp, fused, or several separated by commas (e.g. regression,fused): "
         "the first is summary.json's overall/cases, all are under 'methods'",
@@ -137,14 +102,14 @@ def add_parser(subparsers: Any) -> None:
     )
     d.add_argument(
         "--planner",
-        type=_planners,
+        type=comma_list("planner", PLANNERS),
         help="monodock (Point A at the stand-off, reached without a jump at any boundary), papers (Point A on the "
         "heading line, straight there), or both separated by a comma (each from the same starts); default: the "
         "config's, monodock",
     )
     d.add_argument(
         "--faults",
-        type=_faults,
+        type=comma_list("fault", tuple(FAULTS), everything=True),
         help="run these faults from every start, for the fault table: 'all' or some of "
         + ", ".join(FAULTS)
         + " ('none' is the nominal run)",

@@ -29,6 +29,7 @@ __all__ = [
     "add_topics",
     "build_estimator",
     "bundle_calibration",
+    "comma_list",
     "int_in",
     "jobs",
     "load_calibration",
@@ -50,6 +51,25 @@ def load_calibration(args: argparse.Namespace) -> tuple[CameraModel, DockLayout,
     layout = DockLayout.load(args.layout) if args.layout else DockLayout.default()
     robot = RobotConfig.load(args.robot) if args.robot else RobotConfig.default()
     return camera, layout, robot
+
+
+def comma_list(what: str, available: tuple[str, ...], *, everything: bool = False) -> Callable[[str], tuple[str, ...]]:
+    """An argparse type: names from ``available`` separated by commas, each once, in the order given (``all``
+    for every one with ``everything``); anything else is a one-line usage error naming the first unknown."""
+
+    def parse(value: str) -> tuple[str, ...]:
+        if everything and value == "all":
+            return available
+        names = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
+        bad = [n for n in names if n not in available]
+        if bad or not names:
+            choices = ("all", *available) if everything else available
+            raise argparse.ArgumentTypeError(
+                f"unknown {what} '{bad[0] if bad else value}' (available: {', '.join(choices)})"
+            )
+        return names
+
+    return parse
 
 
 def range_option(p: argparse.ArgumentParser, flag: str, default: tuple[float, float], what: str) -> None:

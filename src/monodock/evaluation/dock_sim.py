@@ -413,12 +413,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     c = config.mission
     p = robot.pose
     lateral, gap, heading = p.y, robot.longitudinal_error(), p.theta
-    success = (
-        result.docked
-        and abs(lateral) <= c.tolerance_lateral
-        and abs(gap) <= c.tolerance_longitudinal
-        and abs(heading) <= math.radians(c.tolerance_heading_deg)
-    )
+    success = result.docked and _inside_tolerances(robot, c)
     redock = ""
     if config.redock and result.docked:
         redock = _undock_and_redock(robot, mission_config, env, inner)
@@ -470,13 +465,17 @@ def _undock_and_redock(robot: SimulatedRobot, config: DockingConfig, env: _Envir
     again = run_mission(robot, perceive, DockingMission(config, env.sim.robot, env.blind))
     if not again.docked:
         return f"redock failed: {again.reason}"
-    c, p = config, robot.pose
-    inside = (
+    return "redocked" if _inside_tolerances(robot, config) else "redock outside the tolerances"
+
+
+def _inside_tolerances(robot: SimulatedRobot, c: DockingConfig) -> bool:
+    """Whether the robot truly stands docked: lateral, gap (or overshoot) and heading within the tolerances."""
+    p = robot.pose
+    return (
         abs(p.y) <= c.tolerance_lateral
         and abs(robot.longitudinal_error()) <= c.tolerance_longitudinal
         and abs(p.theta) <= math.radians(c.tolerance_heading_deg)
     )
-    return "redocked" if inside else "redock outside the tolerances"
 
 
 def odometry_noise(drive: DiffDriveConfig) -> OdometryNoise:
