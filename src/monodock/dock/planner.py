@@ -1,22 +1,28 @@
-"""The papers' eight docking cases, Point A, and the manoeuvre each case calls for.
+"""The papers' eight docking cases, Point A, and the manoeuvre each planner makes of them.
 
 Everything here lives in the ``dock`` frame (DESIGN.md): x normal to the charger face and pointing into it,
 y to the left, the face at x = 0. The robot approaches from x < 0 and is docked at (-front_offset, 0, 0).
 
-Point A is the base_link position on the approach axis (y = 0) that stands ``standoff`` metres of floor in
-front of the face, measured from the robot's front edge, facing the charger: from there the last part is a
-straight line. The papers choose one of eight cases from the angle, K and Point A (Sensors 2025, Fig. 15;
-conference paper, Fig. 13) without spelling them out; we define them by three questions:
+The stand-off Point A is the base_link position on the approach axis (y = 0) that stands ``standoff`` metres of
+floor in front of the face, measured from the robot's front edge, facing the charger: from there the last part is
+a straight line. The papers choose one of eight cases (Sensors 2025, Fig. 15; conference paper, Fig. 13) without
+spelling them out; we define them by three questions:
 
 - side: is the robot left (y ≥ 0) or right (y < 0) of the approach axis, looking at the charger;
 - heading: does its heading point towards the axis (it would cross it driving forward) or along or away from it;
-- zone: is it before Point A (farther from the face) or already past it (closer than the stand-off).
+- zone: does the manoeuvre drive forward to Point A ("before", cases 1–4) or backwards before Moving₂ ("past",
+  cases 5–8). ``classify`` answers it for a start by where it lies (before or past the stand-off A: the start
+  region); ``Manoeuvre.case`` by what the planner made of it (the case executed).
 
-Before Point A the robot turns to face A, drives forward to it, and turns square to the face (the papers'
-Moving₁ and Moving₂). Past Point A there is no room to turn onto the axis and still approach straight, so it
-turns its back to A and reverses onto it; then it turns square. Heading decides which way and how far the first
-turn goes: towards the axis it is the shorter turn (and turns back, away from the axis, if the heading already
-crosses the axis before A); away from it, the longer turn through square-on.
+Three planners:
+
+- ``plan_papers`` (``kind="papers"``), the papers as written: Point A where the heading line meets the axis,
+  Moving₁ straight there (forward or in reverse) with no turn, Moving₂ the turn by Θab; where there is no usable
+  crossing, Fig. 15's first turn (``plan``).
+- ``plan`` (the papers' "turn-first" fallback): turn to face the stand-off A (or put one's back to it when past
+  it), drive (or reverse) to it, turn square. It jumps at A's boundary.
+- ``plan_monodock`` (``kind="monodock"``, the default): back out straight along the heading if the leg to the
+  stand-off A would be too steep, turn to face A, drive forward, turn square; continuous in the start.
 """
 
 from __future__ import annotations
