@@ -51,3 +51,34 @@ def test_every_case_docks_with_the_regression_board_pnp_and_fused(tmp_path: Path
         assert fastest is None or fastest < 0.05
     # A stop short of the face stays within the docked tolerance.
     assert regression["overall"]["final_longitudinal_cm"]["max"] < 2.0
+
+
+@pytest.mark.timeout(900)
+def test_both_planners_recover_from_faults_and_redock(tmp_path: Path) -> None:
+    """Board PnP from a forward and a reversing start region, with both planners, nominal and with two faults (a
+    passer-by hiding the markers mid-approach; someone stepping behind the reversing robot), each docking followed
+    by an undock and a re-dock: every run docks charging, the faults were sprung, nothing was hit."""
+    out = tmp_path / "dock"
+    args = ["dock-sim", "--cases", "1,6", "--trials", "1", "--method", "board", "--planner", "papers,monodock"]
+    args += ["--faults", "none,occlusion,person-behind", "--redock", "--out", str(out), "--jobs", "2"]
+    assert main(args) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    groups = summary["methods"]
+    assert set(groups) == {
+        f"board/{planner}/{fault}"
+        for planner in ("papers", "monodock")
+        for fault in ("none", "occlusion", "person-behind")
+    }
+    for label, block in groups.items():
+        g = block["overall"]
+        assert g["runs"] == 2, label
+        assert g["successes"] == 2, label
+        assert g["charging"] == 2, label
+        assert g["collisions"] == 0, label
+        assert g["redock"] == {"tried": 2, "redocked": 2}, label
+        assert any(int(c) >= 5 for c, e in block["executed"].items() if e["runs"]), label  # a reversing run
+    for planner in ("papers", "monodock"):
+        assert groups[f"board/{planner}/occlusion"]["overall"]["faults_triggered"] == 2
+        assert groups[f"board/{planner}/occlusion"]["overall"]["recoveries"] >= 1
+        assert groups[f"board/{planner}/person-behind"]["overall"]["faults_triggered"] >= 1
+    assert "| person-behind |" in (out / "report.md").read_text()
