@@ -288,3 +288,13 @@ def test_frames_on_the_way_refine_point_a() -> None:
     refined, fixed = _arrival_error(True), _arrival_error(False)
     assert refined < 0.02
     assert fixed > 0.04
+
+
+def test_an_undock_farther_than_a_reverse_leg_may_go_is_refused() -> None:
+    robot = truthful_robot(Pose2D(-1.7, 0.0, 0.0))
+    first, _ = _run(robot)
+    assert first.state is State.DOCKED, first.log
+    at = robot.pose
+    undock, _ = _run(robot, task="undock", planner=PlannerConfig(standoff=2.0), max_reverse_distance=1.5)
+    assert undock.failure is FailureReason.REVERSE_LIMIT
+    assert robot.pose.distance(at) < 0.01

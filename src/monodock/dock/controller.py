@@ -122,8 +122,9 @@ class State(StrEnum):
     than the estimate's face (contacts that did not mate are most often not pressed home): ends in ``MOVING3``."""
 
     BACK_OFF = "back-off"
-    """A retry: reverse straight to Point A (placed again from the filter's dock pose) on odometry. Ends in
-    ``CALCULATE`` on arrival, with the dock filter reset."""
+    """A retry: reverse straight to Point A (placed again from the filter's dock pose; at most
+    ``max_reverse_distance`` towards it) on odometry. Ends in ``CALCULATE`` on arrival, with the dock filter
+    reset."""
 
     UNDOCK = "undock"
     """Undocking (``DockingMission(..., task="undock")``): back out straight from the face to the staging pose,
@@ -612,7 +613,9 @@ class DockingMission:
         if self._reverse_from is None:
             self._reverse_from = tick.odom.pose
         reversed_by = self._reverse_from.distance(tick.odom.pose)
-        if reversed_by > c.max_reverse_distance + c.recover_distance:  # a leg that overran its plan: stop
+        # Every leg is planned within max_reverse_distance; the guard allows a tenth more for steering on odometry
+        # and for a stop that follows one reverse leg straight with another (a recovery after a back-off).
+        if reversed_by > 1.1 * c.max_reverse_distance + c.recover_distance:
             self._fail(
                 tick.now,
                 FailureReason.REVERSE_LIMIT,
@@ -850,7 +853,15 @@ class DockingMission:
     def _on_undock(self, tick: _Tick) -> tuple[float, float]:
         """``UNDOCK``: back out straight from the face to the staging pose, Point A."""
         if self._back_target is None:
-            self._back_target = tick.odom.pose.compose(Pose2D(-self.config.planner.standoff, 0.0, 0.0))
+            distance = self.config.planner.standoff
+            if distance > self.config.max_reverse_distance:
+                return self._fail(
+                    tick.now,
+                    FailureReason.REVERSE_LIMIT,
+                    f"the staging pose is {distance:g} m back, more than max_reverse_distance "
+                    f"{self.config.max_reverse_distance:g} m",
+                )
+            self._back_target = tick.odom.pose.compose(Pose2D(-distance, 0.0, 0.0))
         v, w, arrived = self._drive_to(self._back_target, tick.odom.pose, reverse=True)
         if arrived:
             self._enter(tick.now, State.UNDOCKED, "at the staging pose")
@@ -954,8 +965,14 @@ class DockingMission:
     def _retry(self, now: float, why: str) -> tuple[float, float]:
         """Start a retry: ``BACK_OFF`` to Point A, placed again from the filter's current dock pose."""
         assert self.track.mean is not None
+        assert self._last_odom is not None
         self.retries += 1
-        self._targets.a = self.track.mean.compose(point_a(self.config.planner, self.robot.front_offset))
+        a = self.track.mean.compose(point_a(self.config.planner, self.robot.front_offset))
+        here, limit = self._last_odom, self.config.max_reverse_distance
+        if here.distance(a) > limit:  # no farther than a reverse leg may go: Calculate works from anywhere
+            w = limit / here.distance(a)
+            a = Pose2D(here.x + w * (a.x - here.x), here.y + w * (a.y - here.y), a.theta)
+        self._targets.a = a
         self._enter(now, State.BACK_OFF, f"retry {self.retries}: {why}")
         return (0.0, 0.0)
 
