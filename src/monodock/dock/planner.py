@@ -57,12 +57,13 @@ class CaseSpec:
     number: int
     side: str  # "left" or "right" of the approach axis, looking at the charger
     heading: str  # "towards" or "away" (along or away from) the axis
-    zone: str  # "before" or "past" Point A
-    manoeuvre: str  # what the robot does, in words
+    zone: str  # "before" (forward to Point A) or "past" (reversing before Moving₂; a start region past Point A)
+    manoeuvre: str  # what the turn-first plan (``plan``) does, in words
 
     @property
     def title(self) -> str:
-        return f"Case {self.number}: {self.side} of the axis, heading {self.heading}, {self.zone} Point A"
+        how = "forward to Point A" if self.zone == "before" else "reversing (past Point A)"
+        return f"Case {self.number}: {self.side} of the axis, heading {self.heading}, {how}"
 
 
 def _spec(number: int, side: str, heading: str, zone: str) -> CaseSpec:
