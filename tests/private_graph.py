@@ -26,9 +26,7 @@ def can_isolate() -> bool:
     """Whether this machine can make a private network namespace (unshare and ip exist, and it is allowed)."""
     if shutil.which("unshare") is None or shutil.which("ip") is None:
         return False
-    done = subprocess.run(
-        [*_unshare(), "sh", "-c", "ip link set lo up"], capture_output=True, timeout=20, check=False
-    )
+    done = subprocess.run([*_unshare(), "sh", "-c", "ip link set lo up"], capture_output=True, timeout=20, check=False)
     return done.returncode == 0
 
 
@@ -50,7 +48,9 @@ class GraphRun:
         return next(r for r in self.records if r.get("kind") == kind)
 
 
-def run_private_graph(script: Path | str, *args: str, timeout: float = 240.0, env: dict[str, str] | None = None) -> GraphRun:
+def run_private_graph(
+    script: Path | str, *args: str, timeout: float = 240.0, env: dict[str, str] | None = None
+) -> GraphRun:
     """Run ``python script args...`` in a private network namespace with loopback only; its own ROS_DOMAIN_ID."""
     environment = dict(os.environ)
     environment.update(

@@ -25,8 +25,16 @@ if sys.argv[1:] == ["listen"]:
     sys.exit(0 if got else 1)
 
 print(json.dumps({"kind": "interfaces", "names": sorted(n for _, n in socket.if_nameindex())}), flush=True)
-print(json.dumps({"kind": "env", "range": os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE"),
-                  "domain": os.environ.get("ROS_DOMAIN_ID")}), flush=True)
+print(
+    json.dumps(
+        {
+            "kind": "env",
+            "range": os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE"),
+            "domain": os.environ.get("ROS_DOMAIN_ID"),
+        }
+    ),
+    flush=True,
+)
 listener = subprocess.Popen([sys.executable, __file__, "listen"], stdout=subprocess.PIPE, text=True)
 import rclpy  # noqa: E402
 from std_msgs.msg import String  # noqa: E402

@@ -6,6 +6,7 @@ import importlib.util
 from pathlib import Path
 
 import pytest
+
 from private_graph import can_isolate, run_private_graph
 
 HERE = Path(__file__).parent

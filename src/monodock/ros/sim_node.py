@@ -1,0 +1,235 @@
+"""``monodock-sim-ros`` (node ``monodock_sim``): the simulator as a robot on a ROS 2 graph.
+
+The simulated differential drive (``monodock.sim.diffdrive``) runs in real time (``monodock.sim.realtime``): its
+camera publishes every frame ``camera_latency`` after the exposure, stamped with the exposure time; odometry,
+the rear range, the contact switch, the battery's charging state and the ground truth go out every control
+period (50 Hz), ``/clock`` with them. It drives by ``cmd_vel`` through the base's latency, lag and slip, and
+stops when ``cmd_vel`` falls silent for ``cmd_vel_timeout`` as real bases do. ROS time is the wall clock at the
+start plus the simulated time (real-time pacing keeps the two together), so nodes with or without
+``use_sim_time`` agree with its stamps.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout
+from monodock.core.pose2d import Pose2D
+from monodock.core.robot import RobotConfig
+from monodock.dock.interface import CameraFrame, Odometry
+from monodock.ros._rclpy import Node, rclpy
+from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
+from monodock.sim.realtime import RealTimeRunner
+from monodock.sim.simulator import Simulator
+
+__all__ = ["SimNode", "SimSettings", "run_sim"]
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """The node's parameters (ROS parameters of the same names)."""
+
+    start: tuple[float, float, float] = (-1.8, 0.0, 0.0)  # x, y (m), yaw (rad) of base_link in the dock frame
+    seed: int = 0
+    layout: str = ""
+    robot: str = ""
+    camera: str = ""
+    camera_rate: float = 15.0
+    cmd_vel_timeout: float = 0.5
+    frame_id: str = "base_link"
+    camera_frame_id: str = "camera_optical_frame"
+
+
+def _stamp(msg_time: Any, seconds: float) -> Any:
+    msg_time.sec = int(math.floor(seconds))
+    msg_time.nanosec = int(round((seconds - math.floor(seconds)) * 1e9)) % 1_000_000_000
+    return msg_time
+
+
+def _quaternion(q: Any, yaw: float) -> Any:
+    q.x, q.y, q.z, q.w = 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
+    return q
+
+
+class SimNode(Node):  # type: ignore[misc, unused-ignore]
+    """Publishes the simulated robot's sensors and drives it by ``cmd_vel``."""
+
+    def __init__(self) -> None:
+        super().__init__("monodock_sim")
+        from geometry_msgs.msg import PoseStamped, Twist  # type: ignore[import-not-found, unused-ignore]
+        from nav_msgs.msg import Odometry as OdometryMsg  # type: ignore[import-not-found, unused-ignore]
+        from rosgraph_msgs.msg import Clock  # type: ignore[import-not-found, unused-ignore]
+        from sensor_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            BatteryState,
+            CameraInfo,
+            Image,
+            Range,
+        )
+        from std_msgs.msg import Bool  # type: ignore[import-not-found, unused-ignore]
+
+        self.msgs = {
+            "PoseStamped": PoseStamped,
+            "Odometry": OdometryMsg,
+            "Clock": Clock,
+            "BatteryState": BatteryState,
+            "CameraInfo": CameraInfo,
+            "Image": Image,
+            "Range": Range,
+            "Bool": Bool,
+        }
+        d = SimSettings()
+        self.declare_parameter("start", list(d.start))
+        self.declare_parameter("seed", d.seed)
+        self.declare_parameter("layout", d.layout)
+        self.declare_parameter("robot", d.robot)
+        self.declare_parameter("camera", d.camera)
+        self.declare_parameter("camera_rate", d.camera_rate)
+        self.declare_parameter("cmd_vel_timeout", d.cmd_vel_timeout)
+        p = self.get_parameter
+        start = [float(v) for v in p("start").value]
+        self.settings = SimSettings(
+            start=(start[0], start[1], start[2]),
+            seed=int(p("seed").value),
+            layout=str(p("layout").value),
+            robot=str(p("robot").value),
+            camera=str(p("camera").value),
+            camera_rate=float(p("camera_rate").value),
+            cmd_vel_timeout=float(p("cmd_vel_timeout").value),
+        )
+        s = self.settings
+        sim = Simulator(
+            layout=DockLayout.load(s.layout) if s.layout else DockLayout.default(),
+            camera=CameraModel.load(s.camera) if s.camera else CameraModel.default(),
+            robot=RobotConfig.load(s.robot) if s.robot else RobotConfig.default(),
+            seed=s.seed,
+        )
+        self.robot = SimulatedRobot(
+            sim, Pose2D(*s.start), DiffDriveConfig(camera_rate=s.camera_rate), np.random.default_rng(s.seed)
+        )
+        self.epoch = time.time()  # ROS time = this + simulated time
+        self.last_cmd: tuple[float, float, float] | None = None  # (wall time, v, w)
+        qos_sensor = rclpy.qos.qos_profile_sensor_data
+        self.pub_image = self.create_publisher(Image, "image", qos_sensor)
+        self.pub_info = self.create_publisher(CameraInfo, "camera_info", qos_sensor)
+        self.pub_odom = self.create_publisher(OdometryMsg, "odom", 10)
+        self.pub_truth = self.create_publisher(PoseStamped, "ground_truth", 10)
+        self.pub_battery = self.create_publisher(BatteryState, "battery_state", 10)
+        self.pub_contact = self.create_publisher(Bool, "contact", 10)
+        self.pub_range = self.create_publisher(Range, "rear_range", qos_sensor)
+        self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        self.create_subscription(Twist, "cmd_vel", self._on_cmd_vel, 1)  # the latest command wins: no backlog
+
+    def _on_cmd_vel(self, msg: Any) -> None:
+        v, w = float(msg.linear.x), float(msg.angular.z)
+        if math.isfinite(v) and math.isfinite(w):
+            self.last_cmd = (time.monotonic(), v, w)
+
+    def command(self, _t: float, _odom: Odometry) -> tuple[float, float]:
+        """The latest cmd_vel, or a stop once it is older than the timeout (what real bases do)."""
+        if not rclpy.ok():
+            raise KeyboardInterrupt  # shut down: leave the runner
+        for _ in range(8):  # whatever has arrived (one callback a call)
+            rclpy.spin_once(self, timeout_sec=0.0)
+        if self.last_cmd is None or time.monotonic() - self.last_cmd[0] > self.settings.cmd_vel_timeout:
+            return (0.0, 0.0)
+        return (self.last_cmd[1], self.last_cmd[2])
+
+    def ros_seconds(self, t: float) -> float:
+        return self.epoch + t
+
+    def publish_frame(self, frame: CameraFrame) -> None:
+        m = self.msgs
+        camera = self.robot.sim.camera
+        stamp = self.ros_seconds(frame.stamp)
+        image = m["Image"]()
+        _stamp(image.header.stamp, stamp)
+        image.header.frame_id = self.settings.camera_frame_id
+        image.height, image.width = int(frame.image.shape[0]), int(frame.image.shape[1])
+        image.encoding, image.is_bigendian, image.step = "mono8", 0, int(frame.image.shape[1])
+        image.data = np.ascontiguousarray(frame.image).tobytes()
+        info = m["CameraInfo"]()
+        info.header = image.header
+        info.width, info.height = camera.width, camera.height
+        info.distortion_model = camera.distortion_model
+        info.d = [float(v) for v in np.asarray(camera.dist).ravel()]
+        info.k = [float(v) for v in np.asarray(camera.matrix).ravel()]
+        info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        projection = np.zeros((3, 4))
+        projection[:, :3] = camera.matrix
+        info.p = [float(v) for v in projection.ravel()]
+        self.pub_image.publish(image)
+        self.pub_info.publish(info)
+
+    def publish_state(self, odom: Odometry) -> None:
+        m, robot = self.msgs, self.robot
+        stamp = self.ros_seconds(odom.stamp)
+        clock = m["Clock"]()
+        _stamp(clock.clock, stamp)
+        self.pub_clock.publish(clock)
+        o = m["Odometry"]()
+        _stamp(o.header.stamp, stamp)
+        o.header.frame_id, o.child_frame_id = "odom", self.settings.frame_id
+        o.pose.pose.position.x, o.pose.pose.position.y = odom.pose.x, odom.pose.y
+        _quaternion(o.pose.pose.orientation, odom.pose.theta)
+        o.twist.twist.linear.x, o.twist.twist.angular.z = odom.linear, odom.angular
+        self.pub_odom.publish(o)
+        truth = robot.dock_pose()
+        gt = m["PoseStamped"]()
+        _stamp(gt.header.stamp, stamp)
+        gt.header.frame_id = self.settings.frame_id
+        gt.pose.position.x, gt.pose.position.y = truth.x, truth.y
+        _quaternion(gt.pose.orientation, truth.yaw)
+        self.pub_truth.publish(gt)
+        contact = m["Bool"]()
+        contact.data = bool(robot.touching)
+        self.pub_contact.publish(contact)
+        battery = m["BatteryState"]()
+        _stamp(battery.header.stamp, stamp)
+        battery.present = True
+        charging = robot.charging()
+        battery.power_supply_status = (
+            battery.POWER_SUPPLY_STATUS_CHARGING if charging else battery.POWER_SUPPLY_STATUS_DISCHARGING
+        )
+        self.pub_battery.publish(battery)
+        rear = robot.rear_range()
+        if rear is not None:
+            r = m["Range"]()
+            _stamp(r.header.stamp, stamp)
+            r.header.frame_id = "rear_range"
+            r.radiation_type = r.ULTRASOUND
+            r.field_of_view = math.radians(robot.config.rear_fov_deg)
+            r.min_range, r.max_range = 0.0, robot.config.rear_range_max
+            r.range = float(rear) if math.isfinite(rear) else math.inf
+            self.pub_range.publish(r)
+
+
+def run_sim(argv: Sequence[str], duration: float = math.inf) -> int:
+    """Run the node until shut down (or ``duration`` simulated seconds)."""
+    rclpy.init(args=list(argv))
+    node = SimNode()
+    try:
+        runner = RealTimeRunner(node.robot)
+        node.robot.sim.render(node.robot.dock_pose())  # load the compiled renderer before the clock starts
+        node.epoch = time.time() - node.robot.t  # ROS time starts with the physics, not with the node's set-up
+        # One run: the runner paces simulated time by the wall clock from its start and catches up after a slow
+        # step (chunked runs would each forgive the lag and fall behind for good).
+        runner.run(
+            duration if math.isfinite(duration) else 1e12,
+            command=node.command,
+            on_frame=node.publish_frame,
+            on_odometry=node.publish_state,
+        )
+    except KeyboardInterrupt:
+        pass
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0
