@@ -73,10 +73,13 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             self.estimator, self.method = _estimator(args)
             self.estimator.warm_up()
         else:  # the camera comes from camera_info; the layout and mounts from the files
-            self.create_subscription(CameraInfo, args.camera_info_topic, self._on_camera_info, 1)
+            # Best-effort (sensor data) subscriptions match reliable and best-effort publishers alike.
+            self.create_subscription(CameraInfo, args.camera_info_topic, self._on_camera_info, _sensor_qos())
         compressed = args.image_is_compressed
         self.msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
-        self.create_subscription(CompressedImage if compressed else Image, args.image_topic, self._on_image, 1)
+        self.create_subscription(
+            CompressedImage if compressed else Image, args.image_topic, self._on_image, _sensor_qos()
+        )
         self.publisher = self.create_publisher(PoseStamped, args.pose_topic, 10)
         self.covariance_publisher = self.create_publisher(PoseWithCovarianceStamped, args.pose_covariance_topic, 10)
 
@@ -134,6 +137,13 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         self.covariance_publisher.publish(with_cov)
 
 
+def _sensor_qos() -> Any:
+    """Sensor-data QoS (best effort, keep the last few): a slow node drops frames instead of queueing them."""
+    from rclpy.qos import qos_profile_sensor_data  # type: ignore[import-not-found, unused-ignore]
+
+    return qos_profile_sensor_data
+
+
 def _estimator(args: DetectorOptions, camera: CameraModel | None = None) -> tuple[Estimator, str]:
     """The Estimator of the options, or of camera_info's camera with the layout and robot files."""
     estimator = args.estimator(camera)
@@ -160,9 +170,11 @@ def run_detector(args: DetectorOptions, argv: Sequence[str]) -> int:
         print(f"monodock-ros: error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    from rclpy.executors import ExternalShutdownException  # type: ignore[import-not-found, unused-ignore]
+
     try:
         rclpy.spin(node)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM: a clean exit, no traceback
         pass
     finally:
         node.destroy_node()
