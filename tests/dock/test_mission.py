@@ -464,7 +464,7 @@ def test_dock_sim_writes_the_summary_contract(tmp_path: Path, capsys: pytest.Cap
     assert acc["all"]["filtered"]["lateral_cm"] < 0.5
     assert acc["all"]["filtered"]["yaw_deg"] < acc["all"]["single_frame"]["yaw_deg"]
     assert acc["under_25cm"]["coasting"]["lateral_cm"] < 0.5
-    for name in ("report.html", "final_errors.png", "trajectories_case_2.png", "case_7.png"):
+    for name in ("report.html", "final_errors.png", "trajectories_case_2.png", "monodock_case_7.png"):
         assert (out / name).is_file(), name
     assert "docked 2/2" in capsys.readouterr().out
     # Nothing is replaced without --force.
