@@ -28,8 +28,8 @@ def test_no_monodock_module_needs_rclpy() -> None:
 import importlib, pkgutil, sys
 sys.modules["rclpy"] = None  # any import of rclpy now fails
 import monodock
-ros = ("monodock.cli.ros_nodes", "monodock.ros._rclpy", "monodock.ros.detector", "monodock.ros.dock_node",
-       "monodock.ros.sim_node")
+ros = ("monodock.cli.ros_nodes", "monodock.cli.ros_sim", "monodock.ros._rclpy", "monodock.ros.detector",
+       "monodock.ros.dock_node", "monodock.ros.sim_node")
 names = [m.name for m in pkgutil.walk_packages(monodock.__path__, "monodock.") if m.name not in ros]
 for name in names:
     importlib.import_module(name)
@@ -44,9 +44,10 @@ for name in ros:
 """
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
-    lines = done.stdout.splitlines()[-5:]
+    lines = done.stdout.splitlines()[-6:]
     assert [line.split()[0] for line in lines] == [
         "monodock.cli.ros_nodes",
+        "monodock.cli.ros_sim",
         "monodock.ros._rclpy",
         "monodock.ros.detector",
         "monodock.ros.dock_node",

@@ -16,9 +16,8 @@ from monodock.cli.options import add_estimator_options
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC
 from monodock.ros.detector import DetectorOptions, run_detector
 from monodock.ros.dock_node import DockOptions, run_dock
-from monodock.ros.sim_node import run_sim
 
-__all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser", "sim_main"]
+__all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser"]
 
 
 def _add_image_options(p: argparse.ArgumentParser) -> None:
@@ -84,8 +83,3 @@ def dock_main(argv: Sequence[str] | None = None) -> int:
     """``monodock-dock-ros``: dock once; 0 when docked, 1 when the mission failed, 2 on bad options."""
     raw = _argv("monodock-dock-ros", argv)
     return run_dock(dock_options(remove_ros_args(raw)[1:]), raw)
-
-
-def sim_main(argv: Sequence[str] | None = None) -> int:
-    """``monodock-sim-ros``: the simulated robot on the graph until shut down (its settings are ROS parameters)."""
-    return run_sim(_argv("monodock-sim-ros", argv))
