@@ -124,3 +124,28 @@ def test_every_field_is_documented_with_its_unit_and_default() -> None:
 def test_the_shipped_example_is_every_default() -> None:
     docs = Path(__file__).parents[2] / "docs"
     assert load_docking_config(docs / "docking.yaml") == DockingConfig()
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--planner", "papers,foo"], "unknown planner 'foo'"),
+        (["--faults", "all,occlusion"], "'all' stands alone"),
+        (["--faults", "rain"], "unknown fault 'rain'"),
+        (["--frame-drop-rate", "2"], "must be within 0-1"),
+        (["--exposure", "-1"], "--exposure must be within 0 and one frame"),
+    ],
+)
+def test_dock_sim_refuses_bad_docking_options_in_one_line(
+    args: list[str], says: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from monodock.cli.main import main
+
+    try:
+        code = main(["dock-sim", "--method", "board", *args])
+    except SystemExit as exc:  # argparse's usage errors exit; monodock's own return 2
+        code = exc.code  # type: ignore[assignment]
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert says in err[0]

@@ -61,6 +61,8 @@ def comma_list(what: str, available: tuple[str, ...], *, everything: bool = Fals
         if everything and value == "all":
             return available
         names = tuple(dict.fromkeys(v.strip() for v in value.split(",") if v.strip()))
+        if everything and "all" in names:
+            raise argparse.ArgumentTypeError(f"'all' stands alone (every {what}), got '{value}'")
         bad = [n for n in names if n not in available]
         if bad or not names:
             choices = ("all", *available) if everything else available
