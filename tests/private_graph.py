@@ -12,6 +12,7 @@ import itertools
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -64,5 +65,15 @@ def run_private_graph(
     environment.update(env or {})
     inner = 'ip link set lo up && exec "$@"'
     command = [*_unshare(), "sh", "-c", inner, "sh", sys.executable, str(script), *args]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, env=environment, check=False)
-    return GraphRun(done.returncode, done.stdout, done.stderr)
+    # A session of its own: on a time-out the whole graph (driver and the nodes it started) is killed, not only
+    # the driver, and what it printed so far is kept for the failure message.
+    process = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=environment, start_new_session=True
+    )
+    try:
+        stdout, stderr = process.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        stdout, stderr = process.communicate()
+        return GraphRun(-9, stdout, f"timed out after {timeout:.0f} s\n{stderr}")
+    return GraphRun(process.returncode, stdout, stderr)

@@ -380,6 +380,8 @@ def test_failure_reasons_map_to_nav2_docking_error_codes() -> None:
         FailureReason.REVERSE_LIMIT: 905,
         FailureReason.NOT_CHARGING: 906,
         FailureReason.TIMEOUT: 907,
+        FailureReason.ODOMETRY_LOST: 905,
+        FailureReason.CANCELLED: 0,
     }
 
 

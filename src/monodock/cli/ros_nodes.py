@@ -44,16 +44,33 @@ def detector_parser() -> argparse.ArgumentParser:
 
 
 def dock_parser() -> argparse.ArgumentParser:
-    """``monodock-dock-ros``'s flags."""
-    p = argparse.ArgumentParser(prog="monodock-dock-ros", description="dock once: cmd_vel out, odom and image in")
-    add_estimator_options(
-        p, camera_help="camera file (needed without --model)", robot_help="robot YAML (mounts, front_offset, limits)"
+    """``monodock-dock-ros``'s flags: each sets the default of the node's parameter of the same name."""
+    d = DockOptions()
+    p = argparse.ArgumentParser(
+        prog="monodock-dock-ros",
+        description="dock and undock on request (~/dock, ~/undock, ~/cancel): cmd_vel out, odom and image in",
+        epilog="ROS parameters (--ros-args -p name:=value, --params-file FILE) override these flags; the docking "
+        "config's keys (docs/docking.yaml) are parameters too, e.g. -p planner.standoff:=1.2",
     )
-    _add_image_options(p)
-    p.add_argument("--odom-topic", default="/odom")
-    p.add_argument("--cmd-vel-topic", default="/cmd_vel")
-    p.add_argument("--contact-topic", help="std_msgs/Bool that is true on contact with the charger (optional)")
-    p.add_argument("--standoff", type=float, default=1.0, help="Point A: floor between front edge and face, m")
+    add_estimator_options(
+        p,
+        camera_help="camera file (default: the bundle's, else from camera_info)",
+        robot_help="robot YAML (mounts, front_offset, limits)",
+    )
+    p.add_argument("--image-topic", default=d.image_topic)
+    p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")
+    p.add_argument("--camera-info-topic", default=d.camera_info_topic)
+    p.add_argument("--odom-topic", default=d.odom_topic)
+    p.add_argument("--cmd-vel-topic", default=d.cmd_vel_topic)
+    p.add_argument("--battery-topic", default=d.battery_topic, help="BatteryState; empty: no charging signal")
+    p.add_argument("--contact-topic", default=d.contact_topic, help="std_msgs/Bool contact switch; empty: none")
+    p.add_argument("--rear-range-topic", default=d.rear_range_topic, help="sensor_msgs/Range behind; empty: none")
+    p.add_argument("--pose-topic", default=d.pose_topic)
+    p.add_argument("--pose-covariance-topic", default=d.pose_covariance_topic)
+    p.add_argument("--frame-id", default=d.frame_id)
+    p.add_argument("--config", default=d.config, help="docking config YAML (docs/docking.md), read before parameters")
+    p.add_argument("--odom-timeout", type=float, default=d.odom_timeout, help="odometry older than this: stop, s")
+    p.add_argument("--sensor-timeout", type=float, default=d.sensor_timeout, help="other sensors' age limit, s")
     return p
 
 
@@ -80,6 +97,6 @@ def detector_main(argv: Sequence[str] | None = None) -> int:
 
 
 def dock_main(argv: Sequence[str] | None = None) -> int:
-    """``monodock-dock-ros``: dock once; 0 when docked, 1 when the mission failed, 2 on bad options."""
+    """``monodock-dock-ros``: run the docking node until shut down; 2 on bad options."""
     raw = _argv("monodock-dock-ros", argv)
     return run_dock(dock_options(remove_ros_args(raw)[1:]), raw)

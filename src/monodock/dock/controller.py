@@ -163,6 +163,8 @@ class FailureReason(StrEnum):
     ``REVERSE_LIMIT``       ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, a reverse leg too long)
     ``NOT_CHARGING``        ``FAILED_TO_CHARGE`` = 906 (``FailedToCharge``, all re-seats used)
     ``TIMEOUT``             ``TIMEOUT`` = 907
+    ``ODOMETRY_LOST``       ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, no odometry to steer by)
+    ``CANCELLED``           ``NONE`` = 0 (Nav2 ends a cancelled action as CANCELED, not with an error code)
     ======================  ==============================================================================
 
     ``MissionResult.reason`` carries the human detail (the numbers) next to the member.
@@ -193,6 +195,12 @@ class FailureReason(StrEnum):
     TIMEOUT = "timeout"
     """The mission ran longer than ``mission_timeout``."""
 
+    ODOMETRY_LOST = "odometry-lost"
+    """The robot's odometry stopped coming (``DockingMission.abort`` by whoever runs the mission, e.g. the ROS node)."""
+
+    CANCELLED = "cancelled"
+    """Cancelled from outside (``DockingMission.abort``): a second call, a cancel request, a shutdown."""
+
     @property
     def nav2_error_code(self) -> int:
         """The nearest ``DockRobot.Result`` error code of Nav2's docking server (see the table above)."""
@@ -210,6 +218,8 @@ _NAV2_ERROR_CODE = {
     FailureReason.REVERSE_LIMIT: _FAILED_TO_CONTROL,
     FailureReason.NOT_CHARGING: _FAILED_TO_CHARGE,
     FailureReason.TIMEOUT: _TIMEOUT,
+    FailureReason.ODOMETRY_LOST: _FAILED_TO_CONTROL,
+    FailureReason.CANCELLED: 0,
 }
 
 
@@ -552,6 +562,11 @@ class DockingMission:
         self._enter(now, State.FAILED, reason)
         self.command = (0.0, 0.0)
         return self.command
+
+    def abort(self, now: float, failure: FailureReason, reason: str) -> None:
+        """End the mission from outside (cancelled, or a sensor it cannot go on without); the next command is zero."""
+        if not self.finished:
+            self._fail(now, failure, reason)
 
     # --- the loop ---------------------------------------------------------------------------
 

@@ -1,79 +1,160 @@
-"""The docking mission on a real robot through ROS 2 (``monodock-dock-ros``): cmd_vel out, odom and image in.
+"""``monodock-dock-ros`` (node ``monodock_dock``): docking and undocking on request, for as long as it runs.
 
-``Ros2Robot`` implements the controller's robot interface on top of an rclpy node: geometry_msgs/Twist on
-``cmd_vel``, nav_msgs/Odometry from ``odom``, sensor_msgs/Image or CompressedImage from the camera, and an
-optional std_msgs/Bool contact topic (the charger's "charging" or a bumper). Images are decoded with numpy and
-OpenCV (monodock.recording.messages), without cv_bridge.
+Services (std_srvs/Trigger; the reply says accepted or why not, the mission runs after it):
 
-Like monodock.ros.detector, this module needs rclpy (monodock.ros._rclpy says how to get it).
+- ``~/dock``: dock from wherever the robot stands (the mission of ``monodock.dock.controller``);
+- ``~/undock``: back out straight to the staging pose;
+- ``~/cancel``: stop the running mission. A ``~/dock`` or ``~/undock`` call while one runs cancels it too.
+
+Topics: ``~/state`` (std_msgs/String, transient-local: the state's name on every change, ``idle`` before the
+first mission), ``~/result`` (diagnostic_msgs/DiagnosticStatus, transient-local: OK when the mission succeeded,
+ERROR with the failure and its Nav2 error code otherwise; the robot's own estimate of the final lateral_cm,
+gap_cm, heading_deg, and retries, re-seats, recoveries, duration), and the dock filter's pose on
+``detected_dock_pose`` (PoseStamped) and ``detected_dock_pose_with_covariance`` in base_link while it tracks the
+dock, for Nav2's docking server. It drives by ``cmd_vel`` from ``odom``, the camera ``image`` (``camera_info``
+when no camera file is given), ``battery_state`` (charging), ``contact`` and ``rear_range``.
+
+The docking config is ROS parameters of the same names as the config file's keys (``planner.standoff``,
+``max_reseats``, ...; ``config`` loads a file first); each mission reads them when it starts, so they may change
+between missions. Every exit of a mission commands zero velocity, a shutdown (SIGINT, SIGTERM) included; if the
+node dies outright, the base's own ``cmd_vel`` time-out stops the robot.
+
+Missions run in a thread of their own; the main thread spins the node, so services and sensor callbacks are
+served while the robot moves. Needs rclpy (monodock.ros._rclpy says how to get it).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import signal
 import sys
+import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
+from monodock.core.camera import CameraModel
 from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import DockingConfig, DockingMission, blind_gap, make_perceive, run_mission
+from monodock.dock.config import docking_config_from_dict, docking_config_to_dict, load_docking_config
+from monodock.dock.controller import (
+    DockingConfig,
+    DockingMission,
+    FailureReason,
+    MissionResult,
+    blind_gap,
+    make_perceive,
+    run_mission,
+)
 from monodock.dock.interface import CameraFrame, Odometry
-from monodock.dock.planner import PlannerConfig
 from monodock.dock.pose_filter import MeasurementNoise
-from monodock.errors import MonodockError
+from monodock.errors import InputError, MonodockError
+from monodock.estimation.estimator import Estimator
 from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.options import EstimatorOptions
+from monodock.ros.parameters import declare, flatten, unflatten
 
-__all__ = ["DockOptions", "Ros2Robot", "run_dock"]
+__all__ = ["DockNode", "DockOptions", "Ros2Robot", "run_dock"]
 
 
 @dataclass(frozen=True)
 class DockOptions(EstimatorOptions):
-    """What the docking node runs: the estimator (a bundle, or the calibration files), its topics and Point A."""
+    """The node's fixed settings (its command-line flags, which set the parameters' defaults)."""
 
-    odom_topic: str = "/odom"
-    cmd_vel_topic: str = "/cmd_vel"
-    contact_topic: str | None = None
-    standoff: float = 1.0
+    image_topic: str = "image"
+    camera_info_topic: str = "camera_info"
+    odom_topic: str = "odom"
+    cmd_vel_topic: str = "cmd_vel"
+    battery_topic: str = "battery_state"
+    contact_topic: str = "contact"
+    rear_range_topic: str = "rear_range"
+    pose_topic: str = "detected_dock_pose"
+    pose_covariance_topic: str = "detected_dock_pose_with_covariance"
+    frame_id: str = "base_link"
+    config: str = ""
+    odom_timeout: float = 0.5
+    sensor_timeout: float = 1.0
+
+
+_DESCRIPTIONS = {
+    "model": "model bundle folder (carries the camera, layout and mounts); empty: PnP on the calibration files",
+    "method": "regression, pnp, board or fused (empty: regression with a bundle, board without)",
+    "camera": "camera file (camera_info YAML or OpenCV); empty: the bundle's, else the camera_info topic",
+    "layout": "dock layout YAML (needed without a bundle)",
+    "robot": "robot YAML: mounts, front_offset, speed limits (needed without a bundle)",
+    "refinement": "ArUco corner refinement: subpix, contour, apriltag or none",
+    "image_topic": "sensor_msgs/Image (CompressedImage with compressed:=true or a name ending in /compressed)",
+    "compressed": "the image topic carries sensor_msgs/CompressedImage",
+    "camera_info_topic": "sensor_msgs/CameraInfo, used when no camera file is given",
+    "odom_topic": "nav_msgs/Odometry of the base",
+    "cmd_vel_topic": "geometry_msgs/Twist to the base",
+    "battery_topic": "sensor_msgs/BatteryState: CHARGING or FULL confirms docking (empty: no charging signal)",
+    "contact_topic": "std_msgs/Bool, true on contact with the charger (empty: none)",
+    "rear_range_topic": "sensor_msgs/Range behind the robot, watched while reversing (empty: none)",
+    "pose_topic": "PoseStamped of the dock filter's estimate in base_link (for Nav2's docking server)",
+    "pose_covariance_topic": "the same with its covariance (PoseWithCovarianceStamped)",
+    "frame_id": "the robot's base frame",
+    "config": "docking config YAML read before the parameters (docs/docking.md); empty: the defaults",
+    "odom_timeout": "a mission fails with odometry-lost when odometry is older than this, s",
+    "sensor_timeout": "battery, contact and rear range readings older than this count as absent, s",
+}
+
+
+class _Latest:
+    """The newest message of a topic with its arrival time (monotonic), written by callbacks, read by the mission."""
+
+    def __init__(self) -> None:
+        self.value: Any = None
+        self.at = -math.inf
+
+    def set(self, value: Any) -> None:
+        self.value, self.at = value, time.monotonic()
+
+    def fresh(self, max_age: float) -> Any:
+        return self.value if time.monotonic() - self.at <= max_age else None
 
 
 class Ros2Robot:
-    """The robot interface over ROS 2 topics; ``sleep`` spins the node so callbacks run while it waits."""
+    """The controller's robot interface over ROS 2 topics, safe to call from the mission thread.
 
-    def __init__(self, node: Node, args: DockOptions) -> None:
+    Callbacks (the node's executor thread) only store the newest message; images are decoded when the mission
+    asks for a frame, so a node that is not docking decodes nothing.
+    """
+
+    def __init__(self, node: Node, options: DockOptions) -> None:
         from geometry_msgs.msg import Twist  # type: ignore[import-not-found, unused-ignore]
         from nav_msgs.msg import Odometry as OdometryMsg  # type: ignore[import-not-found, unused-ignore]
-        from sensor_msgs.msg import CompressedImage, Image  # type: ignore[import-not-found, unused-ignore]
+        from rclpy.qos import qos_profile_sensor_data  # type: ignore[import-not-found, unused-ignore]
+        from sensor_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            BatteryState,
+            CompressedImage,
+            Image,
+            Range,
+        )
         from std_msgs.msg import Bool  # type: ignore[import-not-found, unused-ignore]
 
-        self.node = node
+        self.node, self.options = node, options
         self._twist = Twist
-        self._odom: Odometry | None = None
+        self._charging_states = {BatteryState.POWER_SUPPLY_STATUS_CHARGING, BatteryState.POWER_SUPPLY_STATUS_FULL}
+        self.odom, self.image, self.battery, self.contact_msg, self.rear = (_Latest() for _ in range(5))
         self._frame: CameraFrame | None = None
-        self._contact: bool | None = None
-        compressed = args.image_is_compressed
+        self._decoded_stamp = -math.inf
+        compressed = options.image_is_compressed
         self._msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
-        self._cmd = node.create_publisher(Twist, args.cmd_vel_topic, 10)
-        node.create_subscription(OdometryMsg, args.odom_topic, self._on_odom, 10)
-        node.create_subscription(CompressedImage if compressed else Image, args.image_topic, self._on_image, 1)
-        if args.contact_topic:
-            node.create_subscription(Bool, args.contact_topic, self._on_contact, 10)
-
-    def _on_odom(self, msg: Any) -> None:
-        p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
-        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-        self._odom = Odometry(m.header_stamp(msg), Pose2D(p.x, p.y, yaw), t.linear.x, t.angular.z)
-
-    def _on_image(self, msg: Any) -> None:
-        try:
-            self._frame = CameraFrame(m.header_stamp(msg), m.decode_image(msg, self._msgtype))
-        except m.DecodeError as exc:
-            self.node.get_logger().warning(f"image skipped: {exc}")
-
-    def _on_contact(self, msg: Any) -> None:
-        self._contact = bool(msg.data)
+        self._cmd = node.create_publisher(Twist, options.cmd_vel_topic, 10)
+        sensor = qos_profile_sensor_data  # best effort subscribers match best-effort and reliable publishers
+        node.create_subscription(OdometryMsg, options.odom_topic, self.odom.set, sensor)
+        node.create_subscription(CompressedImage if compressed else Image, options.image_topic, self.image.set, sensor)
+        if options.battery_topic:
+            node.create_subscription(BatteryState, options.battery_topic, self.battery.set, sensor)
+        if options.contact_topic:
+            node.create_subscription(Bool, options.contact_topic, self.contact_msg.set, sensor)
+        if options.rear_range_topic:
+            node.create_subscription(Range, options.rear_range_topic, self.rear.set, sensor)
 
     def now(self) -> float:
         return float(self.node.get_clock().now().nanoseconds) * 1e-9
@@ -83,53 +164,363 @@ class Ros2Robot:
         msg.linear.x, msg.angular.z = float(linear), float(angular)
         self._cmd.publish(msg)
 
+    def odometry_age(self) -> float:
+        """Seconds since the last odometry message arrived (inf before the first)."""
+        return time.monotonic() - self.odom.at
+
+    def wait_for_odometry(self, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while self.odom.value is None and time.monotonic() < end:
+            time.sleep(0.01)
+        return self.odom.value is not None
+
     def odometry(self) -> Odometry:
-        while self._odom is None:  # nothing to steer on before the first odometry message
-            rclpy.spin_once(self.node, timeout_sec=0.1)
-        return self._odom
+        msg = self.odom.value
+        if msg is None:
+            raise InputError(f"no odometry on {self.options.odom_topic}")
+        p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        return Odometry(m.header_stamp(msg), Pose2D(p.x, p.y, yaw), t.linear.x, t.angular.z)
 
     def latest_frame(self) -> CameraFrame | None:
+        msg = self.image.value
+        if msg is None:
+            return None
+        stamp = m.header_stamp(msg)
+        if stamp != self._decoded_stamp:
+            self._decoded_stamp = stamp
+            try:
+                self._frame = CameraFrame(stamp, m.decode_image(msg, self._msgtype))
+            except m.DecodeError as exc:
+                self.node.get_logger().warning(f"image skipped: {exc}", throttle_duration_sec=5.0)
+                return None
         return self._frame
 
     def contact(self) -> bool | None:
-        return self._contact
+        msg = self.contact_msg.fresh(self.options.sensor_timeout)
+        return None if msg is None else bool(msg.data)
 
     def charging(self) -> bool | None:
-        return None  # the charging topic comes with the long-running node (issue 17)
+        msg = self.battery.fresh(self.options.sensor_timeout)
+        return None if msg is None else msg.power_supply_status in self._charging_states
 
     def rear_range(self) -> float | None:
-        return None
+        msg = self.rear.fresh(self.options.sensor_timeout)
+        if msg is None:
+            return None
+        r = float(msg.range)
+        return math.inf if math.isinf(r) and r > 0 else (r if math.isfinite(r) else None)
 
     def sleep(self, seconds: float) -> None:
-        end = self.now() + seconds
-        while (left := end - self.now()) > 0:
-            rclpy.spin_once(self.node, timeout_sec=left)
+        time.sleep(max(0.0, seconds))  # the executor thread serves callbacks meanwhile
 
 
-def run_dock(args: DockOptions, argv: Sequence[str]) -> int:
-    """Dock once and exit: 0 when docked, 1 when the mission failed, 2 on bad options; ``argv``: the ROS arguments."""
-    rclpy.init(args=list(argv))
-    node = Node("monodock_dock")
-    robot: Ros2Robot | None = None
+class DockNode(Node):  # type: ignore[misc, unused-ignore]
+    """The long-running docking node: services in, one mission at a time in a thread, state and result out."""
+
+    def __init__(self, options: DockOptions) -> None:
+        super().__init__("monodock_dock")
+        from diagnostic_msgs.msg import DiagnosticStatus  # type: ignore[import-not-found, unused-ignore]
+        from geometry_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            PoseStamped,
+            PoseWithCovarianceStamped,
+        )
+        from rclpy.qos import DurabilityPolicy, QoSProfile  # type: ignore[import-not-found, unused-ignore]
+        from sensor_msgs.msg import CameraInfo  # type: ignore[import-not-found, unused-ignore]
+        from std_msgs.msg import String  # type: ignore[import-not-found, unused-ignore]
+        from std_srvs.srv import Trigger  # type: ignore[import-not-found, unused-ignore]
+
+        self._msgs = {"String": String, "DiagnosticStatus": DiagnosticStatus, "PoseStamped": PoseStamped}
+        self._pose_cov = PoseWithCovarianceStamped
+        self.options = self._declare_options(options)
+        base = load_docking_config(self.options.config) if self.options.config else DockingConfig()
+        self._config_names = list(flatten(docking_config_to_dict(base)))
+        self._config_base = base
+        self._config_declared = False
+        self.estimator: Estimator | None = None
+        self.method = ""
+        self._camera_info = _Latest()
+        if self.options.model or self.options.camera:
+            self._make_estimator(None)
+        else:
+            _check_calibration(self.options)
+            self.create_subscription(
+                CameraInfo, self.options.camera_info_topic, self._camera_info.set, rclpy.qos.qos_profile_sensor_data
+            )
+        self._declare_config()
+        self.robot = Ros2Robot(self, self.options)
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_state = self.create_publisher(String, "~/state", latched)
+        self.pub_result = self.create_publisher(DiagnosticStatus, "~/result", latched)
+        self.pub_pose = self.create_publisher(PoseStamped, self.options.pose_topic, 10)
+        self.pub_pose_cov = self.create_publisher(PoseWithCovarianceStamped, self.options.pose_covariance_topic, 10)
+        self.create_service(Trigger, "~/dock", lambda _req, res: self._start("dock", res))
+        self.create_service(Trigger, "~/undock", lambda _req, res: self._start("undock", res))
+        self.create_service(Trigger, "~/cancel", self._on_cancel)
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._mission: DockingMission | None = None
+        self._cancel: str | None = None  # why the running mission must stop, set by another thread
+        self._state = ""
+        self._publish_state("idle")
+
+    # --- set-up -----------------------------------------------------------------------------
+
+    def _declare_options(self, options: DockOptions) -> DockOptions:
+        values: dict[str, Any] = {}
+        for f in dataclasses.fields(options):
+            default = getattr(options, f.name)
+            value = declare(self, f.name, "" if default is None else default, _DESCRIPTIONS[f.name], read_only=True)
+            values[f.name] = _typed(f.name, value, default)
+        for name in ("model", "method", "camera", "layout", "robot"):
+            values[name] = values[name] or None
+        return DockOptions(**values)
+
+    def _declare_config(self) -> None:
+        """The docking config's keys as parameters, defaulting to the config file's (or the built-in) values.
+
+        The measurement noise defaults to the method's own (``MeasurementNoise.for_method``) unless the config file
+        sets it; the method is known once the estimator is.
+        """
+        base = self._config_base
+        if not self.options.config and self.method:
+            base = dataclasses.replace(base, measurement=MeasurementNoise.for_method(self.method))
+        for name, default in flatten(docking_config_to_dict(base)).items():
+            declare(self, name, default, f"docking config: {name} (docs/docking.md)")
+        self._config_declared = True
+
+    def docking_config(self) -> DockingConfig:
+        """The docking config of the parameters as they are now (checked like a config file)."""
+        values = {name: self.get_parameter(name).value for name in self._config_names}
+        return docking_config_from_dict(unflatten(values), "ROS parameters")
+
+    def _make_estimator(self, camera: CameraModel | None) -> None:
+        self.estimator = self.options.estimator(camera)
+        self.method = self.estimator.method
+        self.estimator.warm_up()
+
+    # --- services ---------------------------------------------------------------------------
+
+    def _start(self, task: str, response: Any) -> Any:
+        with self._lock:
+            if self._thread is not None and self._thread.is_alive():
+                self._cancel = f"cancelled by a {task} request"
+                response.success, response.message = True, f"cancelled the running {self._mission_task()} mission"
+                return response
+            try:
+                config = self.docking_config()
+                self._ensure_estimator()
+            except MonodockError as exc:
+                response.success, response.message = False, str(exc)
+                return response
+            self._cancel = None
+            self._thread = threading.Thread(target=self._run, args=(task, config), name=f"monodock-{task}")
+            self._thread.start()
+        response.success, response.message = True, f"{task} started"
+        return response
+
+    def _on_cancel(self, _request: Any, response: Any) -> Any:
+        with self._lock:
+            if self._thread is None or not self._thread.is_alive():
+                response.success, response.message = False, "no mission is running"
+                return response
+            self._cancel = "cancelled by request"
+        response.success, response.message = True, f"cancelled the running {self._mission_task()} mission"
+        return response
+
+    def _mission_task(self) -> str:
+        return self._mission.task if self._mission is not None else "starting"
+
+    def _ensure_estimator(self) -> None:
+        if self.estimator is not None:
+            return
+        msg = self._camera_info.value
+        camera = None if msg is None else m.camera_from_msg(msg)
+        if camera is None:
+            raise InputError(f"no calibrated camera_info on {self.options.camera_info_topic} yet")
+        self._make_estimator(camera)
+        self.get_logger().info(f"camera {camera.width}x{camera.height} from camera_info; docking with {self.method}")
+
+    # --- the mission ------------------------------------------------------------------------
+
+    def _run(self, task: str, config: DockingConfig) -> None:
+        """One mission, start to end, in the mission thread; zero velocity whatever happens."""
+        estimator = self.estimator
+        assert estimator is not None
+        robot = self.robot
+        try:
+            if not robot.wait_for_odometry(max(2.0, self.options.odom_timeout)):
+                self._publish_result(task, None, f"no odometry on {self.options.odom_topic}")
+                return
+            blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
+            mission = DockingMission(config, estimator.robot, blind, task=task)
+            self._mission = mission
+            self._publish_state(mission.state.value)
+            result = run_mission(robot, make_perceive(estimator, self.method), mission, on_tick=self._on_tick)
+            self._publish_result(task, result, "")
+        except MonodockError as exc:
+            self._publish_result(task, None, str(exc))
+        finally:
+            robot.send_velocity(0.0, 0.0)
+
+    def _on_tick(self, mission: DockingMission, odom: Odometry) -> None:
+        """After each control step: stop on cancel or lost odometry; publish the state and the dock filter's pose."""
+        now = self.robot.now()
+        if self._cancel is not None:
+            mission.abort(now, FailureReason.CANCELLED, self._cancel)
+        elif self.robot.odometry_age() > self.options.odom_timeout:
+            age = self.robot.odometry_age()
+            mission.abort(now, FailureReason.ODOMETRY_LOST, f"no odometry for {age:.2f} s")
+        if mission.state.value != self._state:
+            self._publish_state(mission.state.value)
+        self._publish_pose(mission, odom)
+
+    def _publish_state(self, state: str) -> None:
+        self._state = state
+        msg = self._msgs["String"]()
+        msg.data = state
+        self.pub_state.publish(msg)
+
+    def _publish_pose(self, mission: DockingMission, odom: Odometry) -> None:
+        track = mission.track
+        if track.mean is None:
+            return
+        dock = odom.pose.inverse().compose(track.mean)  # the dock in base_link at this odometry
+        c, s = math.cos(odom.pose.theta), math.sin(odom.pose.theta)
+        rotate = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # odom frame → base_link, odometry exact
+        cov = rotate @ track.cov @ rotate.T
+        out = self._msgs["PoseStamped"]()
+        _fill_stamp(out.header.stamp, odom.stamp)
+        out.header.frame_id = self.options.frame_id
+        out.pose.position.x, out.pose.position.y = dock.x, dock.y
+        out.pose.orientation.z, out.pose.orientation.w = math.sin(0.5 * dock.theta), math.cos(0.5 * dock.theta)
+        self.pub_pose.publish(out)
+        with_cov = self._pose_cov()
+        with_cov.header = out.header
+        with_cov.pose.pose = out.pose
+        full = np.zeros((6, 6))
+        index = [0, 1, 5]  # x, y, yaw in ROS's (x, y, z, roll, pitch, yaw)
+        full[np.ix_(index, index)] = cov
+        with_cov.pose.covariance = [float(v) for v in full.ravel()]
+        self.pub_pose_cov.publish(with_cov)
+
+    def _publish_result(self, task: str, result: MissionResult | None, error: str) -> None:
+        status = self._msgs["DiagnosticStatus"]()
+        status.name = f"monodock_dock: {task}"
+        status.hardware_id = self.options.frame_id
+        values: dict[str, str] = {"task": task}
+        if result is None:
+            status.level, status.message = status.ERROR, error
+            values["state"] = "failed"
+        else:
+            ok = result.succeeded
+            status.level = status.OK if ok else status.ERROR
+            status.message = result.state.value if ok else f"{result.failure}: {result.reason}"
+            values.update(_result_values(result, self.estimator.robot.front_offset if self.estimator else 0.0))
+        status.values = [_key_value(k, v) for k, v in values.items()]
+        self.pub_result.publish(status)
+        self._publish_state(values["state"])
+        log = self.get_logger()
+        (log.info if status.level == status.OK else log.error)(f"{task}: {status.message}")
+
+    def stop(self, why: str) -> None:
+        """Cancel a running mission, wait for its thread, and command zero velocity."""
+        with self._lock:
+            thread = self._thread
+            if thread is not None and thread.is_alive():
+                self._cancel = why
+        if thread is not None:
+            thread.join(timeout=5.0)
+        self.robot.send_velocity(0.0, 0.0)
+
+
+def _result_values(result: MissionResult, front_offset: float) -> dict[str, str]:
+    """The result's key/values: the final pose by the robot's own estimate, counts and the failure."""
+    out = {
+        "state": result.state.value,
+        "failure": result.failure.value if result.failure else "",
+        "nav2_error_code": str(result.failure.nav2_error_code if result.failure else 0),
+        "retries": str(result.retries),
+        "recoveries": str(result.recoveries),
+        "reseats": str(result.reseats),
+        "duration_s": f"{result.duration:.2f}",
+        "charging": "" if result.charging is None else str(result.charging).lower(),
+    }
+    final = result.estimated_final
+    if final is not None:
+        out["lateral_cm"] = f"{100 * final.y:.2f}"
+        out["gap_cm"] = f"{100 * (-final.x - front_offset):.2f}"  # front edge to the face, + short of it
+        out["heading_deg"] = f"{math.degrees(final.theta):.2f}"
+    return out
+
+
+def _key_value(key: str, value: str) -> Any:
+    from diagnostic_msgs.msg import KeyValue  # type: ignore[import-not-found, unused-ignore]
+
+    return KeyValue(key=key, value=value)
+
+
+def _fill_stamp(stamp: Any, seconds: float) -> None:
+    stamp.sec = int(math.floor(seconds))
+    stamp.nanosec = min(int(round((seconds - math.floor(seconds)) * 1e9)), 999_999_999)
+
+
+def _typed(name: str, value: Any, default: Any) -> Any:
+    """A parameter's value as its option's type; one clear line when it is not one."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InputError(f"parameter {name}: expected true or false, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
+            raise InputError(f"parameter {name}: expected a positive number, got {value!r}")
+        return float(value)
+    if default is None or isinstance(default, str):
+        if not isinstance(value, str):
+            raise InputError(f"parameter {name}: expected a string, got {value!r}")
+        return value
+    return value
+
+
+def _check_calibration(options: DockOptions) -> None:
+    if options.method in ("regression", "fused"):
+        raise InputError(f"the {options.method} method needs a model bundle (model:=BUNDLE)")
+    missing = [k for k in ("layout", "robot") if not getattr(options, k)]
+    if missing:
+        raise InputError(f"without a model bundle, give {' and '.join(missing)} (and a camera, or camera_info)")
+
+
+class _TerminatedError(Exception):
+    """SIGTERM, raised in the main thread like Ctrl-C's KeyboardInterrupt."""
+
+
+def _raise_shutdown(_signum: int, _frame: Any) -> None:
+    raise _TerminatedError
+
+
+def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
+    """Run the node until shut down; ``argv`` carries the ROS arguments. 0 on shutdown, 2 on bad options."""
+    from rclpy.signals import SignalHandlerOptions  # type: ignore[import-not-found, unused-ignore]
+
+    # monodock handles SIGINT and SIGTERM itself: rclpy's handlers would shut the context down before the last
+    # zero velocity could be published.
+    rclpy.init(args=list(argv), signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # even when started in the background (SIG_IGN)
+    signal.signal(signal.SIGTERM, _raise_shutdown)
+    node: DockNode | None = None
     try:
-        estimator = args.estimator()
-        method = estimator.method
-        robot = Ros2Robot(node, args)
-        config = DockingConfig(planner=PlannerConfig(args.standoff), measurement=MeasurementNoise.for_method(method))
-        blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
-        result = run_mission(robot, make_perceive(estimator, method), DockingMission(config, estimator.robot, blind))
+        node = DockNode(options)
+        node.get_logger().info(f"ready: docking with {node.method or 'the camera from camera_info'}")
+        while rclpy.ok():
+            rclpy.spin_once(node, timeout_sec=0.1)
     except MonodockError as exc:
         print(f"monodock-dock-ros: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        return 130
+    except (KeyboardInterrupt, _TerminatedError):
+        pass
     finally:
-        if robot is not None:
-            robot.send_velocity(0.0, 0.0)  # whatever happened, the base stops
-        node.destroy_node()
+        if node is not None:
+            node.stop("cancelled: the node is shutting down")
+            node.destroy_node()
         rclpy.try_shutdown()
-    for t, entry in result.log:
-        print(f"{t:8.2f} {entry}")
-    failure = f" [{result.failure.value}, Nav2 error code {result.failure.nav2_error_code}]" if result.failure else ""
-    print(f"monodock-dock-ros: {result.state.value} {result.reason}{failure}".rstrip())
-    return 0 if result.docked else 1
+    return 0

@@ -12,6 +12,7 @@ start plus the simulated time (real-time pacing keeps the two together), so node
 from __future__ import annotations
 
 import math
+import signal
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -125,6 +126,21 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.pub_range = self.create_publisher(Range, "rear_range", qos_sensor)
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
         self.create_subscription(Twist, "cmd_vel", self._on_cmd_vel, 1)  # the latest command wins: no backlog
+        # Faults on demand (std_srvs/SetBool, true silences): a camera or an odometry that stops publishing.
+        from std_srvs.srv import SetBool  # type: ignore[import-not-found, unused-ignore]
+
+        self.silenced: set[str] = set()
+        for name in ("camera", "odometry"):
+            self.create_service(SetBool, f"~/silence_{name}", self._silencer(name))
+
+    def _silencer(self, name: str) -> Any:
+        def on_request(request: Any, response: Any) -> Any:
+            (self.silenced.add if request.data else self.silenced.discard)(name)
+            response.success, response.message = True, f"{name} {'silenced' if request.data else 'publishing'}"
+            self.get_logger().info(response.message)
+            return response
+
+        return on_request
 
     def _on_cmd_vel(self, msg: Any) -> None:
         v, w = float(msg.linear.x), float(msg.angular.z)
@@ -145,6 +161,8 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         return self.epoch + t
 
     def publish_frame(self, frame: CameraFrame) -> None:
+        if "camera" in self.silenced:
+            return
         m = self.msgs
         camera = self.robot.sim.camera
         stamp = self.ros_seconds(frame.stamp)
@@ -168,18 +186,26 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.pub_info.publish(info)
 
     def publish_state(self, odom: Odometry) -> None:
-        m, robot = self.msgs, self.robot
+        m = self.msgs
         stamp = self.ros_seconds(odom.stamp)
         clock = m["Clock"]()
         _stamp(clock.clock, stamp)
         self.pub_clock.publish(clock)
-        o = m["Odometry"]()
+        if "odometry" not in self.silenced:
+            self._publish_odometry(odom, stamp)
+        self._publish_truth_and_sensors(stamp)
+
+    def _publish_odometry(self, odom: Odometry, stamp: float) -> None:
+        o = self.msgs["Odometry"]()
         _stamp(o.header.stamp, stamp)
         o.header.frame_id, o.child_frame_id = "odom", self.settings.frame_id
         o.pose.pose.position.x, o.pose.pose.position.y = odom.pose.x, odom.pose.y
         _quaternion(o.pose.pose.orientation, odom.pose.theta)
         o.twist.twist.linear.x, o.twist.twist.angular.z = odom.linear, odom.angular
         self.pub_odom.publish(o)
+
+    def _publish_truth_and_sensors(self, stamp: float) -> None:
+        m, robot = self.msgs, self.robot
         truth = robot.dock_pose()
         gt = m["PoseStamped"]()
         _stamp(gt.header.stamp, stamp)
@@ -210,9 +236,19 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             self.pub_range.publish(r)
 
 
+def _raise_interrupt(_signum: int, _frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
 def run_sim(argv: Sequence[str], duration: float = math.inf) -> int:
     """Run the node until shut down (or ``duration`` simulated seconds)."""
-    rclpy.init(args=list(argv))
+    from rclpy.signals import SignalHandlerOptions  # type: ignore[import-not-found, unused-ignore]
+
+    # SIGINT and SIGTERM end the run loop here, before the context goes (rclpy's handlers would invalidate the
+    # publishers mid-step).
+    rclpy.init(args=list(argv), signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # even when started in the background (SIG_IGN)
+    signal.signal(signal.SIGTERM, _raise_interrupt)
     node = SimNode()
     try:
         runner = RealTimeRunner(node.robot)

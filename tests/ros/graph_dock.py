@@ -1,0 +1,174 @@
+"""Driver (tests/ros/test_dock_graph.py, inside a private network namespace): monodock_sim and monodock_dock on one
+graph; call the dock node's services in turn and print, after each mission, its result and the sim's truth.
+
+Argument: one JSON object with
+    start: [x, y, yaw] of the robot in the dock frame;
+    steps: the services to call in turn ("dock", "undock");
+    fault: optional, {"kind": "camera" | "odometry" | "kill" | "cancel" | "again", "state": the mission state that
+           springs it (again: a second call of the same service, which cancels),
+           "for": seconds a silenced sensor stays silent (camera)};
+    record: optional, a folder for an MCAP recording of the run (monodock-record-ros).
+Prints JSON lines: {"kind": "step", ...} per mission, {"kind": "fault", ...}, {"kind": "end", ...}.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import PoseStamped
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from sensor_msgs.msg import BatteryState
+from std_msgs.msg import String
+from std_srvs.srv import SetBool, Trigger
+
+from monodock.core.layout import DockLayout
+from monodock.core.robot import RobotConfig
+
+spec = json.loads(sys.argv[1])
+folder = Path(tempfile.mkdtemp())
+DockLayout.default().save(folder / "layout.yaml")
+robot_config = RobotConfig.default()
+robot_config.save(folder / "robot.yaml")
+start = json.dumps(spec["start"])
+
+SIM = "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv)"
+sim = subprocess.Popen([sys.executable, "-c", SIM, "--ros-args", "-p", f"start:={start}", "-p", "seed:=1"])
+DOCK = "from monodock.cli.ros_nodes import dock_main; import sys; sys.exit(dock_main(sys.argv[1:]))"
+dock_args = ["--method", "board", "--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml")]
+dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args, *spec.get("dock_args", [])])
+recorder = None
+if spec.get("record"):
+    RECORD = "from monodock.cli.ros_record import record_main; import sys; sys.exit(record_main(sys.argv[1:]))"
+    recorder = subprocess.Popen([sys.executable, "-c", RECORD, spec["record"]])
+
+rclpy.init()
+node = rclpy.create_node("driver")
+latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+states: list[tuple[float, str]] = []
+results: list[DiagnosticStatus] = []
+truth: list[tuple[float, float, float, float]] = []  # (wall time, robot x, y, heading in the dock frame)
+battery: list[int] = []
+
+
+def on_truth(msg: Any) -> None:
+    # ground_truth is the DockPose in base_link: invert it for the robot in the dock frame.
+    x, y = msg.pose.position.x, msg.pose.position.y
+    yaw = 2.0 * math.atan2(msg.pose.orientation.z, msg.pose.orientation.w)
+    c, s = math.cos(yaw), math.sin(yaw)
+    truth.append((time.monotonic(), -(c * x + s * y), s * x - c * y, -yaw))
+
+
+node.create_subscription(String, "/monodock_dock/state", lambda msg: states.append((time.monotonic(), msg.data)), 50)
+node.create_subscription(DiagnosticStatus, "/monodock_dock/result", results.append, latched)
+node.create_subscription(PoseStamped, "/ground_truth", on_truth, 50)
+node.create_subscription(BatteryState, "/battery_state", lambda msg: battery.append(msg.power_supply_status), 50)
+clients = {name: node.create_client(Trigger, f"/monodock_dock/{name}") for name in ("dock", "undock", "cancel")}
+silence = {name: node.create_client(SetBool, f"/monodock_sim/silence_{name}") for name in ("camera", "odometry")}
+
+
+def spin_for(seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.02)
+
+
+def call(client: Any, request: Any) -> Any:
+    future = client.call_async(request)
+    end = time.monotonic() + 20
+    while not future.done() and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return future.result()
+
+
+def emit(kind: str, **values: Any) -> None:
+    print(json.dumps({"kind": kind, **values}), flush=True)
+
+
+def final_truth() -> dict[str, float]:
+    _, x, y, heading = truth[-1]
+    return {
+        "lateral_cm": 100 * y,
+        "gap_cm": 100 * (-x - robot_config.front_offset),  # front edge's centre to the face
+        "heading_deg": math.degrees(heading),
+    }
+
+
+ready = time.monotonic() + 90
+while not (clients["dock"].service_is_ready() and truth) and time.monotonic() < ready:
+    rclpy.spin_once(node, timeout_sec=0.1)
+emit("ready", ok=clients["dock"].service_is_ready())
+fault = spec.get("fault")
+for step in spec["steps"]:
+    before = len(results)
+    t0 = time.monotonic()
+    reply = call(clients[step], Trigger.Request())
+    emit("reply", step=step, success=bool(reply and reply.success), message=reply.message if reply else "")
+    sprung = False
+    deadline = t0 + 150
+    while len(results) == before and time.monotonic() < deadline and dock.poll() is None:
+        rclpy.spin_once(node, timeout_sec=0.02)
+        if fault and not sprung and states and states[-1][1] == fault["state"]:
+            sprung = True
+            at = time.monotonic()
+            if fault["kind"] == "kill":
+                dock.send_signal(signal.SIGKILL)
+                dock.wait()
+                spin_for(3.0)
+                track = [(t - at, x, y) for t, x, y, _ in truth if t >= at - 0.2]
+                emit("fault", kind="kill", track=track)
+                break
+            if fault["kind"] in ("cancel", "again"):
+                service = "cancel" if fault["kind"] == "cancel" else step
+                reply = call(clients[service], Trigger.Request())
+                emit("fault", kind=fault["kind"], success=bool(reply and reply.success), message=reply.message)
+                continue
+            request = SetBool.Request(data=True)
+            call(silence[fault["kind"]], request)
+            emit("fault", kind=fault["kind"], state=fault["state"])
+            if "for" in fault:
+                spin_for(float(fault["for"]))
+                call(silence[fault["kind"]], SetBool.Request(data=False))
+    if dock.poll() is not None:
+        break
+    spin_for(1.0)  # let the robot settle and the battery report
+    status = results[-1] if len(results) > before else None
+    values = {kv.key: kv.value for kv in status.values} if status else {}
+    emit(
+        "step",
+        step=step,
+        level=int.from_bytes(status.level, "little") if isinstance(status.level, bytes) else int(status.level)
+        if status
+        else -1,
+        message=status.message if status else "no result",
+        values=values,
+        seconds=time.monotonic() - t0,
+        truth=final_truth(),
+        charging=bool(battery) and battery[-1] == BatteryState.POWER_SUPPLY_STATUS_CHARGING,
+        states=[s for t, s in states if t >= t0],
+    )
+    if fault and fault["kind"] == "odometry":
+        call(silence["odometry"], SetBool.Request(data=False))
+        fault = None
+
+for process in (recorder, dock, sim):
+    if process is not None and process.poll() is None:
+        process.send_signal(signal.SIGINT)
+for process in (recorder, dock, sim):
+    if process is not None:
+        try:
+            process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+emit("end", dock=dock.returncode, sim=sim.returncode, recorder=None if recorder is None else recorder.returncode)
+node.destroy_node()
+rclpy.shutdown()
