@@ -76,4 +76,7 @@ def run_private_graph(
         os.killpg(process.pid, signal.SIGKILL)
         stdout, stderr = process.communicate()
         return GraphRun(-9, stdout, f"timed out after {timeout:.0f} s\n{stderr}")
+    except BaseException:  # pytest-timeout, Ctrl-C: the graph goes with the test
+        os.killpg(process.pid, signal.SIGKILL)
+        raise
     return GraphRun(process.returncode, stdout, stderr)

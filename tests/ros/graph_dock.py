@@ -113,6 +113,19 @@ for step in spec["steps"]:
     t0 = time.monotonic()
     reply = call(clients[step], Trigger.Request())
     emit("reply", step=step, success=bool(reply and reply.success), message=reply.message if reply else "")
+    if not (reply and reply.success):
+        emit(
+            "step",
+            step=step,
+            level=-1,
+            message="refused",
+            values={},
+            seconds=0.0,
+            truth=final_truth(),
+            charging=False,
+            states=[],
+        )
+        continue
     sprung = False
     deadline = t0 + 150
     while len(results) == before and time.monotonic() < deadline and dock.poll() is None:
@@ -146,7 +159,9 @@ for step in spec["steps"]:
     emit(
         "step",
         step=step,
-        level=int.from_bytes(status.level, "little") if isinstance(status.level, bytes) else int(status.level)
+        level=int.from_bytes(status.level, "little")
+        if isinstance(status.level, bytes)
+        else int(status.level)
         if status
         else -1,
         message=status.message if status else "no result",

@@ -76,7 +76,7 @@ class DockOptions(EstimatorOptions):
     pose_covariance_topic: str = "detected_dock_pose_with_covariance"
     frame_id: str = "base_link"
     config: str = ""
-    odom_timeout: float = 0.5
+    odom_timeout: float = 1.0
     sensor_timeout: float = 1.0
 
 
@@ -309,7 +309,10 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
                 return response
             try:
                 config = self.docking_config()
-                self._ensure_estimator()
+                if task == "undock" and not self._docked():
+                    raise InputError(
+                        "not docked: no docking mission ended docked and the charger does not report charging"
+                    )
             except MonodockError as exc:
                 response.success, response.message = False, str(exc)
                 return response
@@ -328,16 +331,26 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         response.success, response.message = True, f"cancelled the running {self._mission_task()} mission"
         return response
 
+    def _docked(self) -> bool:
+        """Whether the robot stands on the dock: the last mission docked it, or the charger says it is charging."""
+        return self._state == "docked" or self.robot.charging() is True
+
     def _mission_task(self) -> str:
         return self._mission.task if self._mission is not None else "starting"
 
     def _ensure_estimator(self) -> None:
+        """The estimator, with the camera from camera_info when no camera file was given (waits a little for it)."""
         if self.estimator is not None:
             return
-        msg = self._camera_info.value
-        camera = None if msg is None else m.camera_from_msg(msg)
+        end = time.monotonic() + max(2.0, 3 * self.options.sensor_timeout)
+        camera = None
+        while camera is None and time.monotonic() < end:
+            msg = self._camera_info.value
+            camera = None if msg is None else m.camera_from_msg(msg)
+            if camera is None:
+                time.sleep(0.02)
         if camera is None:
-            raise InputError(f"no calibrated camera_info on {self.options.camera_info_topic} yet")
+            raise InputError(f"no calibrated camera_info on {self.options.camera_info_topic}")
         self._make_estimator(camera)
         self.get_logger().info(f"camera {camera.width}x{camera.height} from camera_info; docking with {self.method}")
 
@@ -345,10 +358,11 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
 
     def _run(self, task: str, config: DockingConfig) -> None:
         """One mission, start to end, in the mission thread; zero velocity whatever happens."""
-        estimator = self.estimator
-        assert estimator is not None
         robot = self.robot
         try:
+            self._ensure_estimator()
+            estimator = self.estimator
+            assert estimator is not None
             if not robot.wait_for_odometry(max(2.0, self.options.odom_timeout)):
                 self._publish_result(task, None, f"no odometry on {self.options.odom_topic}")
                 return
@@ -420,8 +434,10 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         status.values = [_key_value(k, v) for k, v in values.items()]
         self.pub_result.publish(status)
         self._publish_state(values["state"])
-        log = self.get_logger()
-        (log.info if status.level == status.OK else log.error)(f"{task}: {status.message}")
+        if status.level == status.OK:
+            self.get_logger().info(f"{task}: {status.message}")
+        else:
+            self.get_logger().error(f"{task}: {status.message}")
 
     def stop(self, why: str) -> None:
         """Cancel a running mission, wait for its thread, and command zero velocity."""

@@ -1,0 +1,139 @@
+"""Docking over a real ROS 2 graph: monodock_sim and monodock_dock over Fast DDS (private network namespace).
+
+The dock node is called by its Trigger services as any client would; the robot's true final pose comes from the
+sim's ground truth and its charging state from the sim's battery, never from the node under test. Tolerances are
+dock-sim's (``DockingConfig``: 2 cm lateral and gap, 3.07° heading).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from monodock.dock.controller import DockingConfig
+from private_graph import GraphRun, can_isolate, run_private_graph
+
+HERE = Path(__file__).parent
+TOL = DockingConfig()
+
+pytestmark = [
+    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
+    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
+]
+
+
+def run_graph(spec: dict[str, Any], timeout: float = 240) -> GraphRun:
+    run = run_private_graph(HERE / "graph_dock.py", json.dumps(spec), timeout=timeout)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "Traceback" not in run.stderr, run.stderr[-3000:]
+    assert run.first("ready")["ok"], run.stderr[-3000:]
+    end = run.first("end")
+    assert end["dock"] in (0, None), (end, run.stderr[-3000:])  # None: killed by the test
+    assert end["sim"] == 0, (end, run.stderr[-3000:])
+    return run
+
+
+def steps(run: GraphRun) -> list[dict[str, Any]]:
+    return [r for r in run.records if r["kind"] == "step"]
+
+
+def assert_docked(step: dict[str, Any]) -> None:
+    """Docked by the node's own account, and truly: inside the tolerances and charging, by the sim's truth."""
+    assert step["message"] == "docked", step
+    truth = step["truth"]
+    assert abs(truth["lateral_cm"]) <= 100 * TOL.tolerance_lateral, step
+    assert abs(truth["gap_cm"]) <= 100 * TOL.tolerance_longitudinal, step
+    assert abs(truth["heading_deg"]) <= TOL.tolerance_heading_deg, step
+    assert step["charging"], step
+    # The node's estimate of its final pose agrees with the truth to within the tolerances too.
+    values = step["values"]
+    assert abs(float(values["lateral_cm"]) - truth["lateral_cm"]) < 100 * TOL.tolerance_lateral
+    assert abs(float(values["heading_deg"]) - truth["heading_deg"]) < TOL.tolerance_heading_deg
+
+
+@pytest.mark.timeout(300)
+def test_dock_undock_and_dock_again_over_dds() -> None:
+    run = run_graph({"start": [-1.7, 0.25, 0.15], "steps": ["dock", "undock", "dock"]})
+    first, undock, again = steps(run)
+    assert_docked(first)
+    assert first["states"][:2] == ["acquire", "calculate"]
+    assert "moving3" in first["states"]
+    # Undocked: backed out straight to the staging pose (Point A, 1 m of floor), square to the face, not charging.
+    assert undock["message"] == "undocked", undock
+    assert 80 < undock["truth"]["gap_cm"] < 120
+    assert abs(undock["truth"]["lateral_cm"]) < 5
+    assert abs(undock["truth"]["heading_deg"]) < 3
+    assert not undock["charging"]
+    assert_docked(again)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_docking_over_dds_from_starts_in_several_cases() -> None:
+    """Four starts, four of the papers' cases (left/right of the axis, heading in/out); two graphs at a time."""
+    starts = [[-1.9, 0.35, -0.2], [-1.5, -0.3, 0.25], [-2.2, -0.45, -0.1], [-1.3, 0.15, 0.3]]
+    with ThreadPoolExecutor(2) as pool:
+        runs = list(pool.map(lambda s: run_graph({"start": s, "steps": ["dock"]}), starts))
+    for run in runs:
+        (step,) = steps(run)
+        assert_docked(step)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_the_camera_stopping_mid_approach_is_recovered_from() -> None:
+    """The camera falls silent for 3 s in Moving₃: the node backs off, looks again, and docks."""
+    run = run_graph(
+        {"start": [-1.6, 0.1, 0.05], "steps": ["dock"], "fault": {"kind": "camera", "state": "moving3", "for": 3.0}}
+    )
+    assert run.first("fault")["kind"] == "camera"
+    (step,) = steps(run)
+    assert_docked(step)
+    assert int(step["values"]["recoveries"]) >= 1
+    assert "recover" in step["states"]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_odometry_stopping_fails_the_mission_and_stops_the_robot() -> None:
+    run = run_graph(
+        {"start": [-1.8, 0.2, 0.0], "steps": ["dock", "dock"], "fault": {"kind": "odometry", "state": "moving1-drive"}}
+    )
+    failed, again = steps(run)
+    assert failed["values"]["failure"] == "odometry-lost", failed
+    assert failed["values"]["nav2_error_code"] == "905"
+    # Once odometry is back, the next call docks from wherever the robot stopped.
+    assert_docked(again)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_a_cancel_and_a_second_call_stop_the_mission() -> None:
+    for kind in ("cancel", "again"):
+        run = run_graph(
+            {"start": [-1.8, -0.2, 0.1], "steps": ["dock"], "fault": {"kind": kind, "state": "moving1-drive"}}
+        )
+        assert run.first("fault")["success"]
+        (step,) = steps(run)
+        assert step["values"]["failure"] == "cancelled", step
+        assert step["states"][-1] == "failed"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_the_robot_stops_when_the_dock_node_is_killed() -> None:
+    """SIGKILL mid-approach: no zero velocity is ever sent, and the sim's base stops on its cmd_vel time-out."""
+    run = run_graph({"start": [-1.8, 0.0, 0.0], "steps": ["dock"], "fault": {"kind": "kill", "state": "moving3"}})
+    track = run.first("fault")["track"]
+    before = [p for p in track if p[0] < 0]
+    after = [p for p in track if p[0] > 0.5 + 0.5]  # the base's 0.5 s time-out, then its deceleration
+    moving = math.dist(before[0][1:], before[-1][1:]) > 0.005
+    assert moving, "the robot was not moving when the node was killed"
+    still = math.dist(after[0][1:], after[-1][1:])
+    assert still < 0.002, f"still moved {still:.4f} m after the node died"
