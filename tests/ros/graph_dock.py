@@ -7,6 +7,7 @@ Argument: one JSON object with
     fault: optional, {"kind": "camera" | "odometry" | "kill" | "cancel" | "again", "state": the mission state that
            springs it (again: a second call of the same service, which cancels),
            "for": seconds a silenced sensor stays silent (camera)};
+    params: optional, the dock node's parameters, given as a params file (nested mappings);
     record: optional, a folder for an MCAP recording of the run (monodock-record-ros).
 Prints JSON lines: {"kind": "step", ...} per mission, {"kind": "fault", ...}, {"kind": "end", ...}.
 """
@@ -45,7 +46,10 @@ SIM = "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv)"
 sim = subprocess.Popen([sys.executable, "-c", SIM, "--ros-args", "-p", f"start:={start}", "-p", "seed:=1"])
 DOCK = "from monodock.cli.ros_nodes import dock_main; import sys; sys.exit(dock_main(sys.argv[1:]))"
 dock_args = ["--method", "board", "--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml")]
-dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args, *spec.get("dock_args", [])])
+if spec.get("params"):  # a ROS 2 params file: the docking config's keys, nested as in docs/docking.yaml
+    (folder / "params.yaml").write_text(json.dumps({"monodock_dock": {"ros__parameters": spec["params"]}}))
+    dock_args += ["--ros-args", "--params-file", str(folder / "params.yaml")]
+dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args])
 recorder = None
 if spec.get("record"):
     RECORD = "from monodock.cli.ros_record import record_main; import sys; sys.exit(record_main(sys.argv[1:]))"

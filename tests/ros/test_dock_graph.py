@@ -16,6 +16,8 @@ from typing import Any
 
 import pytest
 
+from monodock.core.layout import DockLayout
+from monodock.core.robot import RobotConfig
 from monodock.dock.controller import DockingConfig
 from private_graph import GraphRun, can_isolate, run_private_graph
 
@@ -59,14 +61,16 @@ def assert_docked(step: dict[str, Any]) -> None:
 
 @pytest.mark.timeout(300)
 def test_dock_undock_and_dock_again_over_dds() -> None:
-    run = run_graph({"start": [-1.7, 0.25, 0.15], "steps": ["dock", "undock", "dock"]})
+    # The stand-off from a params file, as the config file's nested key: the undock ends 1.3 m out, not 1.0 m.
+    spec = {"start": [-1.7, 0.25, 0.15], "steps": ["dock", "undock", "dock"], "params": {"planner": {"standoff": 1.3}}}
+    run = run_graph(spec)
     first, undock, again = steps(run)
     assert_docked(first)
     assert first["states"][:2] == ["acquire", "calculate"]
     assert "moving3" in first["states"]
-    # Undocked: backed out straight to the staging pose (Point A, 1 m of floor), square to the face, not charging.
+    # Undocked: backed out straight to the staging pose (Point A, 1.3 m of floor), square to the face, not charging.
     assert undock["message"] == "undocked", undock
-    assert 80 < undock["truth"]["gap_cm"] < 120
+    assert 125 < undock["truth"]["gap_cm"] < 135
     assert abs(undock["truth"]["lateral_cm"]) < 5
     assert abs(undock["truth"]["heading_deg"]) < 3
     assert not undock["charging"]
@@ -137,3 +141,24 @@ def test_the_robot_stops_when_the_dock_node_is_killed() -> None:
     assert moving, "the robot was not moving when the node was killed"
     still = math.dist(after[0][1:], after[-1][1:])
     assert still < 0.002, f"still moved {still:.4f} m after the node died"
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--ros-args", "-p", "planner.standoff:=-1.0"], "ROS parameters: the stand-off of Point A must be positive"),
+        (["--ros-args", "-p", "max_reseats:=two"], "ROS parameters: max_reseats"),
+        (["--ros-args", "-p", "planner.no_such_key:=1.0"], "unknown parameter planner.no_such_key"),
+        (["--method", "fused"], "needs a model bundle"),
+    ],
+)
+def test_bad_parameters_are_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:
+    layout, robot = tmp_path / "layout.yaml", tmp_path / "robot.yaml"
+    DockLayout.default().save(layout)
+    RobotConfig.default().save(robot)
+    run = run_private_graph(HERE / "graph_node.py", "dock", "--layout", str(layout), "--robot", str(robot), *args)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1, run.stderr
+    assert lines[0].startswith("monodock-dock-ros: error: ")
+    assert message in lines[0]

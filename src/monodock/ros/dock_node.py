@@ -248,6 +248,9 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
                 CameraInfo, self.options.camera_info_topic, self._camera_info.set, rclpy.qos.qos_profile_sensor_data
             )
         self._declare_config()
+        self.docking_config()  # a bad value in the parameters or the config file: refused before anything runs
+        _refuse_unknown_overrides(self)
+        self.add_on_set_parameters_callback(self._check_new_parameters)
         self.robot = Ros2Robot(self, self.options)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_state = self.create_publisher(String, "~/state", latched)
@@ -293,6 +296,18 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         """The docking config of the parameters as they are now (checked like a config file)."""
         values = {name: self.get_parameter(name).value for name in self._config_names}
         return docking_config_from_dict(unflatten(values), "ROS parameters")
+
+    def _check_new_parameters(self, parameters: list[Any]) -> Any:
+        """Refuse a live change that would make the docking config invalid (it would only fail at the next ~/dock)."""
+        from rcl_interfaces.msg import SetParametersResult  # type: ignore[import-not-found, unused-ignore]
+
+        values = {name: self.get_parameter(name).value for name in self._config_names}
+        values.update({p.name: p.value for p in parameters if p.name in values})
+        try:
+            docking_config_from_dict(unflatten(values), "ROS parameters")
+        except MonodockError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
 
     def _make_estimator(self, camera: CameraModel | None) -> None:
         self.estimator = self.options.estimator(camera)
@@ -496,6 +511,14 @@ def _typed(name: str, value: Any, default: Any) -> Any:
             raise InputError(f"parameter {name}: expected a string, got {value!r}")
         return value
     return value
+
+
+def _refuse_unknown_overrides(node: Node) -> None:
+    """A misspelt parameter (``-p planner.standof:=1.2``, a params file's key) is an error, not silently ignored."""
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps -p and params-file values here
+    unknown = sorted(name for name in overrides if not node.has_parameter(name))
+    if unknown:
+        raise InputError(f"unknown parameter {unknown[0]} (docs/ros2.md lists the node's parameters)")
 
 
 def _check_calibration(options: DockOptions) -> None:

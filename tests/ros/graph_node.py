@@ -1,0 +1,13 @@
+"""Driver: run one monodock ROS 2 node's command line (inside a private network namespace) with the given arguments.
+
+``graph_node.py dock ARGS...`` runs monodock-dock-ros, ``detector`` monodock-ros; its exit code is this script's.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from monodock.cli.ros_nodes import detector_main, dock_main
+
+main = {"dock": dock_main, "detector": detector_main}[sys.argv[1]]
+sys.exit(main(sys.argv[2:]))
