@@ -4,9 +4,11 @@ graph; call the dock node's services in turn and print, after each mission, its 
 Argument: one JSON object with
     start: [x, y, yaw] of the robot in the dock frame;
     steps: the services to call in turn ("dock", "undock");
-    fault: optional, {"kind": "camera" | "odometry" | "kill" | "cancel" | "again", "state": the mission state that
-           springs it (again: a second call of the same service, which cancels),
+    fault: optional, {"kind": "camera" | "odometry" | "kill" | "sigint" | "cancel" | "again" | "garbage",
+           "state": the mission state that springs it (again: a second call of the same service, which cancels;
+           garbage: malformed images published on the camera topic from then on),
            "for": seconds a silenced sensor stays silent (camera)};
+    sim: optional, monodock_sim's parameters (e.g. cmd_vel_timeout);
     params: optional, the dock node's parameters, given as a params file (nested mappings);
     record: optional, a folder for an MCAP recording of the run (monodock-record-ros).
 Prints JSON lines: {"kind": "step", ...} per mission, {"kind": "fault", ...}, {"kind": "end", ...}.
@@ -27,8 +29,8 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
-from rclpy.qos import DurabilityPolicy, QoSProfile
-from sensor_msgs.msg import BatteryState
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
+from sensor_msgs.msg import BatteryState, Image
 from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
@@ -43,9 +45,13 @@ robot_config.save(folder / "robot.yaml")
 start = json.dumps(spec["start"])
 
 SIM = "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv)"
-sim = subprocess.Popen([sys.executable, "-c", SIM, "--ros-args", "-p", f"start:={start}", "-p", "seed:=1"])
+sim_params = [f"{k}:={v}" for k, v in {"start": start, "seed": 1, **spec.get("sim", {})}.items()]
+sim = subprocess.Popen([sys.executable, "-c", SIM, "--ros-args", *[a for kv in sim_params for a in ("-p", kv)]])
 DOCK = "from monodock.cli.ros_nodes import dock_main; import sys; sys.exit(dock_main(sys.argv[1:]))"
 dock_args = ["--method", "board", "--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml")]
+# The sim's clock (/clock): under load the simulation may fall behind the wall clock, and the mission must time
+# its frames and odometry on the clock that stamped them, as with any simulator.
+dock_args += ["--ros-args", "-p", "use_sim_time:=true"]
 if spec.get("params"):  # a ROS 2 params file: the docking config's keys, nested as in docs/docking.yaml
     (folder / "params.yaml").write_text(json.dumps({"monodock_dock": {"ros__parameters": spec["params"]}}))
     dock_args += ["--ros-args", "--params-file", str(folder / "params.yaml")]
@@ -78,6 +84,20 @@ node.create_subscription(PoseStamped, "/ground_truth", on_truth, 50)
 node.create_subscription(BatteryState, "/battery_state", lambda msg: battery.append(msg.power_supply_status), 50)
 clients = {name: node.create_client(Trigger, f"/monodock_dock/{name}") for name in ("dock", "undock", "cancel")}
 silence = {name: node.create_client(SetBool, f"/monodock_sim/silence_{name}") for name in ("camera", "odometry")}
+
+
+def malformed_images() -> Any:
+    """Images a camera driver should never send: wrong sizes, unknown encodings, no data, absurd dimensions."""
+    kinds = [("mono8", 640, 480, 100), ("bayer_xyz9", 640, 480, 640 * 480), ("mono8", 0, 0, 0), ("rgb8", 640, 480, 7),
+             ("mono8", 60000, 60000, 16), ("mono16", 640, 480, 640 * 480)]  # fmt: skip
+    while True:
+        for encoding, width, height, size in kinds:
+            msg = Image(encoding=encoding, width=width, height=height, step=width, data=bytes(size))
+            msg.header.stamp = node.get_clock().now().to_msg()
+            yield msg
+
+
+bad_images = malformed_images()
 
 
 def spin_for(seconds: float) -> None:
@@ -137,13 +157,18 @@ for step in spec["steps"]:
         if fault and not sprung and states and states[-1][1] == fault["state"]:
             sprung = True
             at = time.monotonic()
-            if fault["kind"] == "kill":
-                dock.send_signal(signal.SIGKILL)
+            if fault["kind"] in ("kill", "sigint"):
+                dock.send_signal(signal.SIGKILL if fault["kind"] == "kill" else signal.SIGINT)
                 dock.wait()
                 spin_for(3.0)
                 track = [(t - at, x, y) for t, x, y, _ in truth if t >= at - 0.2]
-                emit("fault", kind="kill", track=track)
+                emit("fault", kind=fault["kind"], track=track, returncode=dock.returncode)
                 break
+            if fault["kind"] == "garbage":  # malformed images on the camera topic, among the good ones, from now on
+                garbage = node.create_publisher(Image, "/image", qos_profile_sensor_data)
+                node.create_timer(0.03, lambda pub=garbage: pub.publish(next(bad_images)))
+                emit("fault", kind="garbage")
+                continue
             if fault["kind"] in ("cancel", "again"):
                 service = "cancel" if fault["kind"] == "cancel" else step
                 reply = call(clients[service], Trigger.Request())

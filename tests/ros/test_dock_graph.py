@@ -162,3 +162,31 @@ def test_bad_parameters_are_one_line_and_exit_2(tmp_path: Path, args: list[str],
     assert len(lines) == 1, run.stderr
     assert lines[0].startswith("monodock-dock-ros: error: ")
     assert message in lines[0]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_a_shutdown_mid_approach_stops_the_robot_at_once() -> None:
+    """SIGINT to the node mid-approach: it commands zero before it exits. The sim's base waits 5 s before it times
+    cmd_vel out here, so only the node's own zero can stop the robot within half a second."""
+    spec = {"start": [-1.8, 0.0, 0.0], "steps": ["dock"], "fault": {"kind": "sigint", "state": "moving3"}}
+    run = run_graph({**spec, "sim": {"cmd_vel_timeout": 5.0}})
+    fault = run.first("fault")
+    assert fault["returncode"] == 0
+    track = fault["track"]
+    after = [p for p in track if p[0] > 0.5]
+    still = math.dist(after[0][1:], after[-1][1:])
+    assert still < 0.002, f"moved {still:.4f} m more after the shutdown"
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_malformed_images_among_the_good_ones_do_not_stop_the_docking() -> None:
+    """From Moving₁ on, a second publisher floods the camera topic with malformed images (wrong sizes, unknown
+    encodings, empty, 60000x60000): each is skipped with a throttled warning, and the robot docks."""
+    spec = {"start": [-1.7, -0.2, 0.1], "steps": ["dock"], "fault": {"kind": "garbage", "state": "moving1-turn"}}
+    run = run_graph(spec)
+    (step,) = steps(run)
+    assert_docked(step)
+    warnings = [line for line in run.stderr.splitlines() if "image skipped" in line]
+    assert 0 < len(warnings) < 40  # throttled: a handful over the run, not one per bad image (~600)

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import signal
 import sys
 import threading
 import time
@@ -57,6 +56,7 @@ from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.options import EstimatorOptions
 from monodock.ros.parameters import declare, flatten, unflatten
+from monodock.ros.shutdown import ShutdownFlag
 
 __all__ = ["DockNode", "DockOptions", "Ros2Robot", "run_dock"]
 
@@ -121,8 +121,8 @@ class _Latest:
 class Ros2Robot:
     """The controller's robot interface over ROS 2 topics, safe to call from the mission thread.
 
-    Callbacks (the node's executor thread) only store the newest message; images are decoded when the mission
-    asks for a frame, so a node that is not docking decodes nothing.
+    Callbacks (the node's executor thread) store the newest message; images are decoded there only while a mission
+    runs, so a node that is not docking decodes nothing.
     """
 
     def __init__(self, node: Node, options: DockOptions) -> None:
@@ -140,15 +140,15 @@ class Ros2Robot:
         self.node, self.options = node, options
         self._twist = Twist
         self._charging_states = {BatteryState.POWER_SUPPLY_STATUS_CHARGING, BatteryState.POWER_SUPPLY_STATUS_FULL}
-        self.odom, self.image, self.battery, self.contact_msg, self.rear = (_Latest() for _ in range(5))
+        self.odom, self.battery, self.contact_msg, self.rear = (_Latest() for _ in range(4))
         self._frame: CameraFrame | None = None
-        self._decoded_stamp = -math.inf
+        self.active = False  # a mission is running: decode images (an idle node decodes nothing)
         compressed = options.image_is_compressed
         self._msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
         self._cmd = node.create_publisher(Twist, options.cmd_vel_topic, 10)
         sensor = qos_profile_sensor_data  # best effort subscribers match best-effort and reliable publishers
         node.create_subscription(OdometryMsg, options.odom_topic, self.odom.set, sensor)
-        node.create_subscription(CompressedImage if compressed else Image, options.image_topic, self.image.set, sensor)
+        node.create_subscription(CompressedImage if compressed else Image, options.image_topic, self._on_image, sensor)
         if options.battery_topic:
             node.create_subscription(BatteryState, options.battery_topic, self.battery.set, sensor)
         if options.contact_topic:
@@ -182,19 +182,24 @@ class Ros2Robot:
         yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
         return Odometry(m.header_stamp(msg), Pose2D(p.x, p.y, yaw), t.linear.x, t.angular.z)
 
+    def _on_image(self, msg: Any) -> None:
+        """Decode while a mission runs (only good frames are kept: a malformed image never hides the last good one)."""
+        if not self.active:
+            return
+        try:
+            frame = CameraFrame(m.header_stamp(msg), m.decode_image(msg, self._msgtype))
+        except m.DecodeError as exc:
+            self.node.get_logger().warning(f"image skipped: {exc}", throttle_duration_sec=5.0)
+            return
+        self._frame = frame
+
     def latest_frame(self) -> CameraFrame | None:
-        msg = self.image.value
-        if msg is None:
-            return None
-        stamp = m.header_stamp(msg)
-        if stamp != self._decoded_stamp:
-            self._decoded_stamp = stamp
-            try:
-                self._frame = CameraFrame(stamp, m.decode_image(msg, self._msgtype))
-            except m.DecodeError as exc:
-                self.node.get_logger().warning(f"image skipped: {exc}", throttle_duration_sec=5.0)
-                return None
         return self._frame
+
+    def watch(self, on: bool) -> None:
+        """Start or stop decoding images; a new mission never sees a frame from before it began."""
+        self._frame = None
+        self.active = on
 
     def contact(self) -> bool | None:
         msg = self.contact_msg.fresh(self.options.sensor_timeout)
@@ -378,18 +383,20 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             self._ensure_estimator()
             estimator = self.estimator
             assert estimator is not None
-            if not robot.wait_for_odometry(max(2.0, self.options.odom_timeout)):
+            if not robot.wait_for_odometry(max(2.0, self.options.odom_timeout)) or robot.now() <= 0.0:
                 self._publish_result(task, None, f"no odometry on {self.options.odom_topic}")
                 return
             blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
             mission = DockingMission(config, estimator.robot, blind, task=task)
             self._mission = mission
             self._publish_state(mission.state.value)
+            robot.watch(True)
             result = run_mission(robot, make_perceive(estimator, self.method), mission, on_tick=self._on_tick)
             self._publish_result(task, result, "")
         except MonodockError as exc:
             self._publish_result(task, None, str(exc))
         finally:
+            robot.watch(False)
             robot.send_velocity(0.0, 0.0)
 
     def _on_tick(self, mission: DockingMission, odom: Odometry) -> None:
@@ -529,14 +536,6 @@ def _check_calibration(options: DockOptions) -> None:
         raise InputError(f"without a model bundle, give {' and '.join(missing)} (and a camera, or camera_info)")
 
 
-class _TerminatedError(Exception):
-    """SIGTERM, raised in the main thread like Ctrl-C's KeyboardInterrupt."""
-
-
-def _raise_shutdown(_signum: int, _frame: Any) -> None:
-    raise _TerminatedError
-
-
 def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
     """Run the node until shut down; ``argv`` carries the ROS arguments. 0 on shutdown, 2 on bad options."""
     from rclpy.signals import SignalHandlerOptions  # type: ignore[import-not-found, unused-ignore]
@@ -544,18 +543,17 @@ def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
     # monodock handles SIGINT and SIGTERM itself: rclpy's handlers would shut the context down before the last
     # zero velocity could be published.
     rclpy.init(args=list(argv), signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, signal.default_int_handler)  # even when started in the background (SIG_IGN)
-    signal.signal(signal.SIGTERM, _raise_shutdown)
+    stop = ShutdownFlag()
     node: DockNode | None = None
     try:
         node = DockNode(options)
         node.get_logger().info(f"ready: docking with {node.method or 'the camera from camera_info'}")
-        while rclpy.ok():
+        while rclpy.ok() and not stop:
             rclpy.spin_once(node, timeout_sec=0.1)
     except MonodockError as exc:
         print(f"monodock-dock-ros: error: {exc}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, _TerminatedError):
+    except KeyboardInterrupt:  # a Ctrl-C before the flag was installed
         pass
     finally:
         if node is not None:

@@ -12,7 +12,6 @@ start plus the simulated time (real-time pacing keeps the two together), so node
 from __future__ import annotations
 
 import math
-import signal
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -26,6 +25,7 @@ from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.interface import CameraFrame, Odometry
 from monodock.ros._rclpy import Node, rclpy
+from monodock.ros.shutdown import ShutdownFlag
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.realtime import RealTimeRunner
 from monodock.sim.simulator import Simulator
@@ -116,6 +116,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         )
         self.epoch = time.time()  # ROS time = this + simulated time
         self.last_cmd: tuple[float, float, float] | None = None  # (wall time, v, w)
+        self.stop: ShutdownFlag | None = None  # SIGINT/SIGTERM, checked between steps
         qos_sensor = rclpy.qos.qos_profile_sensor_data
         self.pub_image = self.create_publisher(Image, "image", qos_sensor)
         self.pub_info = self.create_publisher(CameraInfo, "camera_info", qos_sensor)
@@ -149,8 +150,8 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
 
     def command(self, _t: float, _odom: Odometry) -> tuple[float, float]:
         """The latest cmd_vel, or a stop once it is older than the timeout (what real bases do)."""
-        if not rclpy.ok():
-            raise KeyboardInterrupt  # shut down: leave the runner
+        if not rclpy.ok() or self.stop:
+            raise KeyboardInterrupt  # shut down: leave the runner (raised here, in Python, between steps)
         for _ in range(8):  # whatever has arrived (one callback a call)
             rclpy.spin_once(self, timeout_sec=0.0)
         if self.last_cmd is None or time.monotonic() - self.last_cmd[0] > self.settings.cmd_vel_timeout:
@@ -236,10 +237,6 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             self.pub_range.publish(r)
 
 
-def _raise_interrupt(_signum: int, _frame: Any) -> None:
-    raise KeyboardInterrupt
-
-
 def run_sim(argv: Sequence[str], duration: float = math.inf) -> int:
     """Run the node until shut down (or ``duration`` simulated seconds)."""
     from rclpy.signals import SignalHandlerOptions  # type: ignore[import-not-found, unused-ignore]
@@ -247,9 +244,9 @@ def run_sim(argv: Sequence[str], duration: float = math.inf) -> int:
     # SIGINT and SIGTERM end the run loop here, before the context goes (rclpy's handlers would invalidate the
     # publishers mid-step).
     rclpy.init(args=list(argv), signal_handler_options=SignalHandlerOptions.NO)
-    signal.signal(signal.SIGINT, signal.default_int_handler)  # even when started in the background (SIG_IGN)
-    signal.signal(signal.SIGTERM, _raise_interrupt)
+    stop = ShutdownFlag()
     node = SimNode()
+    node.stop = stop
     try:
         runner = RealTimeRunner(node.robot)
         node.robot.sim.render(node.robot.dock_pose())  # load the compiled renderer before the clock starts
