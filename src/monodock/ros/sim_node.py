@@ -4,9 +4,13 @@ The simulated differential drive (``monodock.sim.diffdrive``) runs in real time 
 camera publishes every frame ``camera_latency`` after the exposure, stamped with the exposure time; odometry,
 the rear range, the contact switch, the battery's charging state and the ground truth go out every control
 period (50 Hz), ``/clock`` with them. It drives by ``cmd_vel`` through the base's latency, lag and slip, and
-stops when ``cmd_vel`` falls silent for ``cmd_vel_timeout`` as real bases do. ROS time is the wall clock at the
-start plus the simulated time (real-time pacing keeps the two together), so nodes with or without
-``use_sim_time`` agree with its stamps.
+stops when ``cmd_vel`` falls silent for ``cmd_vel_timeout`` as real bases do. Its stamps are the wall clock at
+the start plus the simulated time. Real-time pacing keeps the two together on an idle machine; on a busy one the
+simulation runs slower than the wall clock, so nodes that time sensor data against their own clock (the docking
+node) run with ``use_sim_time`` on the ``/clock`` it publishes, as with any simulator.
+
+Faults on demand: ``~/silence_camera`` and ``~/silence_odometry`` (std_srvs/SetBool) stop and restart those
+topics.
 """
 
 from __future__ import annotations
