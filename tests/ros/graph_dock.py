@@ -114,7 +114,7 @@ def call(client: Any, request: Any) -> Any:
     return future.result()
 
 
-def emit(kind: str, **values: Any) -> None:
+def emit(kind: str, /, **values: Any) -> None:
     print(json.dumps({"kind": kind, **values}), flush=True)
 
 
