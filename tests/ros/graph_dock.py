@@ -162,21 +162,21 @@ for step in spec["steps"]:
                 dock.wait()
                 spin_for(3.0)
                 track = [(t - at, x, y) for t, x, y, _ in truth if t >= at - 0.2]
-                emit("fault", kind=fault["kind"], track=track, returncode=dock.returncode)
+                emit("fault", what=fault["kind"], track=track, returncode=dock.returncode)
                 break
             if fault["kind"] == "garbage":  # malformed images on the camera topic, among the good ones, from now on
                 garbage = node.create_publisher(Image, "/image", qos_profile_sensor_data)
                 node.create_timer(0.03, lambda pub=garbage: pub.publish(next(bad_images)))
-                emit("fault", kind="garbage")
+                emit("fault", what="garbage")
                 continue
             if fault["kind"] in ("cancel", "again"):
                 service = "cancel" if fault["kind"] == "cancel" else step
                 reply = call(clients[service], Trigger.Request())
-                emit("fault", kind=fault["kind"], success=bool(reply and reply.success), message=reply.message)
+                emit("fault", what=fault["kind"], success=bool(reply and reply.success), message=reply.message)
                 continue
             request = SetBool.Request(data=True)
             call(silence[fault["kind"]], request)
-            emit("fault", kind=fault["kind"], state=fault["state"])
+            emit("fault", what=fault["kind"], state=fault["state"])
             if "for" in fault:
                 spin_for(float(fault["for"]))
                 call(silence[fault["kind"]], SetBool.Request(data=False))

@@ -96,7 +96,7 @@ def test_the_camera_stopping_mid_approach_is_recovered_from() -> None:
     run = run_graph(
         {"start": [-1.6, 0.1, 0.05], "steps": ["dock"], "fault": {"kind": "camera", "state": "moving3", "for": 3.0}}
     )
-    assert run.first("fault")["kind"] == "camera"
+    assert run.first("fault")["what"] == "camera"
     (step,) = steps(run)
     assert_docked(step)
     assert int(step["values"]["recoveries"]) >= 1
