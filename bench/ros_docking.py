@@ -10,6 +10,11 @@ centre and the heading, and whether the charger charges.
 Run from the repo root (needs the ROS 2 wheels: ``pip install -e ".[ros]"``, and ``unshare``):
 
     python bench/ros_docking.py [--cases all] [--trials 1] [--jobs 2] [--out FILE.md]
+    python bench/ros_docking.py --faults [--out FILE.md]
+
+``--faults`` runs the faults on the graph instead, each once from one start, and prints the fault table: the camera
+silent for 3 s in Moving₃, odometry stopping in Moving₁, malformed images flooding the camera topic, a cancel, a
+second ~/dock call, the node shut down (SIGINT) or killed (SIGKILL) mid-approach. Judged by the sim's truth too.
 """
 
 from __future__ import annotations
@@ -45,6 +50,48 @@ def over_ros(start: tuple[float, float, float]) -> dict[str, Any]:
     return {**steps[0], "wall": time.perf_counter() - t0}
 
 
+FAULTS = {
+    "camera silent 3 s in Moving₃": {"fault": {"kind": "camera", "state": "moving3", "for": 3.0}},
+    "odometry stops in Moving₁": {"fault": {"kind": "odometry", "state": "moving1-drive"}},
+    "malformed images from Moving₁ on": {"fault": {"kind": "garbage", "state": "moving1-turn"}},
+    "~/cancel in Moving₁": {"fault": {"kind": "cancel", "state": "moving1-drive"}},
+    "second ~/dock call in Moving₁": {"fault": {"kind": "again", "state": "moving1-drive"}},
+    "SIGINT to the node in Moving₃": {"fault": {"kind": "sigint", "state": "moving3"}, "sim": {"cmd_vel_timeout": 5.0}},
+    "SIGKILL to the node in Moving₃": {"fault": {"kind": "kill", "state": "moving3"}},
+}
+
+
+def fault_row(name: str, spec: dict[str, Any]) -> list[str]:
+    """One fault from one start: what the node reported, where the robot truly ended, whether it stopped."""
+    run = run_private_graph(DRIVER, json.dumps({"start": [-1.7, 0.15, 0.1], "steps": ["dock"], **spec}), timeout=300)
+    step = next((r for r in run.records if r["kind"] == "step"), None)
+    fault = next((r for r in run.records if r["kind"] == "fault"), {})
+    if "track" in fault:  # the node is gone: how far the robot went on after 0.5 s, and after 1 s
+        track = fault["track"]
+        moved = [p for p in track if p[0] > 0.5]
+        still = math.dist(moved[0][1:], moved[-1][1:]) * 100 if len(moved) > 1 else math.nan
+        return [name, f"node exited ({fault.get('returncode')})", "—", f"moved {fmt(still)} cm after 0.5 s", "—"]
+    if step is None:
+        return [name, f"no result (exit {run.returncode})", "—", "—", "—"]
+    t = step["truth"]
+    values = step["values"]
+    recovered = values.get("recoveries", "0")
+    return [
+        name,
+        step["message"].split(":")[0] + (" (charging)" if step.get("charging") else ""),
+        f"{fmt(t['lateral_cm'])} / {fmt(t['gap_cm'])} / {fmt(t['heading_deg'])}",
+        f"{recovered} recoveries",
+        str(values.get("nav2_error_code", "—")),
+    ]
+
+
+def faults_report(jobs: int) -> str:
+    with ThreadPoolExecutor(jobs) as pool:
+        rows = list(pool.map(lambda item: fault_row(*item), FAULTS.items()))
+    header = ["fault", "outcome", "final lateral / gap / heading (truth)", "", "Nav2 code"]
+    return "\n\n".join(["# Faults on the ROS 2 graph (board PnP, one start)", markdown_table(header, rows)])
+
+
 def stats(values: list[float]) -> str:
     a = np.abs(np.asarray(values, dtype=float))
     return f"{fmt(float(np.median(a)))} / {fmt(float(np.percentile(a, 95)))}" if a.size else "—"
@@ -56,10 +103,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--trials", type=int, default=1, help="starts per case (1)")
     p.add_argument("--jobs", type=int, default=2, help="graphs (and dock-sim workers) at a time (2)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--faults", action="store_true", help="the fault table instead of the comparison")
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     args = p.parse_args(argv)
     if not can_isolate():
         p.error("this machine cannot make a private network namespace (unshare --net); no ROS graph may run")
+    if args.faults:
+        emit(faults_report(args.jobs), {}, args.out)
+        return 0
     config = DockSimConfig(
         cases=tuple(args.cases), trials=args.trials, methods=("board",), jobs=args.jobs, seed=args.seed
     )

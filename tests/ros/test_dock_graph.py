@@ -30,13 +30,13 @@ pytestmark = [
 ]
 
 
-def run_graph(spec: dict[str, Any], timeout: float = 240) -> GraphRun:
+def run_graph(spec: dict[str, Any], timeout: float = 240, dock_exit: int = 0) -> GraphRun:
     run = run_private_graph(HERE / "graph_dock.py", json.dumps(spec), timeout=timeout)
     assert run.returncode == 0, run.stderr[-3000:]
     assert "Traceback" not in run.stderr, run.stderr[-3000:]
     assert run.first("ready")["ok"], run.stderr[-3000:]
     end = run.first("end")
-    assert end["dock"] in (0, None), (end, run.stderr[-3000:])  # None: killed by the test
+    assert end["dock"] == dock_exit, (end, run.stderr[-3000:])
     assert end["sim"] == 0, (end, run.stderr[-3000:])
     return run
 
@@ -133,7 +133,9 @@ def test_a_cancel_and_a_second_call_stop_the_mission() -> None:
 @pytest.mark.timeout(600)
 def test_the_robot_stops_when_the_dock_node_is_killed() -> None:
     """SIGKILL mid-approach: no zero velocity is ever sent, and the sim's base stops on its cmd_vel time-out."""
-    run = run_graph({"start": [-1.8, 0.0, 0.0], "steps": ["dock"], "fault": {"kind": "kill", "state": "moving3"}})
+    run = run_graph(
+        {"start": [-1.8, 0.0, 0.0], "steps": ["dock"], "fault": {"kind": "kill", "state": "moving3"}}, dock_exit=-9
+    )
     track = run.first("fault")["track"]
     before = [p for p in track if p[0] < 0]
     after = [p for p in track if p[0] > 0.5 + 0.5]  # the base's 0.5 s time-out, then its deceleration

@@ -164,6 +164,14 @@ class Ros2Robot:
         msg.linear.x, msg.angular.z = float(linear), float(angular)
         self._cmd.publish(msg)
 
+    def stop_and_flush(self, timeout: float = 1.0) -> None:
+        """Command zero and wait until the subscribers have it: a node that exits right after publishing would
+        otherwise take its last message down with it."""
+        from rclpy.duration import Duration  # type: ignore[import-not-found, unused-ignore]
+
+        self.send_velocity(0.0, 0.0)
+        self._cmd.wait_for_all_acked(Duration(seconds=timeout))
+
     def odometry_age(self) -> float:
         """Seconds since the last odometry message arrived (inf before the first)."""
         return time.monotonic() - self.odom.at
@@ -469,7 +477,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
                 self._cancel = why
         if thread is not None:
             thread.join(timeout=5.0)
-        self.robot.send_velocity(0.0, 0.0)
+        self.robot.stop_and_flush()
 
 
 def _result_values(result: MissionResult, front_offset: float) -> dict[str, str]:
