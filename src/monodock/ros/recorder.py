@@ -265,6 +265,7 @@ class Recorder:
     """
 
     def __init__(self, options: RecorderOptions, node_name: str = NODE_NAME) -> None:
+        from rclpy.event_handler import SubscriptionEventCallbacks  # type: ignore[import-not-found, unused-ignore]
         from rclpy.qos import (  # type: ignore[import-not-found, unused-ignore]
             DurabilityPolicy,
             HistoryPolicy,
@@ -272,7 +273,7 @@ class Recorder:
             ReliabilityPolicy,
         )
 
-        self._qos = (QoSProfile, ReliabilityPolicy, DurabilityPolicy, HistoryPolicy)
+        self._qos = (QoSProfile, ReliabilityPolicy, DurabilityPolicy, HistoryPolicy, SubscriptionEventCallbacks)
         self.options = options
         self.bag = RawBagWriter(options.output, distro=options.distro, storage=options.storage, force=options.force)
         self.node = _create_node(node_name)
@@ -322,7 +323,7 @@ class Recorder:
                 self._subscribe(name, types[0], publishers)
 
     def _subscribe(self, name: str, msgtype: str, publishers: Sequence[Any]) -> None:
-        QoSProfile, Reliability, Durability, History = self._qos
+        QoSProfile, Reliability, Durability, History, SubscriptionEventCallbacks = self._qos
         offers = [
             (p.qos_profile.reliability == Reliability.RELIABLE, p.qos_profile.durability == Durability.TRANSIENT_LOCAL)
             for p in publishers
@@ -343,10 +344,28 @@ class Recorder:
             durability=Durability.TRANSIENT_LOCAL if latched else Durability.VOLATILE,
         )
         self._subscriptions.append(
-            self.node.create_subscription(msg_class, name, lambda data: self._on_message(topic, data), qos, raw=True)
+            self.node.create_subscription(
+                msg_class,
+                name,
+                lambda data: self._on_message(topic, data),
+                qos,
+                raw=True,
+                event_callbacks=self._events(SubscriptionEventCallbacks, name),
+            )
         )
         mode = f"{'reliable' if reliable else 'best-effort'} {'transient-local' if latched else 'volatile'}"
         print(f"recording {name} {msgtype} {mode}", flush=True)  # RecorderProcess waits for these lines
+
+    def _events(self, callbacks: Any, name: str) -> Any:
+        """A warning when a publisher that came later offers a QoS this subscription does not match."""
+
+        def incompatible(event: Any) -> None:
+            self.node.get_logger().warning(
+                f"{name}: a publisher offers a QoS the recording does not match ({event.last_policy_kind}); "
+                "its messages are not recorded"
+            )
+
+        return callbacks(incompatible_qos=incompatible)
 
     def _on_message(self, topic: _Topic, data: bytes) -> None:
         if not self._open:
