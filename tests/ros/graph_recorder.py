@@ -41,7 +41,7 @@ def spin_for(node: Any, seconds: float) -> None:
 
 
 def stop(process: subprocess.Popen[str]) -> tuple[int, str]:
-    process.send_signal(signal.SIGINT)
+    process.send_signal(signal.SIGTERM)
     try:
         _, err = process.communicate(timeout=20)
     except subprocess.TimeoutExpired:
