@@ -265,15 +265,6 @@ class Recorder:
     """
 
     def __init__(self, options: RecorderOptions, node_name: str = NODE_NAME) -> None:
-        from rclpy.event_handler import SubscriptionEventCallbacks  # type: ignore[import-not-found, unused-ignore]
-        from rclpy.qos import (  # type: ignore[import-not-found, unused-ignore]
-            DurabilityPolicy,
-            HistoryPolicy,
-            QoSProfile,
-            ReliabilityPolicy,
-        )
-
-        self._qos = (QoSProfile, ReliabilityPolicy, DurabilityPolicy, HistoryPolicy, SubscriptionEventCallbacks)
         self.options = options
         self.bag = RawBagWriter(options.output, distro=options.distro, storage=options.storage, force=options.force)
         self.node = _create_node(node_name)
@@ -323,12 +314,7 @@ class Recorder:
                 self._subscribe(name, types[0], publishers)
 
     def _subscribe(self, name: str, msgtype: str, publishers: Sequence[Any]) -> None:
-        QoSProfile, Reliability, Durability, History, SubscriptionEventCallbacks = self._qos
-        offers = [
-            (p.qos_profile.reliability == Reliability.RELIABLE, p.qos_profile.durability == Durability.TRANSIENT_LOCAL)
-            for p in publishers
-        ]
-        reliable, latched = subscription_qos(offers)
+        reliable, latched = subscription_qos(_offers(publishers))
         try:
             msg_class = _message_class(msgtype)
         except (ImportError, AttributeError):
@@ -337,27 +323,22 @@ class Recorder:
         connection = self.bag.connect(name, msgtype, _bag_qos(reliable, latched))
         topic = _Topic(name, msgtype, connection, self.bag.has_header(msgtype))
         self.topics[name] = topic
-        qos = QoSProfile(
-            history=History.KEEP_LAST,
-            depth=100,  # room for a burst while the bag writes: raw messages cost nothing to keep
-            reliability=Reliability.RELIABLE if reliable else Reliability.BEST_EFFORT,
-            durability=Durability.TRANSIENT_LOCAL if latched else Durability.VOLATILE,
-        )
         self._subscriptions.append(
             self.node.create_subscription(
                 msg_class,
                 name,
                 lambda data: self._on_message(topic, data),
-                qos,
+                _profile(reliable, latched),
                 raw=True,
-                event_callbacks=self._events(SubscriptionEventCallbacks, name),
+                event_callbacks=self._events(name),
             )
         )
         mode = f"{'reliable' if reliable else 'best-effort'} {'transient-local' if latched else 'volatile'}"
         print(f"recording {name} {msgtype} {mode}", flush=True)  # RecorderProcess waits for these lines
 
-    def _events(self, callbacks: Any, name: str) -> Any:
+    def _events(self, name: str) -> Any:
         """A warning when a publisher that came later offers a QoS this subscription does not match."""
+        from rclpy.event_handler import SubscriptionEventCallbacks  # type: ignore[import-not-found, unused-ignore]
 
         def incompatible(event: Any) -> None:
             self.node.get_logger().warning(
@@ -365,14 +346,14 @@ class Recorder:
                 "its messages are not recorded"
             )
 
-        return callbacks(incompatible_qos=incompatible)
+        return SubscriptionEventCallbacks(incompatible_qos=incompatible)
 
     def _on_message(self, topic: _Topic, data: bytes) -> None:
         if not self._open:
             return
         log_time = self.node.get_clock().now().nanoseconds
         if topic.header and self.options.timestamps == "header":
-            log_time = header_stamp_ns(data) or log_time
+            log_time = header_stamp_ns(data) or log_time  # a zero (unset) stamp keeps the receive time
         self.bag.write_raw(topic.connection, data, log_time)
         topic.count += 1
 
@@ -390,6 +371,36 @@ class Recorder:
             self.close()
         finally:
             self.node.destroy_node()
+
+
+def _offers(publishers: Sequence[Any]) -> list[tuple[bool, bool]]:
+    """Each publisher's (reliable, transient_local), from the graph's endpoint information."""
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy  # type: ignore[import-not-found, unused-ignore]
+
+    return [
+        (
+            p.qos_profile.reliability == ReliabilityPolicy.RELIABLE,
+            p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        for p in publishers
+    ]
+
+
+def _profile(reliable: bool, transient_local: bool) -> Any:
+    """The recorder's subscription QoS."""
+    from rclpy.qos import (  # type: ignore[import-not-found, unused-ignore]
+        DurabilityPolicy,
+        HistoryPolicy,
+        QoSProfile,
+        ReliabilityPolicy,
+    )
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=100,  # room for a burst while the bag writes: raw messages cost nothing to keep
+        reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient_local else DurabilityPolicy.VOLATILE,
+    )
 
 
 def _create_node(name: str) -> Any:
