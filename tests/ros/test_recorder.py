@@ -233,12 +233,12 @@ def test_a_recorded_drive_matches_the_sims_ground_truth(tmp_path: Path) -> None:
     image_stamps = [m.header_stamp(msg) for _, msg in images]
     assert _spacing(image_stamps) == pytest.approx(1 / 15, abs=0.002)
     assert len(images) >= 0.85 * _expected(image_stamps, 15.0)  # best effort may lose a few on a busy machine
-    assert len(images) > 4.5 * 15  # at least the 5 s of the drive
+    assert images[-1][0] - images[0][0] > 4.5  # the whole drive: 1 s still, 2 s driving, 2 s stopping
     assert abs(len(messages["/camera_info"]) - len(images)) <= 0.1 * len(images)
     # The log times are the recorder's receive times, not the header stamps: they follow the stamps by at least
-    # the camera's 50 ms latency (by more on a loaded machine, where the sim falls behind the wall clock).
+    # the camera's 50 ms latency (by more on a busy machine, where the sim falls behind the wall clock).
     lags = np.array([t - s for (t, _), s in zip(images, image_stamps, strict=True)])
-    assert 0.04 < float(np.median(lags)) < 1.0
+    assert 0.04 < float(np.median(lags)) < 10.0
     odom = messages["/odom"]
     odom_stamps = [m.header_stamp(msg) for _, msg in odom]
     assert _spacing(odom_stamps) == pytest.approx(0.02, abs=0.001)
@@ -254,12 +254,15 @@ def test_a_recorded_drive_matches_the_sims_ground_truth(tmp_path: Path) -> None:
     assert abs(first_cmd - sent["first"]) < 0.2
     assert abs(last_cmd - sent["last"]) < 0.2
 
-    # The robot moved as commanded: 2 s at 0.1 m/s, then the cmd_vel time-out stops it (about 0.2 m, not more
-    # than 0.3), straight ahead; odometry and the ground truth in the same bag agree on it.
+    # The robot moved as commanded: at the commanded 0.1 m/s, straight ahead, about 0.2 m in 2 s (less on a busy
+    # machine, where fewer simulated seconds pass), and no farther once cmd_vel stopped; odometry and the ground
+    # truth in the same bag agree on how far.
     x = np.array([msg.pose.pose.position.x for _, msg in odom])
     y = np.array([msg.pose.pose.position.y for _, msg in odom])
+    speed = np.array([msg.twist.twist.linear.x for _, msg in odom])
+    assert float(np.median(speed[speed > 0.05])) == pytest.approx(0.1, abs=0.01)
     moved = float(x[-1] - x[0])
-    assert 0.15 < moved < 0.3
+    assert 0.08 < moved < 0.3
     assert abs(float(y[-1] - y[0])) < 0.02
     truth = messages["/ground_truth"]
     closer = truth[0][1].pose.position.x - truth[-1][1].pose.position.x  # the dock's distance ahead shrinks
@@ -270,6 +273,7 @@ def test_a_recorded_drive_matches_the_sims_ground_truth(tmp_path: Path) -> None:
     moving = odom_log[np.flatnonzero(np.abs(np.diff(x)) > 1e-5) + 1]
     assert first_cmd < moving[0] < first_cmd + 1.0
     assert last_cmd < moving[-1] < last_cmd + 2.0
+    assert moving[-1] < odom_log[-1] - 0.5  # then it stood still
     assert np.all(x[odom_log < first_cmd] == x[0])
 
 
