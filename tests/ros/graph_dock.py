@@ -36,6 +36,7 @@ from std_srvs.srv import SetBool, Trigger
 
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.ros.recorder import RecorderOptions, RecorderProcess
 
 spec = json.loads(sys.argv[1])
 folder = Path(tempfile.mkdtemp())
@@ -57,9 +58,8 @@ if spec.get("params"):  # a ROS 2 params file: the docking config's keys, nested
     dock_args += ["--ros-args", "--params-file", str(folder / "params.yaml")]
 dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args])
 recorder = None
-if spec.get("record"):
-    RECORD = "from monodock.cli.ros_record import record_main; import sys; sys.exit(record_main(sys.argv[1:]))"
-    recorder = subprocess.Popen([sys.executable, "-c", RECORD, spec["record"]])
+if spec.get("record"):  # a rosbag2 (MCAP) of the run: images, poses, odometry, cmd_vel, state, result
+    recorder = RecorderProcess(RecorderOptions(spec["record"])).start()
 
 rclpy.init()
 node = rclpy.create_node("driver")
@@ -130,6 +130,8 @@ def final_truth() -> dict[str, float]:
 ready = time.monotonic() + 90
 while not (clients["dock"].service_is_ready() and truth) and time.monotonic() < ready:
     rclpy.spin_once(node, timeout_sec=0.1)
+if recorder is not None and not recorder.wait_for(["/image", "/odom", "/cmd_vel", "/monodock_dock/state"], 30):
+    emit("recorder", ok=False, log=recorder.log)
 emit("ready", ok=clients["dock"].service_is_ready())
 fault = spec.get("fault")
 for step in spec["steps"]:
@@ -204,15 +206,15 @@ for step in spec["steps"]:
         call(silence["odometry"], SetBool.Request(data=False))
         fault = None
 
-for process in (recorder, dock, sim):
-    if process is not None and process.poll() is None:
+recorded = None if recorder is None else recorder.stop()  # first: the bag holds the run to its end
+for process in (dock, sim):
+    if process.poll() is None:
         process.send_signal(signal.SIGINT)
-for process in (recorder, dock, sim):
-    if process is not None:
-        try:
-            process.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            process.kill()
-emit("end", dock=dock.returncode, sim=sim.returncode, recorder=None if recorder is None else recorder.returncode)
+for process in (dock, sim):
+    try:
+        process.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        process.kill()
+emit("end", dock=dock.returncode, sim=sim.returncode, recorder=recorded)
 node.destroy_node()
 rclpy.shutdown()

@@ -10,6 +10,9 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import os
+import re
+import shutil
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -30,7 +33,25 @@ pytestmark = [
 ]
 
 
-def run_graph(spec: dict[str, Any], timeout: float = 240, dock_exit: int = 0) -> GraphRun:
+def recording_folder(request: pytest.FixtureRequest, tmp_path: Path) -> Path:
+    """Where a test's rosbag2 goes: $MONODOCK_ROS_RECORDINGS/<test> to keep it (CI, by hand), else a temp folder."""
+    keep = os.environ.get("MONODOCK_ROS_RECORDINGS")
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", request.node.name)
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        shutil.rmtree(Path(keep) / name, ignore_errors=True)
+        return Path(keep) / name
+    return tmp_path / name
+
+
+@pytest.fixture
+def record(request: pytest.FixtureRequest, tmp_path: Path) -> Path:
+    return recording_folder(request, tmp_path)
+
+
+def run_graph(spec: dict[str, Any], timeout: float = 240, dock_exit: int = 0, record: Path | None = None) -> GraphRun:
+    if record is not None:
+        spec = {**spec, "record": str(record)}
     run = run_private_graph(HERE / "graph_dock.py", json.dumps(spec), timeout=timeout)
     assert run.returncode == 0, run.stderr[-3000:]
     assert "Traceback" not in run.stderr, run.stderr[-3000:]
@@ -38,7 +59,28 @@ def run_graph(spec: dict[str, Any], timeout: float = 240, dock_exit: int = 0) ->
     end = run.first("end")
     assert end["dock"] == dock_exit, (end, run.stderr[-3000:])
     assert end["sim"] == 0, (end, run.stderr[-3000:])
+    if record is not None:
+        assert end["recorder"] == 0, run.stderr[-3000:]
+        check_recording(record, run)
     return run
+
+
+def check_recording(folder: Path, run: GraphRun) -> None:
+    """The run's rosbag2 opens and holds what a reviewer wants to see: images, odometry, commands, the states."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([folder]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        states = [
+            reader.deserialize(raw, c.msgtype).data
+            for c, _, raw in reader.messages([c for c in reader.connections if c.topic == "/monodock_dock/state"])
+        ]
+    for topic in ("/image", "/camera_info", "/odom", "/cmd_vel", "/ground_truth", "/detected_dock_pose"):
+        assert counts.get(topic, 0) > 10, (topic, counts)
+    if any(r["kind"] == "step" for r in run.records):  # a killed node published no result
+        assert counts.get("/monodock_dock/result", 0) >= 1, counts
+    said = [s for r in run.records if r["kind"] == "step" for s in r["states"]]
+    assert [s for s in states if s in said][-3:] == said[-3:], (states, said)
 
 
 def steps(run: GraphRun) -> list[dict[str, Any]]:
@@ -60,10 +102,10 @@ def assert_docked(step: dict[str, Any]) -> None:
 
 
 @pytest.mark.timeout(300)
-def test_dock_undock_and_dock_again_over_dds() -> None:
+def test_dock_undock_and_dock_again_over_dds(record: Path) -> None:
     # The stand-off from a params file, as the config file's nested key: the undock ends 1.3 m out, not 1.0 m.
     spec = {"start": [-1.7, 0.25, 0.15], "steps": ["dock", "undock", "dock"], "params": {"planner": {"standoff": 1.3}}}
-    run = run_graph(spec)
+    run = run_graph(spec, record=record)
     first, undock, again = steps(run)
     assert_docked(first)
     assert first["states"][:2] == ["acquire", "calculate"]
@@ -79,11 +121,12 @@ def test_dock_undock_and_dock_again_over_dds() -> None:
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_docking_over_dds_from_starts_in_several_cases() -> None:
+def test_docking_over_dds_from_starts_in_several_cases(record: Path) -> None:
     """Four starts, four of the papers' cases (left/right of the axis, heading in/out); two graphs at a time."""
     starts = [[-1.9, 0.35, -0.2], [-1.5, -0.3, 0.25], [-2.2, -0.45, -0.1], [-1.3, 0.15, 0.3]]
     with ThreadPoolExecutor(2) as pool:
-        runs = list(pool.map(lambda s: run_graph({"start": s, "steps": ["dock"]}), starts))
+        specs = [({"start": s, "steps": ["dock"]}, record / f"start_{i}") for i, s in enumerate(starts)]
+        runs = list(pool.map(lambda a: run_graph(a[0], record=a[1]), specs))
     for run in runs:
         (step,) = steps(run)
         assert_docked(step)
@@ -91,10 +134,11 @@ def test_docking_over_dds_from_starts_in_several_cases() -> None:
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_the_camera_stopping_mid_approach_is_recovered_from() -> None:
+def test_the_camera_stopping_mid_approach_is_recovered_from(record: Path) -> None:
     """The camera falls silent for 3 s in Moving₃: the node backs off, looks again, and docks."""
     run = run_graph(
-        {"start": [-1.6, 0.1, 0.05], "steps": ["dock"], "fault": {"kind": "camera", "state": "moving3", "for": 3.0}}
+        {"start": [-1.6, 0.1, 0.05], "steps": ["dock"], "fault": {"kind": "camera", "state": "moving3", "for": 3.0}},
+        record=record,
     )
     assert run.first("fault")["what"] == "camera"
     (step,) = steps(run)
@@ -105,9 +149,10 @@ def test_the_camera_stopping_mid_approach_is_recovered_from() -> None:
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_odometry_stopping_fails_the_mission_and_stops_the_robot() -> None:
+def test_odometry_stopping_fails_the_mission_and_stops_the_robot(record: Path) -> None:
     run = run_graph(
-        {"start": [-1.8, 0.2, 0.0], "steps": ["dock", "dock"], "fault": {"kind": "odometry", "state": "moving1-drive"}}
+        {"start": [-1.8, 0.2, 0.0], "steps": ["dock", "dock"], "fault": {"kind": "odometry", "state": "moving1-drive"}},
+        record=record,
     )
     failed, again = steps(run)
     assert failed["values"]["failure"] == "odometry-lost", failed
@@ -118,10 +163,11 @@ def test_odometry_stopping_fails_the_mission_and_stops_the_robot() -> None:
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_a_cancel_and_a_second_call_stop_the_mission() -> None:
+def test_a_cancel_and_a_second_call_stop_the_mission(record: Path) -> None:
     for kind in ("cancel", "again"):
         run = run_graph(
-            {"start": [-1.8, -0.2, 0.1], "steps": ["dock"], "fault": {"kind": kind, "state": "moving1-drive"}}
+            {"start": [-1.8, -0.2, 0.1], "steps": ["dock"], "fault": {"kind": kind, "state": "moving1-drive"}},
+            record=record / kind,
         )
         assert run.first("fault")["success"]
         (step,) = steps(run)
@@ -131,10 +177,12 @@ def test_a_cancel_and_a_second_call_stop_the_mission() -> None:
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_the_robot_stops_when_the_dock_node_is_killed() -> None:
+def test_the_robot_stops_when_the_dock_node_is_killed(record: Path) -> None:
     """SIGKILL mid-approach: no zero velocity is ever sent, and the sim's base stops on its cmd_vel time-out."""
     run = run_graph(
-        {"start": [-1.8, 0.0, 0.0], "steps": ["dock"], "fault": {"kind": "kill", "state": "moving3"}}, dock_exit=-9
+        {"start": [-1.8, 0.0, 0.0], "steps": ["dock"], "fault": {"kind": "kill", "state": "moving3"}},
+        dock_exit=-9,
+        record=record,
     )
     track = run.first("fault")["track"]
     before = [p for p in track if p[0] < 0]
@@ -168,11 +216,11 @@ def test_bad_parameters_are_one_line_and_exit_2(tmp_path: Path, args: list[str],
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_a_shutdown_mid_approach_stops_the_robot_at_once() -> None:
+def test_a_shutdown_mid_approach_stops_the_robot_at_once(record: Path) -> None:
     """SIGINT to the node mid-approach: it commands zero before it exits. The sim's base waits 5 s before it times
     cmd_vel out here, so only the node's own zero can stop the robot within half a second."""
     spec = {"start": [-1.8, 0.0, 0.0], "steps": ["dock"], "fault": {"kind": "sigint", "state": "moving3"}}
-    run = run_graph({**spec, "sim": {"cmd_vel_timeout": 5.0}})
+    run = run_graph({**spec, "sim": {"cmd_vel_timeout": 5.0}}, record=record)
     fault = run.first("fault")
     assert fault["returncode"] == 0
     track = fault["track"]
@@ -183,11 +231,11 @@ def test_a_shutdown_mid_approach_stops_the_robot_at_once() -> None:
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_malformed_images_among_the_good_ones_do_not_stop_the_docking() -> None:
+def test_malformed_images_among_the_good_ones_do_not_stop_the_docking(record: Path) -> None:
     """From Moving₁ on, a second publisher floods the camera topic with malformed images (wrong sizes, unknown
     encodings, empty, 60000x60000): each is skipped with a throttled warning, and the robot docks."""
     spec = {"start": [-1.7, -0.2, 0.1], "steps": ["dock"], "fault": {"kind": "garbage", "state": "moving1-turn"}}
-    run = run_graph(spec)
+    run = run_graph(spec, record=record)
     (step,) = steps(run)
     assert_docked(step)
     warnings = [line for line in run.stderr.splitlines() if "image skipped" in line]

@@ -228,6 +228,8 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         battery.power_supply_status = (
             battery.POWER_SUPPLY_STATUS_CHARGING if charging else battery.POWER_SUPPLY_STATUS_DISCHARGING
         )
+        # Positive current while charging, as Nav2's SimpleChargingDock reads it (current > charging_threshold).
+        battery.current = 1.5 if charging else -0.8
         self.pub_battery.publish(battery)
         rear = robot.rear_range()
         if rear is not None:
