@@ -173,8 +173,14 @@ class Ros2Robot:
         self._cmd.wait_for_all_acked(Duration(seconds=timeout))
 
     def odometry_age(self) -> float:
-        """Seconds since the last odometry message arrived (inf before the first)."""
-        return time.monotonic() - self.odom.at
+        """How old the odometry is: the lesser of the time since it arrived (wall clock) and the node's clock minus
+        its stamp. Both grow when odometry stops; a simulation that stalls (its /clock stalls too) or a robot whose
+        clocks disagree by a little makes only one of them grow."""
+        msg = self.odom.value
+        if msg is None:
+            return math.inf
+        arrived = time.monotonic() - self.odom.at
+        return min(arrived, max(0.0, self.now() - m.header_stamp(msg)))
 
     def wait_for_odometry(self, timeout: float) -> bool:
         end = time.monotonic() + timeout
