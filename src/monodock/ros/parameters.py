@@ -11,12 +11,11 @@ from collections.abc import Mapping
 from typing import Any
 
 from monodock.errors import ConfigError
-from monodock.ros._rclpy import Node
 
 __all__ = ["declare", "flatten", "unflatten"]
 
 
-def declare(node: Node, name: str, default: Any, description: str, *, read_only: bool = False) -> Any:
+def declare(node: Any, name: str, default: Any, description: str, *, read_only: bool = False) -> Any:
     """Declare ``name`` with its description and return its value (the default unless overridden).
 
     Numbers take ints or floats alike (``-p standoff:=1`` is a float's 1.0): the parameter is dynamically typed
