@@ -23,10 +23,11 @@ def detector(*args: str) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-c", DETECTOR, *args], stderr=subprocess.PIPE, text=True)
 
 
-def sim(start: str, duration: float) -> subprocess.Popen[bytes]:
-    """monodock_sim standing at ``start`` ([x, y, yaw]) for ``duration`` simulated seconds."""
+def sim(start: str, duration: float, *ros: str) -> subprocess.Popen[bytes]:
+    """monodock_sim standing at ``start`` ([x, y, yaw]) for ``duration`` simulated seconds; ``ros``: more ROS
+    arguments (remappings)."""
     code = SIM.format(duration=duration)
-    return subprocess.Popen([sys.executable, "-c", code, "--ros-args", "-p", f"start:={start}"])
+    return subprocess.Popen([sys.executable, "-c", code, "--ros-args", "-p", f"start:={start}", *ros])
 
 
 def key(msg: Any) -> int:
@@ -41,18 +42,27 @@ def planar(msg: Any) -> tuple[float, float, float]:
 
 
 class Listener:
-    """Poses (with their arrival), ground truth and the detector's /diagnostics, subscribed on ``node``."""
+    """Poses (with their arrival), ground truth and the detector's /diagnostics, subscribed on ``node``; with
+    ``images``, the arrival of each camera image too (by stamp)."""
 
-    def __init__(self, node: Any, pose_topic: str = "detected_dock_pose") -> None:
+    def __init__(self, node: Any, *, images: bool = False) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseStamped
+        from rclpy.qos import qos_profile_sensor_data
+        from sensor_msgs.msg import Image
 
         self.truth: dict[int, tuple[float, float, float]] = {}
         self.poses: list[dict[str, Any]] = []
         self.diagnostics: list[dict[str, Any]] = []
+        self.image_arrival: dict[int, float] = {}
         node.create_subscription(PoseStamped, "ground_truth", self._on_truth, DEEP)
-        node.create_subscription(PoseStamped, pose_topic, self._on_pose, DEEP)
+        node.create_subscription(PoseStamped, "detected_dock_pose", self._on_pose, DEEP)
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
+        if images:
+            node.create_subscription(Image, "image", self._on_image, qos_profile_sensor_data)
+
+    def _on_image(self, msg: Any) -> None:
+        self.image_arrival[key(msg)] = time.time()
 
     def _on_truth(self, msg: Any) -> None:
         self.truth[key(msg)] = planar(msg)
@@ -69,9 +79,14 @@ class Listener:
                 values = {v.key: v.value for v in s.values}
                 self.diagnostics.append({"t": time.time(), "level": s.level[0], "message": s.message, **values})
 
-    def pairs(self, after: int = 0, tolerance: int = 25_000_000) -> tuple[list[dict[str, Any]], int]:
-        """Each pose stamped after ``after`` (ns) inside the span of the truth received, with the truth nearest its
-        stamp when within ``tolerance`` (ns); and how many such poses had none that near.
+    def _detector_latency(self, pose: dict[str, Any]) -> float | None:
+        """From the image's arrival here to its pose's: the detector's share of the latency (transport included)."""
+        seen = self.image_arrival.get(pose["stamp"])
+        return None if seen is None else pose["stamp"] * 1e-9 + pose["latency"] - seen
+
+    def pairs(self, skip: set[int] | None = None, tolerance: int = 25_000_000) -> tuple[list[dict[str, Any]], int]:
+        """Each pose inside the span of the truth received (but those stamped as in ``skip``, ns), with the truth
+        nearest its stamp when within ``tolerance`` (ns); and how many such poses had none that near.
 
         The truth goes out every 20 ms and frames are exposed in between; outside the span of the truth received
         nothing is known (the truth is not kept), so those poses are left out.
@@ -80,14 +95,25 @@ class Listener:
         pairs, unpaired = [], 0
         for p in self.poses:
             k = p["stamp"]
-            if k <= after or not stamps or not stamps[0] <= k <= stamps[-1]:
+            if k in (skip or ()) or not stamps or not stamps[0] <= k <= stamps[-1]:
                 continue
             nearest = min(stamps, key=lambda s: abs(s - k))
             if abs(nearest - k) < tolerance:
-                pairs.append({**p, "truth": self.truth[nearest]})
+                pairs.append({**p, "truth": self.truth[nearest], "detector": self._detector_latency(p)})
             else:
                 unpaired += 1
         return pairs, unpaired
+
+
+def call(node: Any, service_type: Any, service: str, request: Any) -> Any:
+    """The response of a service of the detector (``/monodock_detector/<service>``)."""
+    import rclpy
+
+    client = node.create_client(service_type, f"/monodock_detector/{service}")
+    assert client.wait_for_service(timeout_sec=30.0), f"no {service} service"
+    future = client.call_async(request)
+    rclpy.spin_until_future_complete(node, future, timeout_sec=30.0)
+    return future.result()
 
 
 def spin_for(node: Any, seconds: float) -> None:

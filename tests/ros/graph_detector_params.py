@@ -1,15 +1,17 @@
-"""Driver (tests/ros/test_detector_params.py, inside a private network namespace): the detector's start-up and
-live parameters.
+"""Driver (tests/ros/test_detector_graph.py, inside a private network namespace): the detector's start-up, its live
+parameters and its covariance topic, on a frame rendered here.
 
 First, bad settings, each in its own start (all at once): what each printed and its exit code. Then a detector
-with a camera file: camera_info that agrees with the file, then one whose fx is 3 % off, then one of another size;
-parameter changes through its set_parameters service (allowed, out of range, read-only), and the effect of the
-allowed ones on the poses of a rendered frame. Prints what was seen as JSON lines."""
+(board PnP) with a camera file: camera_info that agrees with the file, then one whose fx is 3 % off, then one of
+another size; parameter changes through its set_parameters service (allowed, out of range, read-only), and their
+effect on the pose of the rendered frame. With a model bundle (argv[1]), a second detector, fused, in the namespace
+/fused: its PoseStamped and PoseWithCovarianceStamped of the same frame. Prints what was seen as JSON lines."""
 
 from __future__ import annotations
 
 import json
 import math
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -18,6 +20,7 @@ from typing import Any
 import graph_detector_common as g
 import numpy as np
 import rclpy
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.qos import qos_profile_sensor_data
@@ -26,6 +29,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from monodock.core.pose import DockPose
 from monodock.sim import Simulator
 
+bundle = sys.argv[1] if len(sys.argv) > 1 else ""
 folder = Path(tempfile.mkdtemp())
 sim = Simulator(seed=2)  # monodock_sim's camera, layout and robot
 files = {k: str(folder / f"{k}.yaml") for k in ("camera", "layout", "robot")}
@@ -42,8 +46,6 @@ BAD = {
     "range in a params file": ["--ros-args", "--params-file", str(out_of_range)],
     "missing params file": ["--ros-args", "--params-file", str(folder / "missing.yaml")],
     "missing robot file": ["--layout", files["layout"], "--robot", str(folder / "missing_robot.yaml")],
-    "no layout": ["--robot", files["robot"]],
-    "flag": ["--method", "bogus"],
     "ROS argument": ["--ros-args", "--bogus"],
 }
 started = {name: g.detector(*args) for name, args in BAD.items()}
@@ -57,6 +59,17 @@ listen = g.Listener(node)
 images = node.create_publisher(Image, "image", qos_profile_sensor_data)
 infos = node.create_publisher(CameraInfo, "camera_info", qos_profile_sensor_data)
 detector = g.detector("--camera", files["camera"], "--layout", files["layout"], "--robot", files["robot"])
+fused = g.detector("--model", bundle, "--method", "fused", "--ros-args", "-r", "__ns:=/fused") if bundle else None
+fused_images = node.create_publisher(Image, "/fused/image", qos_profile_sensor_data)
+with_covariance: dict[str, list[Any]] = {"board": [], "fused": []}
+fused_poses: list[Any] = []
+node.create_subscription(
+    PoseWithCovarianceStamped, "detected_dock_pose_with_covariance", with_covariance["board"].append, g.DEEP
+)
+node.create_subscription(
+    PoseWithCovarianceStamped, "/fused/detected_dock_pose_with_covariance", with_covariance["fused"].append, g.DEEP
+)
+node.create_subscription(PoseStamped, "/fused/detected_dock_pose", fused_poses.append, g.DEEP)
 rendered = DockPose(1.0, 0.05, math.radians(-3.0))
 frame = sim.frame(rendered, 0.0, np.random.default_rng(2)).image
 
@@ -84,22 +97,14 @@ def send(publish: Any, count: int = 3) -> None:
         g.spin_for(node, 0.1)
 
 
-def call(service_type: Any, name: str, request: Any) -> Any:
-    client = node.create_client(service_type, f"/monodock_detector/{name}")
-    assert client.wait_for_service(timeout_sec=30.0), f"no {name} service"
-    future = client.call_async(request)
-    rclpy.spin_until_future_complete(node, future, timeout_sec=30.0)
-    return future.result()
-
-
-def pose_of(age: float, timeout: float = 10.0) -> dict[str, Any] | None:
-    """The pose of the rendered frame stamped ``age`` seconds ago, sent again until it comes (best effort)."""
+def answer(age: float, publisher: Any, answers: list[Any], timeout: float = 10.0) -> Any:
+    """The answer (from ``answers``) to the rendered frame stamped ``age`` s ago, sent again until it comes."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         stamp = int((time.time() - age) * 1e9)
-        images.publish(image(stamp))
+        publisher.publish(image(stamp))
         g.spin_for(node, 0.5)
-        got = [p for p in listen.poses if p["stamp"] == stamp]
+        got = [a for a in answers if (a["stamp"] if isinstance(a, dict) else g.key(a)) == stamp]
         if got:
             return got[0]
     return None
@@ -108,7 +113,7 @@ def pose_of(age: float, timeout: float = 10.0) -> dict[str, Any] | None:
 end = time.monotonic() + 60
 while time.monotonic() < end and not (images.get_subscription_count() and infos.get_subscription_count()):
     g.spin_for(node, 0.1)
-before = pose_of(0.0)
+before = answer(0.0, images, listen.poses)
 send(lambda: infos.publish(camera_info()))
 g.spin_for(node, 0.5)
 agreed = time.time()
@@ -128,16 +133,37 @@ def parameter(name: str, value: Any) -> Parameter:
 changes = {"max_stamp_age": 2.5, "frame_id": "odom", "method": "pnp", "diagnostics_period": 5.0}
 results = {}
 for name, value in [*changes.items(), ("max_stamp_age", -1.0)]:
-    result = call(SetParameters, "set_parameters", SetParameters.Request(parameters=[parameter(name, value)]))
-    results[f"{name}={value}"] = {"ok": result.results[0].successful, "reason": result.results[0].reason}
-got = call(GetParameters, "get_parameters", GetParameters.Request(names=list(changes))).values
+    request = SetParameters.Request(parameters=[parameter(name, value)])
+    result = g.call(node, SetParameters, "set_parameters", request).results[0]
+    results[f"{name}={value}"] = {"ok": result.successful, "reason": result.reason}
+got = g.call(node, GetParameters, "get_parameters", GetParameters.Request(names=list(changes))).values
 double = ParameterType.PARAMETER_DOUBLE
 now = {name: v.double_value if v.type == double else v.string_value for name, v in zip(changes, got, strict=True)}
-after = pose_of(2.0)  # 2 s old: skipped under the 1 s default, taken under 2.5 s
-detector.terminate()
+after = answer(2.0, images, listen.poses)  # 2 s old: skipped under the 1 s default, taken under 2.5 s
+covariance = answer(0.0, fused_images, with_covariance["fused"], timeout=60.0) if fused else None  # after warm-up
+g.spin_for(node, 0.5)
+plain = [m for m in fused_poses if covariance is not None and g.key(m) == g.key(covariance)]
+for process in (detector, fused):
+    if process is not None:
+        process.terminate()
 _, err = detector.communicate(timeout=20)
+_, fused_err = fused.communicate(timeout=20) if fused else ("", "")
 rclpy.shutdown()
-print(json.dumps({"kind": "set", "results": results, "values": now}))
 truth = [rendered.x, rendered.y, rendered.yaw]
+print(json.dumps({"kind": "set", "results": results, "values": now}))
 print(json.dumps({"kind": "poses", "rendered": truth, "before": before, "after": after}))
 print(json.dumps({"kind": "detector", "returncode": detector.returncode, "agreed": agreed, "stderr": err}))
+fused_out = {
+    "returncode": fused.returncode if fused else None,
+    "stderr": fused_err,
+    "board": len(with_covariance["board"]),
+}
+if covariance is not None:
+    fused_out |= {
+        "stamps": [g.key(covariance), *[g.key(m) for m in plain]],
+        "frames": [covariance.header.frame_id, *[m.header.frame_id for m in plain]],
+        "pose": g.planar(covariance.pose),
+        "plain": [g.planar(m) for m in plain],
+        "covariance": list(covariance.pose.covariance),
+    }
+print(json.dumps({"kind": "fused", **fused_out}))
