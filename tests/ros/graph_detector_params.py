@@ -5,7 +5,8 @@ First, bad settings, each in its own start (all at once): what each printed and 
 (board PnP) with a camera file: camera_info that agrees with the file, then one whose fx is 3 % off, then one of
 another size; parameter changes through its set_parameters service (allowed, out of range, read-only), and their
 effect on the pose of the rendered frame. With a model bundle (argv[1]), a second detector, fused, in the namespace
-/fused: its PoseStamped and PoseWithCovarianceStamped of the same frame. Prints what was seen as JSON lines."""
+/fused and with compressed:=true: its PoseStamped and PoseWithCovarianceStamped of the same frame as a PNG on
+/fused/image/compressed. Prints what was seen as JSON lines."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import cv2
 import graph_detector_common as g
 import numpy as np
 import rclpy
@@ -24,7 +26,7 @@ from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.qos import qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from monodock.core.pose import DockPose
 from monodock.sim import Simulator
@@ -59,8 +61,9 @@ listen = g.Listener(node)
 images = node.create_publisher(Image, "image", qos_profile_sensor_data)
 infos = node.create_publisher(CameraInfo, "camera_info", qos_profile_sensor_data)
 detector = g.detector("--camera", files["camera"], "--layout", files["layout"], "--robot", files["robot"])
-fused = g.detector("--model", bundle, "--method", "fused", "--ros-args", "-r", "__ns:=/fused") if bundle else None
-fused_images = node.create_publisher(Image, "/fused/image", qos_profile_sensor_data)
+fused_args = ["--model", bundle, "--method", "fused", "--ros-args", "-r", "__ns:=/fused", "-p", "compressed:=true"]
+fused = g.detector(*fused_args) if bundle else None
+fused_images = node.create_publisher(CompressedImage, "/fused/image/compressed", qos_profile_sensor_data)
 with_covariance: dict[str, list[Any]] = {"board": [], "fused": []}
 fused_poses: list[Any] = []
 node.create_subscription(
@@ -91,18 +94,25 @@ def image(stamp: int) -> Image:
     return msg
 
 
+def png(stamp: int) -> CompressedImage:
+    msg = CompressedImage(format="mono8; png compressed mono8")
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+    msg.data = cv2.imencode(".png", frame)[1].tobytes()
+    return msg
+
+
 def send(publish: Any, count: int = 3) -> None:
     for _ in range(count):
         publish()
         g.spin_for(node, 0.1)
 
 
-def answer(age: float, publisher: Any, answers: list[Any], timeout: float = 10.0) -> Any:
+def answer(age: float, publisher: Any, answers: list[Any], timeout: float = 10.0, encode: Any = image) -> Any:
     """The answer (from ``answers``) to the rendered frame stamped ``age`` s ago, sent again until it comes."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         stamp = int((time.time() - age) * 1e9)
-        publisher.publish(image(stamp))
+        publisher.publish(encode(stamp))
         g.spin_for(node, 0.5)
         got = [a for a in answers if (a["stamp"] if isinstance(a, dict) else g.key(a)) == stamp]
         if got:
@@ -140,7 +150,7 @@ got = g.call(node, GetParameters, "get_parameters", GetParameters.Request(names=
 double = ParameterType.PARAMETER_DOUBLE
 now = {name: v.double_value if v.type == double else v.string_value for name, v in zip(changes, got, strict=True)}
 after = answer(2.0, images, listen.poses)  # 2 s old: skipped under the 1 s default, taken under 2.5 s
-covariance = answer(0.0, fused_images, with_covariance["fused"], timeout=60.0) if fused else None  # after warm-up
+covariance = answer(0.0, fused_images, with_covariance["fused"], 60.0, png) if fused else None  # after its warm-up
 g.spin_for(node, 0.5)
 plain = [m for m in fused_poses if covariance is not None and g.key(m) == g.key(covariance)]
 for process in (detector, fused):

@@ -272,9 +272,10 @@ def test_live_parameters_and_a_camera_info_that_disagrees(startup: GraphRun) -> 
 
 
 def test_a_method_with_a_covariance_publishes_it_beside_the_pose(startup: GraphRun) -> None:
-    """Fused, from a model bundle: the PoseWithCovarianceStamped of a frame carries the same stamp, frame and pose
-    as its PoseStamped, the pose matches the one the frame was rendered at, and the 6x6 covariance has the (x, y,
-    yaw) block at rows and columns 0, 1 and 5 (monodock.io.nav2), positive definite, and zeros elsewhere."""
+    """Fused, from a model bundle, on image/compressed (compressed:=true; a PNG): the PoseWithCovarianceStamped of a
+    frame carries the same stamp, frame and pose as its PoseStamped, the pose matches the one the frame was rendered
+    at, and the 6x6 covariance has the (x, y, yaw) block at rows and columns 0, 1 and 5 (monodock.io.nav2), positive
+    definite, and zeros elsewhere."""
     fused = startup.first("fused")
     assert fused["returncode"] == 0, fused["stderr"]
     assert fused["board"] == 0  # board PnP gives no covariance: nothing on that topic
