@@ -38,8 +38,12 @@ import numpy as np
 
 from _common import emit, environment, fmt, markdown_table
 
-DETECTOR = "from monodock.cli.ros_nodes import detector_main; import sys; sys.exit(detector_main(sys.argv[1:]))"
-SIM = "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv, duration={duration})"
+# Each node's process gets SIGTERM when its parent ends, however it ends (PR_SET_PDEATHSIG): none outlives its run.
+_ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
+DETECTOR = (
+    _ORPHANS_END + "from monodock.cli.ros_nodes import detector_main; import sys; sys.exit(detector_main(sys.argv[1:]))"
+)
+SIM = _ORPHANS_END + "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv, duration={duration})"
 WARM_UP = 3.0  # s of the graph's first frames left out: discovery, the estimator's first call
 
 
@@ -96,9 +100,8 @@ def listen(args: argparse.Namespace) -> dict[str, Any]:
     method = ["--method", args.method] if args.method else []
     detector = subprocess.Popen([sys.executable, "-c", DETECTOR, *estimator, *method])
     duration = args.seconds + WARM_UP
-    sim = subprocess.Popen(
-        [sys.executable, "-c", SIM.format(duration=duration), "--ros-args", "-p", f"start:={args.start}"]
-    )
+    sim_command = [sys.executable, "-c", SIM.format(duration=duration), "--ros-args", "-p", f"start:={args.start}"]
+    sim = subprocess.Popen(sim_command)
     while sim.poll() is None:
         rclpy.spin_once(node, timeout_sec=0.05)
     end = time.monotonic() + 1.0  # the last poses

@@ -11,8 +11,12 @@ from typing import Any
 
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-DETECTOR = "from monodock.cli.ros_nodes import detector_main; import sys; sys.exit(detector_main(sys.argv[1:]))"
-SIM = "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv, duration={duration})"
+# Each node's process gets SIGTERM when its parent ends, however it ends (PR_SET_PDEATHSIG): none outlives its run.
+_ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
+DETECTOR = (
+    _ORPHANS_END + "from monodock.cli.ros_nodes import detector_main; import sys; sys.exit(detector_main(sys.argv[1:]))"
+)
+SIM = _ORPHANS_END + "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv, duration={duration})"
 
 # Every message kept (reliable, deep): a pose is never unpaired because its ground truth was lost under load.
 DEEP = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE)
@@ -20,14 +24,15 @@ DEEP = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST, reliability=Relia
 
 def detector(*args: str) -> subprocess.Popen[str]:
     """``monodock-ros ARGS`` with its stderr (its log) kept for the report."""
-    return subprocess.Popen([sys.executable, "-c", DETECTOR, *args], stderr=subprocess.PIPE, text=True)
+    command = [sys.executable, "-c", DETECTOR, *args]
+    return subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
 
 
 def sim(start: str, duration: float, *ros: str) -> subprocess.Popen[bytes]:
     """monodock_sim standing at ``start`` ([x, y, yaw]) for ``duration`` simulated seconds; ``ros``: more ROS
     arguments (remappings)."""
-    code = SIM.format(duration=duration)
-    return subprocess.Popen([sys.executable, "-c", code, "--ros-args", "-p", f"start:={start}", *ros])
+    command = [sys.executable, "-c", SIM.format(duration=duration), "--ros-args", "-p", f"start:={start}", *ros]
+    return subprocess.Popen(command)
 
 
 def key(msg: Any) -> int:
