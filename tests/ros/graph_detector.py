@@ -66,6 +66,7 @@ end = time.monotonic() + 90
 while sim.poll() is None and time.monotonic() < end:
     rclpy.spin_once(node, timeout_sec=0.05)
 sim_end = time.time()
+_, sim_err = sim.communicate(timeout=20)
 g.spin_for(node, 2.0)  # the poses of the last frames, then /diagnostics without images
 detector.terminate()
 _, err = detector.communicate(timeout=20)
@@ -75,4 +76,5 @@ stamps = sorted(listen.truth)
 span = (stamps[-1] - stamps[0]) * 1e-9 if stamps else 0.0
 print(json.dumps({"kind": "poses", "count": len(listen.poses), "pairs": pairs, "unpaired": unpaired, "span": span}))
 print(json.dumps({"kind": "diagnostics", "sim_end": sim_end, "statuses": listen.diagnostics}))
-print(json.dumps({"kind": "processes", "sim": sim.returncode, "detector": detector.returncode, "stderr": err[-4000:]}))
+processes = {"sim": sim.returncode, "sim_stderr": sim_err[-4000:], "detector": detector.returncode, "stderr": err}
+print(json.dumps({"kind": "processes", **processes}))

@@ -28,11 +28,11 @@ def detector(*args: str) -> subprocess.Popen[str]:
     return subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
 
 
-def sim(start: str, duration: float, *ros: str) -> subprocess.Popen[bytes]:
-    """monodock_sim standing at ``start`` ([x, y, yaw]) for ``duration`` simulated seconds; ``ros``: more ROS
-    arguments (remappings)."""
+def sim(start: str, duration: float, *ros: str) -> subprocess.Popen[str]:
+    """monodock_sim standing at ``start`` ([x, y, yaw]) for ``duration`` simulated seconds, its stderr kept; ``ros``:
+    more ROS arguments (remappings)."""
     command = [sys.executable, "-c", SIM.format(duration=duration), "--ros-args", "-p", f"start:={start}", *ros]
-    return subprocess.Popen(command)
+    return subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
 
 
 def key(msg: Any) -> int:

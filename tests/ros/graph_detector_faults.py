@@ -145,8 +145,8 @@ deadline = time.monotonic() + 20.0
 while time.monotonic() < deadline and sum(p["stamp"] not in set(good) for p in listen.poses) < 40:
     g.spin_for(node, 0.5)
 relay_end = time.time()
-sim.send_signal(signal.SIGINT)  # run_sim's clean stop
-sim.wait(timeout=20)
+sim.send_signal(signal.SIGINT)  # stopped here: its exit code is not the detector's business
+_, sim_err = sim.communicate(timeout=20)
 g.spin_for(node, 1.0)
 detector.terminate()
 _, err = detector.communicate(timeout=20)
@@ -157,4 +157,5 @@ print(json.dumps({"kind": "phases", "phases": phases, "relay": [relay_start, rel
 print(json.dumps({"kind": "driver_poses", "rendered": [rendered.x, rendered.y, rendered.yaw], "poses": driver_poses}))
 print(json.dumps({"kind": "sim_poses", "pairs": pairs, "unpaired": unpaired}))
 print(json.dumps({"kind": "diagnostics", "statuses": listen.diagnostics}))
-print(json.dumps({"kind": "processes", "sim": sim.returncode, "detector": detector.returncode, "stderr": err}))
+processes = {"sim": sim.returncode, "sim_stderr": sim_err[-4000:], "detector": detector.returncode, "stderr": err}
+print(json.dumps({"kind": "processes", **processes}))

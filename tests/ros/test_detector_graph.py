@@ -35,7 +35,7 @@ def run() -> GraphRun:
     assert done.returncode == 0, done.stderr
     assert "Traceback" not in done.stderr
     processes = done.first("processes")
-    assert processes["sim"] == 0
+    assert processes["sim"] == 0, processes["sim_stderr"]
     assert processes["detector"] == 0, processes["stderr"]  # SIGTERM: a clean exit
     assert "Traceback" not in processes["stderr"]
     return done
@@ -147,7 +147,7 @@ def faults() -> GraphRun:
     done = run_private_graph(HERE / "graph_detector_faults.py", "[-1.6, 0.1, 0.05]", timeout=240)
     assert done.returncode == 0, done.stderr
     processes = done.first("processes")
-    assert (processes["sim"], processes["detector"]) == (0, 0), processes["stderr"]
+    assert processes["detector"] == 0, processes["stderr"]  # the sim, stopped by the driver, is not under test
     assert "Traceback" not in processes["stderr"] + done.stderr
     return done
 

@@ -613,24 +613,31 @@ def non_ros_arguments(argv: Sequence[str]) -> list[str]:
 
 def run_detector(options: DetectorOptions, argv: Sequence[str]) -> int:
     """Run the node until shut down (Ctrl-C, SIGTERM); ``argv`` carries the ROS arguments. User errors: one line, 2."""
+    from rclpy.executors import ExternalShutdownException  # type: ignore[import-not-found, unused-ignore]
+    from rclpy.impl.implementation_singleton import (  # type: ignore[import-not-found, unused-ignore]
+        rclpy_implementation as impl,
+    )
+
+    node: DockPoseNode | None = None
     try:
         with _rcl_arguments():
             rclpy.init(args=list(argv))
         node = DockPoseNode(options)
+        rclpy.spin(node)
     except MonodockError as exc:
         print(f"monodock-ros: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
         return 2
-    from rclpy.executors import ExternalShutdownException  # type: ignore[import-not-found, unused-ignore]
-
-    try:
-        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM: a clean exit, no traceback
         pass
+    except impl.RCLError:
+        if rclpy.ok():
+            raise
+        # else Ctrl-C or SIGTERM came while rclpy was creating something ("the given context is not valid")
     finally:
-        node.stop()
-        node.destroy_node()
+        if node is not None:
+            node.stop()
+            node.destroy_node()
         rclpy.try_shutdown()
-    if node.failure is not None:
+    if node is not None and node.failure is not None:
         raise node.failure
     return 0
