@@ -51,7 +51,7 @@ def test_detected_poses_match_the_ground_truth_at_the_camera_rate(run: GraphRun)
     frames = 15.0 * poses["span"]
     assert len(pairs) + int(last["frames_dropped"]) + int(last["images_refused"]) > 0.9 * frames
     assert len(pairs) > 0.6 * frames
-    assert poses["unpaired"] == 0  # every pose has the truth of its exposure
+    assert poses["unpaired"] == 0  # every pose has a truth within 0.1 s of its exposure (standing still)
     err = np.array([[p - t for p, t in zip(q["pose"], q["truth"], strict=True)] for q in pairs])
     mae = np.abs(err).mean(axis=0)
     # Board PnP at 1.4 m from the camera: held-out MAE there is about a centimetre in depth and a degree in yaw.
