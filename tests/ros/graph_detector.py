@@ -39,7 +39,6 @@ flags = ["--method", "pnp", "--frame-id", "flag_frame", "--diagnostics-period", 
 ros = ["--ros-args", "--params-file", shipped, "--params-file", str(overlay)]
 ros += ["-p", "diagnostics_period:=0.5", "-p", "max_stamp_age:=0.0"]
 detector = g.detector(*flags, *ros)
-sim = g.sim(start, 9.0)
 
 
 def call(service_type: Any, name: str, request: Any) -> Any:
@@ -61,6 +60,7 @@ parameters = {
     for name, value, d in zip(names, got, described, strict=True)
 }
 print(json.dumps({"kind": "parameters", "parameters": parameters}), flush=True)
+sim = g.sim(start, 9.0)  # once the detector answers: all its frames are for the detector
 
 end = time.monotonic() + 90
 while sim.poll() is None and time.monotonic() < end:
