@@ -169,8 +169,8 @@ def report(args: argparse.Namespace, heard: dict[str, Any]) -> tuple[str, dict[s
             markdown_table(["", "median ms", "p95 ms"], rows),
             "",
             f"rate: {poses_hz:.2f} poses/s out for {images_hz:.2f} images/s in ({len(poses)} poses, "
-            f"{len(measured)} images; over the whole run the detector dropped {dropped} frames when behind and "
-            f"refused {refused} images: stale, or before camera_info)",
+            f"{len(measured)} images; over the whole run the detector dropped {dropped} frame(s) when behind and "
+            f"refused {refused} image(s): stale, or before camera_info)",
             f"ratio: the detector's share is {np.median(share) / cost:.2f}x the offline estimate; end to end, "
             f"{np.median(latency) / cost:.1f}x",
             f"environment: {json.dumps(environment())}",
