@@ -77,7 +77,7 @@ def listen(args: argparse.Namespace) -> dict[str, Any]:
     folder = Path(tempfile.mkdtemp())
     DockLayout.default().save(folder / "layout.yaml")
     RobotConfig.default().save(folder / "robot.yaml")
-    heard: dict[str, Any] = {"images": {}, "poses": {}, "diagnostics": []}
+    heard: dict[str, Any] = {"images": {}, "poses": {}, "diagnostics": [], "reasons": set()}
 
     def on_image(msg: Any) -> None:
         heard["images"][m.header_stamp(msg)] = (time.time(), m.decode_image(msg, m.IMAGE))
@@ -88,7 +88,9 @@ def listen(args: argparse.Namespace) -> dict[str, Any]:
     def on_diagnostics(msg: Any) -> None:
         for s in msg.status:
             if s.name.startswith("monodock_detector"):
-                heard["diagnostics"].append({v.key: v.value for v in s.values})
+                values = {v.key: v.value for v in s.values}
+                heard["diagnostics"].append(values)
+                heard["reasons"].add(values["no_estimate_reason"])
 
     rclpy.init()
     node = rclpy.create_node("ros_latency")
@@ -99,6 +101,9 @@ def listen(args: argparse.Namespace) -> dict[str, Any]:
     estimator += ["--robot", str(folder / "robot.yaml")] if not args.model else []
     method = ["--method", args.method] if args.method else []
     detector = subprocess.Popen([sys.executable, "-c", DETECTOR, *estimator, *method])
+    end = time.monotonic() + 120.0  # the detector subscribes once its estimator is ready: then the sim starts
+    while node.count_subscribers("image") < 2 and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.1)
     duration = args.seconds + WARM_UP
     sim_command = [sys.executable, "-c", SIM.format(duration=duration), "--ros-args", "-p", f"start:={args.start}"]
     sim = subprocess.Popen(sim_command)
@@ -113,8 +118,9 @@ def listen(args: argparse.Namespace) -> dict[str, Any]:
     return heard
 
 
-def offline(args: argparse.Namespace, images: list[np.ndarray]) -> tuple[list[float], str]:
-    """Seconds per frame of the same method on the same images in this process, and the method's name."""
+def offline(args: argparse.Namespace, images: list[np.ndarray]) -> tuple[list[float], str, int]:
+    """Seconds per frame of the same method on the same images in this process, the method's name, and how many of
+    the images it gave a pose for."""
     from monodock.core.camera import CameraModel
     from monodock.core.layout import DockLayout
     from monodock.core.robot import RobotConfig
@@ -127,12 +133,13 @@ def offline(args: argparse.Namespace, images: list[np.ndarray]) -> tuple[list[fl
         estimator = make_estimator(method=args.method, **calibration)
     estimator.warm_up()
     estimator.estimate("warm-up", 0.0, images[0])  # the first call loads OpenCV's code paths
-    costs = []
+    costs, valid = [], 0
     for i, image in enumerate(images):
         start = time.perf_counter()
-        estimator.estimate(str(i), float(i), image)
+        result = estimator.estimate(str(i), float(i), image)
         costs.append(time.perf_counter() - start)
-    return costs, estimator.method
+        valid += result.estimates[estimator.method].pose is not None
+    return costs, estimator.method, valid
 
 
 def report(args: argparse.Namespace, heard: dict[str, Any]) -> tuple[str, dict[str, Any]]:
@@ -147,7 +154,7 @@ def report(args: argparse.Namespace, heard: dict[str, Any]) -> tuple[str, dict[s
     span = (measured[-1] - measured[0]) if len(measured) > 1 else math.nan
     images_hz = (len(measured) - 1) / span
     poses_hz = (len(poses) - 1) / span
-    costs, method = offline(args, [heard["images"][s][1] for s in measured])
+    costs, method, valid = offline(args, [heard["images"][s][1] for s in measured])
     cost = float(np.median(costs))
     last = heard["diagnostics"][-1] if heard["diagnostics"] else {}
     dropped, refused = int(last.get("frames_dropped", -1)), int(last.get("images_refused", -1))
@@ -163,14 +170,17 @@ def report(args: argparse.Namespace, heard: dict[str, Any]) -> tuple[str, dict[s
     ]
     text = "\n".join(
         [
-            f"monodock-ros over Fast DDS (loopback, private network namespace): {method}, camera from camera_info, "
+            f"monodock-ros over Fast DDS (loopback, private network namespace): {method}, camera from "
+            f"{'the model bundle' if args.model else 'camera_info'}, "
             f"{len(measured)} frames in {span:.1f} s after {WARM_UP:g} s of warm-up",
             "",
             markdown_table(["", "median ms", "p95 ms"], rows),
             "",
             f"rate: {poses_hz:.2f} poses/s out for {images_hz:.2f} images/s in ({len(poses)} poses, "
             f"{len(measured)} images; over the whole run the detector dropped {dropped} frame(s) when behind and "
-            f"refused {refused} image(s): stale, or before camera_info)",
+            f"refused {refused} image(s): stale, or before camera_info); why a frame gave no pose: "
+            f"{'; '.join(sorted(r for r in heard['reasons'] if r)) or '-'}; offline, the same images gave "
+            f"{valid} poses",
             f"ratio: the detector's share is {np.median(share) / cost:.2f}x the offline estimate; end to end, "
             f"{np.median(latency) / cost:.1f}x",
             f"environment: {json.dumps(environment())}",
@@ -180,6 +190,7 @@ def report(args: argparse.Namespace, heard: dict[str, Any]) -> tuple[str, dict[s
         "method": method,
         "frames": len(measured),
         "poses": len(poses),
+        "offline_poses": valid,
         "images_hz": images_hz,
         "poses_hz": poses_hz,
         "frames_dropped": dropped,
