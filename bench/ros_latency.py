@@ -90,7 +90,8 @@ def listen(args: argparse.Namespace) -> dict[str, Any]:
             if s.name.startswith("monodock_detector"):
                 values = {v.key: v.value for v in s.values}
                 heard["diagnostics"].append(values)
-                heard["reasons"].add(values["no_estimate_reason"])
+                if values["images_in_hz"] != "0.00":  # the reason of a frame, not of waiting for one
+                    heard["reasons"].add(values["no_estimate_reason"])
 
     rclpy.init()
     node = rclpy.create_node("ros_latency")
