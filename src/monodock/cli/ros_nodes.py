@@ -9,12 +9,13 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]  # noqa: TID253
 
 from monodock.cli.options import add_estimator_options
-from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC
-from monodock.ros.detector import DetectorOptions, run_detector
+from monodock.errors import InputError
+from monodock.ros.detector import DetectorOptions, non_ros_arguments, run_detector
 from monodock.ros.dock_node import DockOptions, run_dock
 
 __all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser"]
@@ -25,21 +26,46 @@ def _add_image_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the usage error on one line, like every other monodock error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def detector_parser() -> argparse.ArgumentParser:
-    """``monodock-ros``'s flags."""
-    p = argparse.ArgumentParser(prog="monodock-ros", description="camera images in, detected_dock_pose out")
-    add_estimator_options(
-        p, camera_help="camera file (default: from camera_info)", robot_help="robot YAML (camera mount)"
+    """``monodock-ros``'s flags: each sets the default of the node's ROS parameter of the same name."""
+    d = DetectorOptions()
+    p = _Parser(
+        prog="monodock-ros",
+        description="node monodock_detector: camera images in, detected_dock_pose and /diagnostics out",
+        epilog="ROS parameters override these flags: --ros-args -p name:=value, --params-file FILE (an example: "
+        "config/monodock_detector.yaml)",
     )
-    _add_image_options(p)
-    p.add_argument("--camera-info-topic", default="/camera/camera_info")
-    p.add_argument("--pose-topic", default=DOCK_POSE_TOPIC)
+    add_estimator_options(
+        p,
+        camera_help="camera file (default: the model's, else from camera_info)",
+        robot_help="robot YAML (camera mount)",
+    )
+    p.add_argument("--image-topic", default=d.image_topic, help="sensor_msgs/Image (default: %(default)s)")
+    p.add_argument("--compressed", action="store_true", help="subscribe to IMAGE_TOPIC/compressed (CompressedImage)")
+    p.add_argument("--camera-info-topic", default=d.camera_info_topic, help="default: %(default)s")
+    p.add_argument("--pose-topic", default=d.pose_topic, help="default: %(default)s")
     p.add_argument(
         "--pose-covariance-topic",
-        default=DOCK_POSE_COVARIANCE_TOPIC,
-        help="PoseWithCovarianceStamped of the estimates that have a covariance",
+        default=d.pose_covariance_topic,
+        help="PoseWithCovarianceStamped of the estimates that have a covariance (default: %(default)s)",
     )
-    p.add_argument("--frame-id", default="base_link")
+    p.add_argument("--frame-id", default=d.frame_id, help="default: %(default)s")
+    p.add_argument(
+        "--max-stamp-age",
+        type=float,
+        default=d.max_stamp_age,
+        help="skip images older than this by the node's clock, s; 0: no limit (default: %(default)s)",
+    )
+    p.add_argument(
+        "--diagnostics-period", type=float, default=d.diagnostics_period, help="/diagnostics period, s (%(default)s)"
+    )
     return p
 
 
@@ -93,7 +119,12 @@ def _argv(prog: str, argv: Sequence[str] | None) -> list[str]:
 def detector_main(argv: Sequence[str] | None = None) -> int:
     """``monodock-ros``: run the detector node until shut down."""
     raw = _argv("monodock-ros", argv)
-    return run_detector(detector_options(remove_ros_args(raw)[1:]), raw)
+    try:
+        flags = non_ros_arguments(raw)[1:]
+    except InputError as exc:
+        print(f"monodock-ros: error: {exc}", file=sys.stderr)
+        return 2
+    return run_detector(detector_options(flags), raw)
 
 
 def dock_main(argv: Sequence[str] | None = None) -> int:

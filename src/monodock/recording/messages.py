@@ -36,6 +36,7 @@ __all__ = [
     "DecodeError",
     "camera_from_msg",
     "camera_info_msg",
+    "check_raw_image",
     "decode_image",
     "encode_image",
     "header_stamp",
@@ -76,7 +77,16 @@ def humble_typestore() -> Typestore:
 
 
 class DecodeError(ValueError):
-    """A message that cannot be turned into the value asked for; the text says why."""
+    """A message that cannot be turned into the value asked for; the text says why.
+
+    ``kind`` names the sort of fault, so that a live node can report each sort once: "encoding" (an image encoding
+    not supported), "size" (image dimensions, step and data that do not fit together), "compressed" (a compressed
+    image that does not decode), "calibration" (a camera_info that is not a valid calibration), else "data".
+    """
+
+    def __init__(self, text: str, kind: str = "data") -> None:
+        super().__init__(text)
+        self.kind = kind
 
 
 def normalize_msgtype(name: str) -> str:
@@ -272,6 +282,8 @@ def camera_from_msg(msg: Any, name: str = "camera") -> CameraModel | None:
     """
     K = [float(v) for v in np.asarray(_field(msg, "k", "K"), dtype=np.float64).ravel()]
     D = [float(v) for v in np.asarray(_field(msg, "d", "D"), dtype=np.float64).ravel()]
+    if not all(math.isfinite(v) for v in K + D):
+        raise DecodeError("camera_info has NaN or infinite values in K or D", "calibration")
     if not any(K):
         return None
     model = str(msg.distortion_model) or "plumb_bob"
@@ -282,7 +294,7 @@ def camera_from_msg(msg: Any, name: str = "camera") -> CameraModel | None:
     try:
         return CameraModel.from_ros_dict(data, "camera_info")
     except ConfigError as exc:
-        raise DecodeError(str(exc)) from None
+        raise DecodeError(str(exc), "calibration") from None
 
 
 # --- images ---------------------------------------------------------------------------------------
@@ -308,12 +320,44 @@ def _to_uint8(image: NDArray[Any]) -> NDArray[np.uint8]:
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
     elif img.dtype != np.uint8:
-        raise DecodeError(f"compressed image has pixel type {img.dtype}, expected 8 or 16 bit")
+        raise DecodeError(f"compressed image has pixel type {img.dtype}, expected 8 or 16 bit", "compressed")
     if img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     elif img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     return np.ascontiguousarray(img, dtype=np.uint8)
+
+
+def _raw_layout(msg: Any) -> tuple[int, int, int | None, int]:
+    """(channels, bytes per channel, conversion, bytes per row) of a raw image; DecodeError if they cannot hold."""
+    encoding = str(msg.encoding)
+    spec = _RAW.get(encoding)
+    if spec is None:
+        known = ", ".join(k for k in _RAW if not k[0].isdigit())
+        raise DecodeError(f"image encoding '{encoding}' is not supported ({known})", "encoding")
+    channels, depth, conversion = spec
+    width, height, step = int(msg.width), int(msg.height), int(msg.step)
+    if width <= 0 or height <= 0:
+        raise DecodeError(f"image size {width}x{height} is empty", "size")
+    row = width * channels * depth
+    if step < row:
+        raise DecodeError(f"image step {step} is less than width x bytes per pixel = {row}", "size")
+    return channels, depth, conversion, row
+
+
+def check_raw_image(msg: Any) -> None:
+    """Whether a sensor_msgs/Image can be decoded as it says: a supported encoding and exactly step x height bytes.
+
+    Cheaper than decoding (no pixel is read), and stricter about the size than ``decode_image``, which accepts
+    trailing bytes: a live camera that sends a size other than the one it declares is broken.
+
+    Raises:
+        DecodeError: kind "encoding" or "size", the text says what is wrong.
+    """
+    _raw_layout(msg)
+    size, expected = len(msg.data), int(msg.step) * int(msg.height)
+    if size != expected:
+        raise DecodeError(f"image has {size} bytes of data, expected step x height = {expected}", "size")
 
 
 def decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
@@ -327,25 +371,15 @@ def decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
     data = np.frombuffer(np.asarray(msg.data, dtype=np.uint8), dtype=np.uint8)
     if msgtype == COMPRESSED_IMAGE:
         if data.size == 0:
-            raise DecodeError("compressed image is empty")
+            raise DecodeError("compressed image is empty", "compressed")
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
         if img is None:
-            raise DecodeError(f"compressed image (format '{msg.format}') does not decode")
+            raise DecodeError(f"compressed image (format '{msg.format}') does not decode", "compressed")
         return _to_uint8(img)
-    encoding = str(msg.encoding)
-    spec = _RAW.get(encoding)
-    if spec is None:
-        known = ", ".join(k for k in _RAW if not k[0].isdigit())
-        raise DecodeError(f"image encoding '{encoding}' is not supported ({known})")
-    channels, depth, conversion = spec
+    channels, depth, conversion, row = _raw_layout(msg)
     width, height, step = int(msg.width), int(msg.height), int(msg.step)
-    if width <= 0 or height <= 0:
-        raise DecodeError(f"image size {width}x{height} is empty")
-    row = width * channels * depth
-    if step < row:
-        raise DecodeError(f"image step {step} is less than width x bytes per pixel = {row}")
     if data.size < step * (height - 1) + row:
-        raise DecodeError(f"image has {data.size} bytes of data, expected step x height = {step * height}")
+        raise DecodeError(f"image has {data.size} bytes of data, expected step x height = {step * height}", "size")
     rows = np.lib.stride_tricks.as_strided(data, shape=(height, row), strides=(step, 1))
     if depth == 2:
         dtype = np.dtype(">u2" if msg.is_bigendian else "<u2")

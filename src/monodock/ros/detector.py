@@ -1,50 +1,209 @@
-"""A ROS 2 node (``monodock-ros``): camera images in, ``detected_dock_pose`` for Nav2's docking server out.
+"""A ROS 2 node (``monodock-ros``, node ``monodock_detector``): camera images in, ``detected_dock_pose`` out.
 
-Subscribes to a sensor_msgs/Image or CompressedImage topic (and camera_info when no camera file is given),
-runs the estimator of ``monodock run`` (a bundle's regression, or PnP on calibration files) on each image, and
-publishes a geometry_msgs/PoseStamped in base_link with the image's stamp for every valid estimate, and, when
-the method gives the estimate's covariance, the same pose as geometry_msgs/PoseWithCovarianceStamped on
-``detected_dock_pose_with_covariance`` (the 6x6 convention of monodock.io.nav2: x, y, yaw at rows and
-columns 0, 1, 5; z, roll and pitch zero). Images are decoded with numpy and OpenCV
-(monodock.recording.messages), without cv_bridge.
+Subscribes to ``image`` (sensor_msgs/Image; image_transport's ``image/compressed``, CompressedImage, with
+``compressed``) and ``camera_info``, runs the estimator of ``monodock run`` (a bundle's regression or fused method,
+or PnP on calibration files) on each image, and publishes a geometry_msgs/PoseStamped in base_link with the
+image's stamp for every valid estimate on ``detected_dock_pose``, and, when the method gives the estimate's
+covariance, the same pose as geometry_msgs/PoseWithCovarianceStamped on ``detected_dock_pose_with_covariance``
+(the 6x6 convention of monodock.io.nav2). Every ``diagnostics_period`` it publishes a diagnostic_msgs/
+DiagnosticArray on ``/diagnostics``: images in and poses out per second, the latency from image stamp to
+publication, the markers in the last frame, frames dropped and images refused, and why there is no estimate.
 
-It needs rclpy (monodock.ros._rclpy says how to get it); nothing outside ros and its command line imports it.
+Settings are ROS parameters (``PARAMETERS``): the command line's flags set their defaults, ``--ros-args -p k:=v``
+and ``--params-file`` (config/monodock_detector.yaml) override them; a bad value is one line and exit code 2.
+The camera comes from the camera file or the bundle, else from the first calibrated camera_info; a camera_info that
+disagrees with the camera in use is reported once.
+
+Bad input never stops the node: an image with an unknown encoding or a size that does not fit, a camera_info
+without a valid calibration, a stamp older than ``max_stamp_age`` or not after the last image's is skipped, with
+one warning per kind of fault (repeated at most every ``WARNING_PERIOD`` seconds). The executor's thread only
+checks each image and leaves it in a one-frame mailbox; a worker thread estimates whatever is there. An image that
+arrives while the mailbox is full replaces the one waiting (counted as dropped), so a node that falls behind skips
+to the newest frame, with bounded memory and latency, instead of working through a queue of old ones.
+
+Images are decoded with numpy and OpenCV (monodock.recording.messages), without cv_bridge. It needs rclpy
+(monodock.ros._rclpy says how to get it); nothing outside ros and its command line imports it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
 import sys
-from collections.abc import Sequence
-from dataclasses import dataclass
+import tempfile
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
+
+import numpy as np
 
 from monodock.core.camera import CameraModel
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator
+from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.options import EstimatorOptions
 
-__all__ = ["DetectorOptions", "DockPoseNode", "run_detector"]
+__all__ = [
+    "CALIBRATION_GRACE",
+    "MISMATCH_TOLERANCE",
+    "NODE_NAME",
+    "PARAMETERS",
+    "WARNING_PERIOD",
+    "DetectorOptions",
+    "DockPoseNode",
+    "camera_mismatch",
+    "non_ros_arguments",
+    "run_detector",
+]
+
+NODE_NAME = "monodock_detector"
+WARNING_PERIOD = 10.0  # s between two warnings of one kind of fault
+MISMATCH_TOLERANCE = 0.01  # camera_info and the camera in use disagree beyond 1 %
+# A camera publishes each image just before its camera_info: images without a calibration are a fault only once
+# they have come for this long.
+CALIBRATION_GRACE = 1.0  # s
 
 
 @dataclass(frozen=True)
 class DetectorOptions(EstimatorOptions):
-    """What the detector node runs: the estimator (a bundle, or the calibration files) and its topics."""
+    """What the detector node runs: the estimator (a bundle, or the calibration files), its topics and limits.
 
-    camera_info_topic: str = "/camera/camera_info"
+    Attributes:
+        camera_info_topic: sensor_msgs/CameraInfo; the camera when no file gives one, else checked against it.
+        pose_topic, pose_covariance_topic: where the estimates go.
+        frame_id: the frame of the published poses.
+        max_stamp_age: images older than this by the node's clock are skipped, s; 0: no limit.
+        diagnostics_period: s between two /diagnostics messages.
+    """
+
+    image_topic: str = "image"
+    camera_info_topic: str = "camera_info"
     pose_topic: str = DOCK_POSE_TOPIC
     pose_covariance_topic: str = DOCK_POSE_COVARIANCE_TOPIC
     frame_id: str = "base_link"
+    max_stamp_age: float = 1.0
+    diagnostics_period: float = 1.0
+
+    @property
+    def subscribed_image_topic(self) -> str:
+        """The image topic subscribed: image_transport's ``<image_topic>/compressed`` with ``compressed``."""
+        topic = self.image_topic.rstrip("/")
+        if self.compressed and not topic.endswith("/compressed"):
+            return f"{topic}/compressed"
+        return self.image_topic
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """How one of the node's ROS parameters is declared: what it is for, whether it can change live, its bounds."""
+
+    description: str
+    read_only: bool = True
+    bounds: tuple[float, float] | None = None
+    choices: tuple[str, ...] = ()
+
+
+# One per DetectorOptions field, of the same name; read-only ones are read once, at start-up.
+PARAMETERS: dict[str, Parameter] = {
+    "model": Parameter("model bundle folder (it carries the camera, layout and mounts); empty: PnP on the files"),
+    "method": Parameter(
+        "regression, pnp, board or fused; empty: regression with a model, board without", choices=("", *METHOD_NAMES)
+    ),
+    "camera": Parameter("camera file (ROS camera_info YAML or OpenCV); empty: the model's, else camera_info's"),
+    "layout": Parameter("dock layout YAML (needed without a model; with one, it must match the model's)"),
+    "robot": Parameter("robot YAML with the camera mount (needed without a model; overrides the model's)"),
+    "refinement": Parameter("OpenCV's ArUco corner refinement", choices=REFINEMENTS),
+    "image_topic": Parameter("sensor_msgs/Image topic; with compressed, its /compressed sub-topic is subscribed"),
+    "compressed": Parameter("subscribe to image_topic/compressed (sensor_msgs/CompressedImage)"),
+    "camera_info_topic": Parameter("sensor_msgs/CameraInfo: the camera when no file gives it, else checked"),
+    "pose_topic": Parameter("geometry_msgs/PoseStamped of each valid estimate, stamped with its image's stamp"),
+    "pose_covariance_topic": Parameter("PoseWithCovarianceStamped of each estimate that has a covariance (fused)"),
+    "frame_id": Parameter("frame of the published poses: the robot's base", read_only=False),
+    "max_stamp_age": Parameter(
+        "images older than this by the node's clock are skipped, s (0: no limit)", read_only=False, bounds=(0.0, 3600.0)
+    ),
+    "diagnostics_period": Parameter("seconds between two /diagnostics messages", bounds=(0.1, 60.0)),
+}
+
+
+def camera_mismatch(used: CameraModel, info: CameraModel, tolerance: float = MISMATCH_TOLERANCE) -> str | None:
+    """How a camera_info's camera disagrees with the one in use, or None when it agrees.
+
+    They disagree when the image size differs, when fx, fy, cx or cy differs by more than ``tolerance`` of its
+    value, or when their distortion moves the image's corners and edge midpoints apart by more than ``tolerance``
+    of the point's distance from the principal point (both through the same K, so only the lens model counts).
+    """
+    if used.size != info.size:
+        return f"image size {info.width}x{info.height}, not {used.width}x{used.height}"
+    for name, a, b in zip(("fx", "fy", "cx", "cy"), _intrinsics(used), _intrinsics(info), strict=True):
+        if abs(b - a) > tolerance * abs(a):
+            return f"{name} {b:.2f}, not {a:.2f}"
+    w, h = used.width, used.height
+    pixels = np.array(
+        [[x, y] for x in (0.0, w / 2, w - 1.0) for y in (0.0, h / 2, h - 1.0) if (x, y) != (w / 2, h / 2)]
+    )
+    rays = np.column_stack([used.normalize(pixels), np.ones(len(pixels))])
+    lens = CameraModel(info.width, info.height, used.K, info.D, info.distortion_model)
+    moved = np.linalg.norm(lens.project(rays) - used.project(rays), axis=1)
+    reach = np.linalg.norm(pixels - (used.cx, used.cy), axis=1)
+    if np.any(moved > tolerance * reach):
+        return f"its distortion moves the image's edge by up to {float(moved.max()):.1f} px"
+    return None
+
+
+def _intrinsics(camera: CameraModel) -> tuple[float, float, float, float]:
+    return camera.fx, camera.fy, camera.cx, camera.cy
+
+
+class _Warnings:
+    """One warning per kind of fault, repeated at most every ``period`` seconds with the count in between."""
+
+    def __init__(self, logger: Any, period: float = WARNING_PERIOD) -> None:
+        self._logger, self._period = logger, period
+        self._last: dict[str, float] = {}
+        self._since: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def warn(self, kind: str, text: str) -> None:
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(kind)
+            if last is not None and now - last < self._period:
+                self._since[kind] = self._since.get(kind, 0) + 1
+                return
+            self._last[kind] = now
+            more = self._since.pop(kind, 0)
+        self._logger.warning(text + (f" ({more} more since the last such warning)" if more else ""))
+
+
+@dataclass
+class _Period:
+    """What happened since the last /diagnostics message."""
+
+    start: float
+    images: int = 0
+    poses: int = 0
+    dropped: int = 0
+    refused: int = 0
+    latencies: list[float] = field(default_factory=list)
 
 
 class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
     """Estimates the dock's pose in each image and publishes the valid ones on ``detected_dock_pose``."""
 
-    def __init__(self, args: DetectorOptions) -> None:
-        super().__init__("monodock")
+    def __init__(self, options: DetectorOptions) -> None:
+        super().__init__(NODE_NAME)
+        from diagnostic_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            DiagnosticArray,
+            DiagnosticStatus,
+            KeyValue,
+        )
         from geometry_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
             Point,
             Pose,
@@ -62,57 +221,201 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             "Quaternion": Quaternion,
             "PoseWithCovarianceStamped": PoseWithCovarianceStamped,
             "PoseWithCovariance": PoseWithCovariance,
+            "DiagnosticArray": DiagnosticArray,
+            "DiagnosticStatus": DiagnosticStatus,
+            "KeyValue": KeyValue,
         }
-        self.args = args
-        self.frame_id: str = args.frame_id
+        self.options = _declare_parameters(self, options)
+        o = self.options
+        self.frame_id, self.max_stamp_age = o.frame_id, o.max_stamp_age
+        self.add_post_set_parameters_callback(self._on_parameters)
+        self._warnings = _Warnings(self.get_logger())
         self.estimator: Estimator | None = None
         self.method = ""
-        self._warned: set[str] = set()
-        _check_options(args)
-        if args.model or args.camera:
-            self.estimator, self.method = _estimator(args)
+        self.camera: CameraModel | None = None  # the camera in use; the estimator is built for it
+        self.camera_source = "first camera_info"
+        _check_options(o)
+        if o.model or o.camera:
+            self.estimator = o.estimator()
+            self.method, self.camera = self.estimator.method, self.estimator.camera
+            self.camera_source = "camera file" if o.camera else "model bundle"
             self.estimator.warm_up()
-        else:  # the camera comes from camera_info; the layout and mounts from the files
-            # Best-effort (sensor data) subscriptions match reliable and best-effort publishers alike.
-            self.create_subscription(CameraInfo, args.camera_info_topic, self._on_camera_info, _sensor_qos())
-        compressed = args.image_is_compressed
-        self.msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
-        self.create_subscription(
-            CompressedImage if compressed else Image, args.image_topic, self._on_image, _sensor_qos()
-        )
-        self.publisher = self.create_publisher(PoseStamped, args.pose_topic, 10)
-        self.covariance_publisher = self.create_publisher(PoseWithCovarianceStamped, args.pose_covariance_topic, 10)
+        else:  # a bad layout or robot file fails now, at start-up, rather than at the first camera_info
+            o.estimator(CameraModel.default())
+        self._mismatch_reported = False
+        self.msgtype = m.COMPRESSED_IMAGE if o.image_is_compressed else m.IMAGE
+        self._lock = threading.Lock()  # the counters below, shared by both threads
+        self._period = _Period(time.monotonic())
+        self.dropped_total = self.refused_total = 0
+        self.markers: int | None = None  # in the last frame estimated
+        self.reason = "no image yet"  # why the last image gave no pose ("" when it gave one)
+        self._last_stamp: float | None = None
+        self._uncalibrated_since: float | None = None
+        self._ready = threading.Condition()  # guards the mailbox
+        self._pending: Any = None
+        self._stopping = False
+        self.failure: BaseException | None = None
+        self.publisher = self.create_publisher(PoseStamped, o.pose_topic, 10)
+        self.covariance_publisher = self.create_publisher(PoseWithCovarianceStamped, o.pose_covariance_topic, 10)
+        self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # Sensor-data QoS (best effort, the last few) matches reliable and best-effort publishers alike.
+        sensor = rclpy.qos.qos_profile_sensor_data
+        self.create_subscription(CameraInfo, o.camera_info_topic, self._on_camera_info, sensor)
+        image_type = CompressedImage if o.image_is_compressed else Image
+        self.create_subscription(image_type, o.subscribed_image_topic, self._on_image, sensor)
+        self.create_timer(o.diagnostics_period, self._publish_diagnostics)
+        self._worker = threading.Thread(target=self._work, name="monodock_detector estimation", daemon=True)
+        self._worker.start()
 
-    def _warn_once(self, text: str) -> None:
-        if text not in self._warned:
-            self._warned.add(text)
-            self.get_logger().warning(text)
+    # --- parameters that change live ----------------------------------------------------------------
+
+    def _on_parameters(self, parameters: list[Any]) -> None:
+        for p in parameters:
+            if p.name == "frame_id":
+                self.frame_id = str(p.value)
+            elif p.name == "max_stamp_age":
+                self.max_stamp_age = float(p.value)
+
+    # --- the executor's thread: check, then leave the newest image in the mailbox --------------------
 
     def _on_camera_info(self, msg: Any) -> None:
-        if self.estimator is not None:
+        try:
+            camera = m.camera_from_msg(msg)
+        except m.DecodeError as exc:
+            self._warnings.warn("camera_info", f"camera_info skipped: {exc}")
             return
-        camera = m.camera_from_msg(msg)
         if camera is None:
-            self._warn_once("camera_info without a calibration (K is zero); waiting for a calibrated one")
+            self._warnings.warn("uncalibrated", "camera_info skipped: it has no calibration (K is all zero)")
             return
-        self.estimator, self.method = _estimator(self.args, camera)
-        self.estimator.warm_up()
-        self.get_logger().info(f"camera {camera.width}x{camera.height} from camera_info; estimating with {self.method}")
+        if self.camera is None:
+            self.camera = camera  # the worker builds the estimator for it
+            self.get_logger().info(f"camera {camera.width}x{camera.height} from camera_info")
+            return
+        if self._mismatch_reported:
+            return
+        why = camera_mismatch(self.camera, camera)
+        if why is not None:
+            self._mismatch_reported = True
+            self.get_logger().warning(
+                f"camera_info on {self.options.camera_info_topic} disagrees with the camera in use, from the "
+                f"{self.camera_source} ({why}); estimating with the camera in use (reported once)"
+            )
 
     def _on_image(self, msg: Any) -> None:
-        if self.estimator is None:
-            self._warn_once("no camera calibration yet (waiting for camera_info)")
+        stamp = m.header_stamp(msg)
+        with self._lock:
+            self._period.images += 1
+        fault = self._check_image(msg, stamp)
+        if fault is not None:
+            self._refuse(*fault)
             return
+        self._last_stamp = stamp
+        with self._ready:
+            replaced = self._pending is not None
+            self._pending = msg
+            self._ready.notify()
+        if replaced:
+            with self._lock:
+                self._period.dropped += 1
+                self.dropped_total += 1
+                total = self.dropped_total
+            self._warnings.warn(
+                "falling behind",
+                f"falling behind: images arrive faster than they are estimated; the newest replaces the one waiting "
+                f"({total} dropped so far)",
+            )
+
+    def _check_image(self, msg: Any, stamp: float) -> tuple[str, str, str] | None:
+        """(kind, warning, reason for /diagnostics) of an image that must be skipped, or None."""
+        age = self._now() - stamp
+        if self.max_stamp_age > 0 and age > self.max_stamp_age:
+            text = f"its stamp is {age:.2f} s old (max_stamp_age {self.max_stamp_age:g} s)"
+            return "stale", f"image skipped: {text}", "stale stamps"
+        last = self._last_stamp
+        if last is not None and stamp <= last:
+            text = f"its stamp {stamp:.3f} is not after the last image's {last:.3f}"
+            return "out of order", f"image skipped: {text}", "out-of-order stamps"
+        if self.msgtype == m.IMAGE:
+            try:
+                m.check_raw_image(msg)
+            except m.DecodeError as exc:
+                return exc.kind, f"image skipped: {exc}", f"bad image: {exc}"
+        if self.camera is None:
+            topic = self.options.camera_info_topic
+            return "calibration", f"image skipped: no camera calibration yet (waiting for {topic})", "no calibration"
+        return None
+
+    def _refuse(self, kind: str, warning: str, reason: str) -> None:
+        with self._lock:
+            self._period.refused += 1
+            self.refused_total += 1
+            self.reason = reason
+        if kind == "calibration":
+            now = time.monotonic()
+            self._uncalibrated_since = self._uncalibrated_since or now
+            if now - self._uncalibrated_since < CALIBRATION_GRACE:
+                return
+        self._warnings.warn(kind, warning)
+
+    def _now(self) -> float:
+        return float(self.get_clock().now().nanoseconds) * 1e-9
+
+    # --- the worker thread: estimate the newest image --------------------------------------------------
+
+    def _work(self) -> None:
+        try:
+            while True:
+                with self._ready:
+                    while self._pending is None and not self._stopping:
+                        self._ready.wait()
+                    if self._stopping:
+                        return
+                    msg, self._pending = self._pending, None
+                self._estimate(msg)
+        except Exception as exc:  # a bug, not a bad message: stop the node loudly rather than go quiet
+            self.failure = exc
+            rclpy.try_shutdown()
+
+    def stop(self) -> None:
+        """Stop the worker thread (the image it is estimating is finished first)."""
+        with self._ready:
+            self._stopping = True
+            self._ready.notify()
+        self._worker.join(timeout=10.0)
+
+    def _estimator(self) -> Estimator:
+        if self.estimator is None:  # first image after camera_info: built here, off the executor's thread
+            self.estimator = self.options.estimator(self.camera)
+            self.method = self.estimator.method
+            self.estimator.warm_up()
+            self.get_logger().info(f"estimating with {self.method}")
+        return self.estimator
+
+    def _estimate(self, msg: Any) -> None:
         stamp = m.header_stamp(msg)
         try:
             image = m.decode_image(msg, self.msgtype)
-            result = self.estimator.estimate(str(stamp), stamp, image)
-        except (m.DecodeError, MonodockError) as exc:
-            self._warn_once(f"image skipped: {exc}")
+            result = self._estimator().estimate(str(stamp), stamp, image)
+        except m.DecodeError as exc:
+            self._refuse(exc.kind, f"image skipped: {exc}", f"bad image: {exc}")
+            return
+        except MonodockError as exc:  # e.g. an image of another size than the camera's
+            self._refuse("image", f"image skipped: {exc}", f"bad image: {exc}")
             return
         est = result.estimates[self.method]
+        markers = len(result.detection.roles_seen) if result.detection is not None else 0
         if est.pose is None:
+            with self._lock:
+                self.markers, self.reason = markers, est.reason
             return
+        self._publish(msg, est)
+        latency = self._now() - stamp
+        with self._lock:
+            self.markers, self.reason = markers, ""
+            self._period.poses += 1
+            self._period.latencies.append(latency)
+
+    def _publish(self, msg: Any, est: Any) -> None:
         half = 0.5 * est.pose.yaw
         pose = self._msg["Pose"](
             position=self._msg["Point"](x=float(est.pose.x), y=float(est.pose.y), z=0.0),
@@ -128,55 +431,213 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         try:
             covariance = pose_covariance_6x6(est.covariance)
         except ValueError as exc:
-            self._warn_once(f"covariance not published: {exc}")
+            self._warnings.warn("covariance", f"covariance not published: {exc}")
             return
         with_cov = self._msg["PoseWithCovarianceStamped"]()
-        with_cov.header.stamp = msg.header.stamp
-        with_cov.header.frame_id = self.frame_id
+        with_cov.header = out.header
         with_cov.pose = self._msg["PoseWithCovariance"](pose=pose, covariance=covariance)
         self.covariance_publisher.publish(with_cov)
 
+    # --- /diagnostics -------------------------------------------------------------------------------------
 
-def _sensor_qos() -> Any:
-    """Sensor-data QoS (best effort, keep the last few): a slow node drops frames instead of queueing them."""
-    from rclpy.qos import qos_profile_sensor_data  # type: ignore[import-not-found, unused-ignore]
+    def _publish_diagnostics(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            period, self._period = self._period, _Period(now)
+            markers, reason = self.markers, self.reason
+            dropped, refused = self.dropped_total, self.refused_total
+        seconds = max(now - period.start, 1e-6)
+        level, message = self._status(period, reason)
+        status = self._msg["DiagnosticStatus"]()
+        status.level = bytes([level])
+        status.name = f"{self.get_name()}: dock pose"
+        status.message = message
+        status.hardware_id = self.options.subscribed_image_topic
+        values = {
+            "images_in_hz": f"{period.images / seconds:.2f}",
+            "poses_out_hz": f"{period.poses / seconds:.2f}",
+            "latency_median_ms": _milliseconds(period.latencies, 50),
+            "latency_p95_ms": _milliseconds(period.latencies, 95),
+            "markers_seen": "" if markers is None else str(markers),
+            "frames_dropped": str(dropped),
+            "images_refused": str(refused),
+            "no_estimate_reason": reason,
+            "method": self.method,
+            "camera": self.camera_source if self.camera is not None else "waiting for camera_info",
+        }
+        status.values = [self._msg["KeyValue"](key=k, value=v) for k, v in values.items()]
+        array = self._msg["DiagnosticArray"]()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [status]
+        self.diagnostics.publish(array)
 
-    return qos_profile_sensor_data
+    def _status(self, period: _Period, reason: str) -> tuple[int, str]:
+        """(level, message): ERROR when nothing can be estimated, WARN when not every image gives a pose."""
+        ok, warn, error = 0, 1, 2
+        if period.images == 0:
+            return warn, f"no images on {self.options.subscribed_image_topic}"
+        if period.poses == 0:
+            if self.camera is None or period.refused == period.images:
+                return error, reason
+            return warn, f"no estimate: {reason}"
+        rates = f"{period.poses} poses from {period.images} images"
+        if period.dropped or period.refused:
+            return warn, f"{rates}; {period.dropped} dropped (falling behind), {period.refused} refused"
+        return ok, rates
 
 
-def _estimator(args: DetectorOptions, camera: CameraModel | None = None) -> tuple[Estimator, str]:
-    """The Estimator of the options, or of camera_info's camera with the layout and robot files."""
-    estimator = args.estimator(camera)
-    return estimator, estimator.method
+def _milliseconds(values: list[float], percentile: float) -> str:
+    return f"{1e3 * float(np.percentile(values, percentile)):.1f}" if values else ""
 
 
-def _check_options(args: DetectorOptions) -> None:
+# --- parameters ----------------------------------------------------------------------------------------------
+
+
+def _declare_parameters(node: Node, options: DetectorOptions) -> DetectorOptions:
+    """Declare every parameter (the options' values as defaults) and return the options they hold.
+
+    Each is declared dynamically typed first, so that a value of the wrong type is our one line rather than rclpy's
+    exception, and an integer serves a real-valued parameter (``max_stamp_age:=2``); then it gets its full
+    descriptor (fixed type, range, read-only), which ``ros2 param set`` obeys.
+
+    Raises:
+        InputError: a value of the wrong type, out of range, or not one of the choices, naming the parameter.
+    """
+    from rcl_interfaces.msg import (  # type: ignore[import-not-found, unused-ignore]
+        FloatingPointRange,
+        ParameterDescriptor,
+    )
+    from rclpy.parameter import Parameter as RosParameter  # type: ignore[import-not-found, unused-ignore]
+
+    values: dict[str, Any] = {}
+    for f in fields(options):
+        spec = PARAMETERS[f.name]
+        default = getattr(options, f.name)
+        default = "" if default is None else default
+        loose = ParameterDescriptor(description=spec.description, dynamic_typing=True)
+        value = _checked(f.name, spec, node.declare_parameter(f.name, default, loose).value, default)
+        typed = RosParameter(f.name, value=value)
+        descriptor = ParameterDescriptor(description=spec.description, read_only=spec.read_only, type=typed.type_.value)
+        if spec.bounds is not None:
+            descriptor.floating_point_range = [FloatingPointRange(from_value=spec.bounds[0], to_value=spec.bounds[1])]
+        if spec.choices:
+            descriptor.additional_constraints = "one of: " + ", ".join(repr(c) for c in spec.choices)
+        node.set_descriptor(f.name, descriptor, typed.get_parameter_value())
+        values[f.name] = value
+    optional = ("model", "method", "camera", "layout", "robot")  # empty: not given
+    given: dict[str, Any] = {k: (v or None) if k in optional else v for k, v in values.items()}
+    return replace(options, **given)
+
+
+def _checked(name: str, spec: Parameter, value: Any, default: Any) -> Any:
+    """The value, of the default's type (an integer for a real), within bounds and choices; else InputError."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InputError(f"parameter {name} is true or false, got {value!r}")
+    elif isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InputError(f"parameter {name} is a number, got {value!r}")
+        value = float(value)
+        low, high = spec.bounds or (-math.inf, math.inf)
+        if not low <= value <= high:
+            raise InputError(f"parameter {name} must be from {low:g} to {high:g}, got {value:g}")
+    elif not isinstance(value, str):
+        raise InputError(f"parameter {name} is a string, got {value!r} (quote a number: {name}:=\"'{value}'\")")
+    elif spec.choices and value not in spec.choices:
+        named = ", ".join(c for c in spec.choices if c)
+        raise InputError(f"parameter {name}: '{value}' is not one of {named}")
+    return value
+
+
+def _check_options(options: DetectorOptions) -> None:
     """InputError for options that cannot work, before anything is subscribed."""
-    if args.model or args.camera:
+    if options.model:
         return
-    if args.method == "regression":
-        raise InputError("the regression needs --model BUNDLE")
-    missing = [f"--{k}" for k in ("layout", "robot") if not getattr(args, k)]
+    if options.method in ("regression", "fused"):
+        raise InputError(f"the {options.method} method needs a model bundle (--model, or the parameter model)")
+    missing = [k for k in ("layout", "robot") if not getattr(options, k)]
     if missing:
-        raise InputError(f"without --model, give {' '.join(missing)} (and --camera, or a camera_info topic)")
+        flags = ", ".join(f"--{k} or {k}:=FILE" for k in missing)
+        raise InputError(
+            f"without a model bundle, give the {' and '.join(missing)} file{'s' if len(missing) > 1 else ''} "
+            f"({flags}); the camera comes from --camera or camera_info"
+        )
 
 
-def run_detector(args: DetectorOptions, argv: Sequence[str]) -> int:
-    """Run the node until shut down (Ctrl-C); ``argv`` carries the ROS arguments. User errors: one line, 2."""
-    rclpy.init(args=list(argv))
+# --- running -----------------------------------------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def _rcl_arguments() -> Iterator[None]:
+    """While rcl reads the ROS arguments: its complaint about bad ones becomes one InputError line (rcl's own log
+    line on stderr is dropped then, and shown otherwise).
+
+    Raises:
+        InputError: the ROS arguments do not parse (an unknown option, a params file that is missing or not YAML).
+    """
+    from rclpy.impl.implementation_singleton import (  # type: ignore[import-not-found, unused-ignore]
+        rclpy_implementation as impl,
+    )
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as said:
+        os.dup2(said.fileno(), 2)
+        try:
+            yield
+        except impl.UnknownROSArgsError as exc:
+            raise InputError(f"unknown ROS arguments {exc}") from None
+        except impl.RCLError as exc:
+            text = str(exc).split(", at /")[0]
+            for prefix in ("failed to initialize rcl: ", "Failed to parse ROS arguments: "):
+                text = text.removeprefix(prefix)
+            raise InputError(" ".join(text.split())) from None
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        said.seek(0)
+        sys.stderr.write(said.read().decode(errors="replace"))
+
+
+def non_ros_arguments(argv: Sequence[str]) -> list[str]:
+    """``argv`` without its ROS arguments (``--ros-args ... [--]``), as rclpy.utilities.remove_ros_args.
+
+    Raises:
+        InputError: the ROS arguments do not parse.
+    """
+    from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]
+
+    with _rcl_arguments():
+        return list(remove_ros_args(list(argv)))
+
+
+def run_detector(options: DetectorOptions, argv: Sequence[str]) -> int:
+    """Run the node until shut down (Ctrl-C, SIGTERM); ``argv`` carries the ROS arguments. User errors: one line, 2."""
+    from rclpy.executors import ExternalShutdownException  # type: ignore[import-not-found, unused-ignore]
+    from rclpy.impl.implementation_singleton import (  # type: ignore[import-not-found, unused-ignore]
+        rclpy_implementation as impl,
+    )
+
+    node: DockPoseNode | None = None
     try:
-        node = DockPoseNode(args)
+        with _rcl_arguments():
+            rclpy.init(args=list(argv))
+        node = DockPoseNode(options)
+        rclpy.spin(node)
     except MonodockError as exc:
         print(f"monodock-ros: error: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
         return 2
-    from rclpy.executors import ExternalShutdownException  # type: ignore[import-not-found, unused-ignore]
-
-    try:
-        rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM: a clean exit, no traceback
         pass
+    except impl.RCLError:
+        if rclpy.ok():
+            raise
+        # else Ctrl-C or SIGTERM came while rclpy was creating something ("the given context is not valid")
     finally:
-        node.destroy_node()
+        if node is not None:
+            node.stop()
+            node.destroy_node()
         rclpy.try_shutdown()
+    if node is not None and node.failure is not None:
+        raise node.failure
     return 0
