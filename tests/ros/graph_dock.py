@@ -45,10 +45,12 @@ robot_config = RobotConfig.default()
 robot_config.save(folder / "robot.yaml")
 start = json.dumps(spec["start"])
 
-SIM = "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv)"
+# Each node gets SIGTERM when this driver ends, however it ends (PR_SET_PDEATHSIG): none outlives its run.
+ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
+SIM = ORPHANS_END + "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv)"
 sim_params = [f"{k}:={v}" for k, v in {"start": start, "seed": 1, **spec.get("sim", {})}.items()]
 sim = subprocess.Popen([sys.executable, "-c", SIM, "--ros-args", *[a for kv in sim_params for a in ("-p", kv)]])
-DOCK = "from monodock.cli.ros_nodes import dock_main; import sys; sys.exit(dock_main(sys.argv[1:]))"
+DOCK = ORPHANS_END + "from monodock.cli.ros_nodes import dock_main; import sys; sys.exit(dock_main(sys.argv[1:]))"
 dock_args = ["--method", "board", "--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml")]
 # The sim's clock (/clock): under load the simulation may fall behind the wall clock, and the mission must time
 # its frames and odometry on the clock that stamped them, as with any simulator.
