@@ -33,5 +33,6 @@ def test_the_simulated_robot_publishes_and_drives() -> None:
     assert 12.0 < run.first("image_rate")["hz"] < 18.0
     x = run.first("truth")["x"]
     moved = max(x) - run.first("truth")["last"]  # the dock's distance ahead (DockPose x) shrinks as it drives
-    # 2 s at 0.1 m/s, then stopped by the cmd_vel time-out: about 0.2 m, and it does not keep going.
-    assert 0.15 < moved < 0.3
+    # 2 s at 0.1 m/s, then stopped by the cmd_vel time-out: about 0.2 m, and it does not keep going. The commands
+    # span 2 s of wall clock; a busy machine runs the simulation slower, so fewer simulated seconds of them.
+    assert 0.12 < moved < 0.3

@@ -21,11 +21,6 @@ from monodock.ros.dock_node import DockOptions, run_dock
 __all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser"]
 
 
-def _add_image_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--image-topic", default="/camera/image_raw")
-    p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")
-
-
 class _Parser(argparse.ArgumentParser):
     """argparse with the usage error on one line, like every other monodock error."""
 
@@ -72,7 +67,7 @@ def detector_parser() -> argparse.ArgumentParser:
 def dock_parser() -> argparse.ArgumentParser:
     """``monodock-dock-ros``'s flags: each sets the default of the node's parameter of the same name."""
     d = DockOptions()
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="monodock-dock-ros",
         description="dock and undock on request (~/dock, ~/undock, ~/cancel): cmd_vel out, odom and image in",
         epilog="ROS parameters (--ros-args -p name:=value, --params-file FILE) override these flags; the docking "

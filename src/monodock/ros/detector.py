@@ -90,14 +90,6 @@ class DetectorOptions(EstimatorOptions):
     max_stamp_age: float = 1.0
     diagnostics_period: float = 1.0
 
-    @property
-    def subscribed_image_topic(self) -> str:
-        """The image topic subscribed: image_transport's ``<image_topic>/compressed`` with ``compressed``."""
-        topic = self.image_topic.rstrip("/")
-        if self.compressed and not topic.endswith("/compressed"):
-            return f"{topic}/compressed"
-        return self.image_topic
-
 
 @dataclass(frozen=True)
 class Parameter:

@@ -87,8 +87,8 @@ _DESCRIPTIONS = {
     "layout": "dock layout YAML (needed without a bundle)",
     "robot": "robot YAML: mounts, front_offset, speed limits (needed without a bundle)",
     "refinement": "ArUco corner refinement: subpix, contour, apriltag or none",
-    "image_topic": "sensor_msgs/Image (CompressedImage with compressed:=true or a name ending in /compressed)",
-    "compressed": "the image topic carries sensor_msgs/CompressedImage",
+    "image_topic": "sensor_msgs/Image topic; with compressed, its /compressed sub-topic is subscribed",
+    "compressed": "subscribe to image_topic/compressed (sensor_msgs/CompressedImage)",
     "camera_info_topic": "sensor_msgs/CameraInfo, used when no camera file is given",
     "odom_topic": "nav_msgs/Odometry of the base",
     "cmd_vel_topic": "geometry_msgs/Twist to the base",
@@ -148,7 +148,8 @@ class Ros2Robot:
         self._cmd = node.create_publisher(Twist, options.cmd_vel_topic, 10)
         sensor = qos_profile_sensor_data  # best effort subscribers match best-effort and reliable publishers
         node.create_subscription(OdometryMsg, options.odom_topic, self.odom.set, sensor)
-        node.create_subscription(CompressedImage if compressed else Image, options.image_topic, self._on_image, sensor)
+        image_type = CompressedImage if compressed else Image
+        node.create_subscription(image_type, options.subscribed_image_topic, self._on_image, sensor)
         if options.battery_topic:
             node.create_subscription(BatteryState, options.battery_topic, self.battery.set, sensor)
         if options.contact_topic:

@@ -37,6 +37,14 @@ class EstimatorOptions:
         """Whether the image topic carries sensor_msgs/CompressedImage."""
         return self.compressed or self.image_topic.rstrip("/").endswith("/compressed")
 
+    @property
+    def subscribed_image_topic(self) -> str:
+        """The image topic subscribed: image_transport's ``<image_topic>/compressed`` with ``compressed``."""
+        topic = self.image_topic.rstrip("/")
+        if self.compressed and not topic.endswith("/compressed"):
+            return f"{topic}/compressed"
+        return self.image_topic
+
     def estimator(self, camera: CameraModel | None = None) -> Estimator:
         """The Estimator of these options; ``camera`` (from camera_info) stands in for a missing camera file."""
         return make_estimator(
