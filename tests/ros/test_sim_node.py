@@ -36,3 +36,20 @@ def test_the_simulated_robot_publishes_and_drives() -> None:
     # 2 s at 0.1 m/s, then stopped by the cmd_vel time-out: about 0.2 m, and it does not keep going. The commands
     # span 2 s of wall clock; a busy machine runs the simulation slower, so fewer simulated seconds of them.
     assert 0.12 < moved < 0.3
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["-p", "nuisances:=foggy"], "parameter nuisances: 'default' or 'clean'"),
+        (["-p", "camera_rate:=0.0"], "parameter camera_rate: expected a positive number"),
+        (["-p", "layout:=/nonexistent/layout.yaml"], "/nonexistent/layout.yaml"),
+    ],
+)
+def test_bad_parameters_are_one_line_and_exit_2(args: list[str], message: str) -> None:
+    run = run_private_graph(HERE / "graph_node.py", "sim", "--ros-args", *args, timeout=60)
+    assert run.returncode == 2, run.stderr
+    lines = run.stderr.strip().splitlines()
+    assert len(lines) == 1, run.stderr
+    assert lines[0].startswith("monodock-sim-ros: error: ")
+    assert message in lines[0]

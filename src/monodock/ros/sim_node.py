@@ -16,6 +16,7 @@ topics.
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -28,9 +29,11 @@ from monodock.core.layout import DockLayout
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.interface import CameraFrame, Odometry
+from monodock.errors import InputError, MonodockError
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.shutdown import ShutdownFlag
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
+from monodock.sim.nuisance import Nuisances
 from monodock.sim.realtime import RealTimeRunner
 from monodock.sim.simulator import Simulator
 
@@ -48,6 +51,7 @@ class SimSettings:
     camera: str = ""
     camera_rate: float = 15.0
     cmd_vel_timeout: float = 0.5
+    nuisances: str = "default"  # the camera's: "default" (a cheap indoor webcam) or "clean" (the exact render)
     frame_id: str = "base_link"
     camera_frame_id: str = "camera_optical_frame"
 
@@ -97,6 +101,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.declare_parameter("camera", d.camera)
         self.declare_parameter("camera_rate", d.camera_rate)
         self.declare_parameter("cmd_vel_timeout", d.cmd_vel_timeout)
+        self.declare_parameter("nuisances", d.nuisances)
         p = self.get_parameter
         start = [float(v) for v in p("start").value]
         self.settings = SimSettings(
@@ -107,13 +112,20 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             camera=str(p("camera").value),
             camera_rate=float(p("camera_rate").value),
             cmd_vel_timeout=float(p("cmd_vel_timeout").value),
+            nuisances=str(p("nuisances").value),
         )
         s = self.settings
+        if s.nuisances not in ("default", "clean"):
+            raise InputError(f"parameter nuisances: 'default' or 'clean', got {s.nuisances!r}")
+        for name, value in (("camera_rate", s.camera_rate), ("cmd_vel_timeout", s.cmd_vel_timeout)):
+            if not (math.isfinite(value) and value > 0):
+                raise InputError(f"parameter {name}: expected a positive number, got {value}")
         sim = Simulator(
             layout=DockLayout.load(s.layout) if s.layout else DockLayout.default(),
             camera=CameraModel.load(s.camera) if s.camera else CameraModel.default(),
             robot=RobotConfig.load(s.robot) if s.robot else RobotConfig.default(),
             seed=s.seed,
+            nuisances=Nuisances.clean() if s.nuisances == "clean" else Nuisances(),
         )
         self.robot = SimulatedRobot(
             sim, Pose2D(*s.start), DiffDriveConfig(camera_rate=s.camera_rate), np.random.default_rng(s.seed)
@@ -251,7 +263,12 @@ def run_sim(argv: Sequence[str], duration: float = math.inf) -> int:
     # publishers mid-step).
     rclpy.init(args=list(argv), signal_handler_options=SignalHandlerOptions.NO)
     stop = ShutdownFlag()
-    node = SimNode()
+    try:
+        node = SimNode()
+    except (MonodockError, ValueError, TypeError) as exc:  # a bad parameter or calibration file: one line
+        print(f"monodock-sim-ros: error: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
     node.stop = stop
     try:
         runner = RealTimeRunner(node.robot)
