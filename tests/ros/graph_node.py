@@ -1,6 +1,7 @@
 """Driver: run one monodock ROS 2 node's command line (inside a private network namespace) with the given arguments.
 
-``graph_node.py dock ARGS...`` runs monodock-dock-ros, ``detector`` monodock-ros, ``sim`` monodock-sim-ros; its exit code is this script's.
+``graph_node.py dock ARGS...`` runs monodock-dock-ros, ``detector`` monodock-ros, ``sim`` monodock-sim-ros; its
+exit code is this script's.
 """
 
 from __future__ import annotations
