@@ -153,6 +153,7 @@ def faults() -> GraphRun:
     return done
 
 
+@pytest.mark.slow  # the bad-message graph (~25 s): CI runs it with -m slow
 def test_each_kind_of_bad_message_gives_one_warning_in_its_phase(faults: GraphRun) -> None:
     phases = {p["name"]: p for p in faults.first("phases")["phases"]}
     warnings = warnings_of(faults.first("processes")["stderr"])
@@ -165,6 +166,7 @@ def test_each_kind_of_bad_message_gives_one_warning_in_its_phase(faults: GraphRu
         assert phases[name]["start"] <= times[0] <= phases[name]["end"], (name, times, phases[name])
 
 
+@pytest.mark.slow  # the bad-message graph (~25 s): CI runs it with -m slow
 def test_after_bad_messages_the_poses_still_match_the_truth(faults: GraphRun) -> None:
     """Only the good frames gave poses, at the pose they were rendered at; then the sim's frames give poses that
     match its ground truth, as in the test above."""
@@ -188,6 +190,7 @@ def test_after_bad_messages_the_poses_still_match_the_truth(faults: GraphRun) ->
     assert math.degrees(mae[2]) < 1.0
 
 
+@pytest.mark.slow  # the bad-message graph (~25 s): CI runs it with -m slow
 def test_diagnostics_say_why_there_is_no_estimate(faults: GraphRun) -> None:
     phases = {p["name"]: p for p in faults.first("phases")["phases"]}
     statuses = faults.first("diagnostics")["statuses"]

@@ -101,6 +101,7 @@ def assert_docked(step: dict[str, Any]) -> None:
     assert abs(float(values["heading_deg"]) - truth["heading_deg"]) < TOL.tolerance_heading_deg
 
 
+@pytest.mark.slow  # about a minute: the default run keeps the 10-minute budget; CI runs it with -m slow
 @pytest.mark.timeout(300)
 def test_dock_undock_and_dock_again_over_dds(record: Path) -> None:
     # The stand-off from a params file, as the config file's nested key: the undock ends 1.3 m out, not 1.0 m.
