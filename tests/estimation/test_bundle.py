@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from monodock.errors import InputError
-from monodock.estimation.bundle import BUNDLE_FILE, Bundle
+from monodock.estimation.bundle import BUNDLE_FILE, MANIFEST_DIGEST, Bundle, seal_manifest
 from shared import FEATURES, SET
 
 
@@ -27,11 +27,39 @@ def test_predicting_without_a_model_or_with_bad_input_is_refused(saved: Path) ->
         bundle.predict_depth("m2", np.zeros(len(FEATURES)))
 
 
-def _edit_manifest(bundle: Path, edit: object) -> None:
+def _edit_manifest(bundle: Path, edit: object, *, reseal: bool = True) -> None:
+    """Edit bundle.json; ``reseal`` re-computes its digest (a test of what the loader checks after the digest)."""
     path = bundle / BUNDLE_FILE
     manifest = json.loads(path.read_text())
     edit(manifest)  # type: ignore[operator]
-    path.write_text(json.dumps(manifest))
+    path.write_text(json.dumps(seal_manifest(manifest) if reseal else manifest))
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda m: m["metadata"]["layout"].update(marker_size=0.12),
+        lambda m: m["metadata"].pop("layout"),
+        lambda m: m["sets"][SET]["depth"].update(mse=0.0),
+        lambda m: m.update(created="2030-01-01T00:00:00Z"),
+        lambda m: m.pop(MANIFEST_DIGEST),
+    ],
+    ids=["marker size changed", "layout removed", "a metric", "the date", "no digest"],
+)
+def test_any_edit_of_bundle_json_is_refused(bundle_copy: Path, edit: object) -> None:
+    """The manifest is covered too: a calibration edited in it (issue 18: the camera mount moved by a metre) changed
+    every estimate without a word."""
+    _edit_manifest(bundle_copy, edit, reseal=False)
+    with pytest.raises(InputError, match=r"bundle\.json does not match its own digest \(manifest_sha256\)"):
+        Bundle.load(bundle_copy)
+
+
+def test_the_digest_does_not_depend_on_the_file_layout(bundle_copy: Path) -> None:
+    """Re-indented or key-reordered, the same content loads: the digest is over canonical JSON."""
+    path = bundle_copy / BUNDLE_FILE
+    manifest = json.loads(path.read_text())
+    path.write_text(json.dumps(dict(reversed(list(manifest.items()))), indent=4))
+    Bundle.load(bundle_copy)
 
 
 def test_tampered_model_file_is_refused(bundle_copy: Path) -> None:
@@ -64,8 +92,8 @@ def test_other_features_or_schema_are_refused(saved: Path) -> None:
 
 
 def test_other_schema_version_and_bad_json_are_refused(bundle_copy: Path, tmp_path: Path) -> None:
-    _edit_manifest(bundle_copy, lambda m: m.update(schema_version=2))
-    with pytest.raises(InputError, match="schema version 2; this monodock reads version 1"):
+    _edit_manifest(bundle_copy, lambda m: m.update(schema_version=1))
+    with pytest.raises(InputError, match="schema version 1; this monodock reads version 2"):
         Bundle.load(bundle_copy)
     (bundle_copy / BUNDLE_FILE).write_text("{not json")
     with pytest.raises(InputError, match="not valid JSON"):

@@ -3,7 +3,8 @@
 A bundle is a folder holding ``bundle.json`` and one ``.onnx`` file per chosen model (the depth model and the
 per-segment angle models of every marker set), written by ``learning.export``. Loading reads only JSON and
 ONNX, never a pickle, so a bundle from a stranger cannot run code; each model file must match the SHA-256
-recorded in ``bundle.json``, and the feature schema must be the one this monodock computes. The calibration the
+recorded in ``bundle.json``, ``bundle.json`` itself must match the digest it carries (``manifest_sha256``, over the
+rest of it), and the feature schema must be the one this monodock computes. The calibration the
 models were trained with (camera, dock layout, robot mounts) and the fused method's tables travel in
 ``bundle.json``'s metadata; ``Bundle.camera()``, ``layout()``, ``robot()`` and ``fusion_tables()`` read them.
 """
@@ -33,15 +34,37 @@ __all__ = [
     "BUNDLE_FILE",
     "BUNDLE_SCHEMA_VERSION",
     "INPUT_NAME",
+    "MANIFEST_DIGEST",
     "Bundle",
     "bundle_size_bytes",
     "load_bundle",
+    "manifest_digest",
     "ort_session",
+    "seal_manifest",
 ]
 
-BUNDLE_SCHEMA_VERSION = 1
+# 2: bundle.json carries a digest of itself (version 1 had none, so any edit to its metadata went unnoticed).
+BUNDLE_SCHEMA_VERSION = 2
 BUNDLE_FILE = "bundle.json"
 INPUT_NAME = "input"
+MANIFEST_DIGEST = "manifest_sha256"
+
+
+def manifest_digest(manifest: Mapping[str, Any]) -> str:
+    """SHA-256 of the manifest without its own digest field, over a canonical JSON form (sorted keys, no spaces).
+
+    Python writes and reads floats exactly (shortest round-trip repr), so a manifest read back and re-encoded gives
+    the same bytes, whatever indentation the file was written with.
+    """
+    body = {k: v for k, v in manifest.items() if k != MANIFEST_DIGEST}
+    canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+    return hashlib.sha256(canonical.encode("ascii")).hexdigest()
+
+
+def seal_manifest(manifest: dict[str, Any]) -> dict[str, Any]:
+    """The manifest with its digest set (what ``learning.export`` writes)."""
+    return {**{k: v for k, v in manifest.items() if k != MANIFEST_DIGEST}, MANIFEST_DIGEST: manifest_digest(manifest)}
+
 
 _SAFE_FILE = re.compile(r"^[A-Za-z0-9_.-]+\.onnx$")
 
@@ -149,6 +172,12 @@ class Bundle:
             raise InputError(
                 f"{p} has bundle schema version {version}; this monodock reads version {BUNDLE_SCHEMA_VERSION}"
             )
+        try:
+            intact = manifest.get(MANIFEST_DIGEST) == manifest_digest(manifest)
+        except (TypeError, ValueError):  # NaN or a value JSON cannot re-encode: not what export wrote
+            intact = False
+        if not intact:
+            raise InputError(f"{mf} does not match its own digest ({MANIFEST_DIGEST}): it was edited or corrupted")
         meta = manifest.get("metadata")
         sets = manifest.get("sets")
         if not isinstance(meta, dict) or not isinstance(sets, dict) or not sets:

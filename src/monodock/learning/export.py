@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from monodock.core.atomic import atomic_directory, write_text_atomic
-from monodock.estimation.bundle import BUNDLE_FILE, BUNDLE_SCHEMA_VERSION, INPUT_NAME
+from monodock.estimation.bundle import BUNDLE_FILE, BUNDLE_SCHEMA_VERSION, INPUT_NAME, seal_manifest
 from monodock.learning.train import TaskResult, TrainingResult
 
 __all__ = ["TARGET_OPSET", "onnx_model_bytes", "save_bundle", "update_bundle_metadata", "write_bundle"]
@@ -234,7 +234,8 @@ def write_bundle(folder: Path, result: TrainingResult, *, metadata: Mapping[str,
         "onnx_bytes": total,
         "sets": sets,
     }
-    (folder / BUNDLE_FILE).write_text(json.dumps(manifest, indent=1, allow_nan=False) + "\n", encoding="utf-8")
+    text = json.dumps(seal_manifest(manifest), indent=1, allow_nan=False) + "\n"
+    (folder / BUNDLE_FILE).write_text(text, encoding="utf-8")
 
 
 def update_bundle_metadata(path: str | os.PathLike[str], key: str, value: Any) -> None:
@@ -245,4 +246,4 @@ def update_bundle_metadata(path: str | os.PathLike[str], key: str, value: Any) -
     mf = Path(path) / BUNDLE_FILE
     manifest = json.loads(mf.read_text(encoding="utf-8"))
     manifest["metadata"][key] = json.loads(json.dumps(value, allow_nan=False))
-    write_text_atomic(mf, json.dumps(manifest, indent=1, allow_nan=False) + "\n", force=True)
+    write_text_atomic(mf, json.dumps(seal_manifest(manifest), indent=1, allow_nan=False) + "\n", force=True)
