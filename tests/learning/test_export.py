@@ -43,7 +43,11 @@ def test_onnx_predictions_equal_sklearn_for_every_model_type(model: str, data: T
 
 def test_manifest_has_checksums_metrics_and_size(saved: Path, result: TrainingResult) -> None:
     manifest = json.loads((saved / BUNDLE_FILE).read_text())
-    assert manifest["schema_version"] == 1
+    assert manifest["schema_version"] == 2
+    # The manifest's own digest: SHA-256 of its canonical JSON without the digest field.
+    body = {k: v for k, v in manifest.items() if k != "manifest_sha256"}
+    canonical = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    assert manifest["manifest_sha256"] == hashlib.sha256(canonical.encode()).hexdigest()
     assert manifest["metadata"] == META
     assert manifest["segments"] == {"start_m": 0.25, "width_m": 0.05, "count": 45}
     assert {"scikit-learn", "skl2onnx", "onnx", "onnxruntime", "numpy", "monodock"} <= set(manifest["versions"])
