@@ -31,7 +31,8 @@ def write_calibration(sim: Simulator, folder: Path) -> list[str]:
     ]
 
 
-@pytest.mark.timeout(900)  # the whole pipeline, with 24 docking runs; about 4 minutes on 2 quiet cores
+@pytest.mark.slow  # the whole pipeline, with 24 docking runs: 3-4 minutes, a third of the default run's budget
+@pytest.mark.timeout(900)
 def test_demo_writes_report_with_truthful_numbers(tmp_path: Path) -> None:
     """`monodock demo` at a small size: the whole pipeline runs, the report's files exist, and every method's
     errors against the simulator's truth are what it can do.
