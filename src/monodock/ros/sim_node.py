@@ -30,6 +30,7 @@ from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.interface import CameraFrame, Odometry
 from monodock.errors import InputError, MonodockError
+from monodock.recording.messages import split_stamp
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.shutdown import ShutdownFlag
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
@@ -57,8 +58,7 @@ class SimSettings:
 
 
 def _stamp(msg_time: Any, seconds: float) -> Any:
-    msg_time.sec = int(math.floor(seconds))
-    msg_time.nanosec = int(round((seconds - math.floor(seconds)) * 1e9)) % 1_000_000_000
+    msg_time.sec, msg_time.nanosec = split_stamp(seconds)
     return msg_time
 
 
