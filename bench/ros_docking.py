@@ -9,7 +9,7 @@ centre and the heading, and whether the charger charges.
 
 Run from the repo root (needs the ROS 2 wheels: ``pip install -e ".[ros]"``, and ``unshare``):
 
-    python bench/ros_docking.py [--cases all] [--trials 1] [--jobs 2] [--out FILE.md]
+    python bench/ros_docking.py [--cases all] [--trials 1] [--jobs 2] [--setup bench/setups/wide] [--out FILE.md]
     python bench/ros_docking.py --faults [--out FILE.md]
 
 ``--faults`` runs the faults on the graph instead, each once from one start, and prints the fault table: the camera
@@ -20,6 +20,7 @@ second ~/dock call, the node shut down (SIGINT) or killed (SIGKILL) mid-approach
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -32,6 +33,9 @@ import numpy as np
 
 from _common import emit, environment, fmt, markdown_table
 from monodock.cli.dock_sim import _cases as case_list
+from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout
+from monodock.core.robot import RobotConfig
 from monodock.evaluation.dock_sim import DockSimConfig, TrialResult, run_dock_sim
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -40,10 +44,13 @@ from private_graph import can_isolate, run_private_graph
 DRIVER = Path(__file__).resolve().parents[1] / "tests" / "ros" / "graph_dock.py"
 
 
-def over_ros(start: tuple[float, float, float]) -> dict[str, Any]:
+def over_ros(start: tuple[float, float, float], setup: str | None = None) -> dict[str, Any]:
     """One docking over the graph from ``start``: the step record of graph_dock.py (or why there is none)."""
     t0 = time.perf_counter()
-    run = run_private_graph(DRIVER, json.dumps({"start": list(start), "steps": ["dock"]}), timeout=300)
+    spec: dict[str, Any] = {"start": list(start), "steps": ["dock"]}
+    if setup:
+        spec["setup"] = str(Path(setup).resolve())
+    run = run_private_graph(DRIVER, json.dumps(spec), timeout=300)
     steps = [r for r in run.records if r["kind"] == "step"]
     if not steps:
         return {"message": f"no result (exit {run.returncode}): {run.stderr.strip().splitlines()[-1:]}", "wall": 0}
@@ -104,6 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jobs", type=int, default=2, help="graphs (and dock-sim workers) at a time (2)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--faults", action="store_true", help="the fault table instead of the comparison")
+    p.add_argument("--setup", help="a folder with layout.yaml, robot.yaml, camera.yaml (e.g. bench/setups/wide)")
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     args = p.parse_args(argv)
     if not can_isolate():
@@ -114,12 +122,20 @@ def main(argv: list[str] | None = None) -> int:
     config = DockSimConfig(
         cases=tuple(args.cases), trials=args.trials, methods=("board",), jobs=args.jobs, seed=args.seed
     )
+    if args.setup:
+        folder = Path(args.setup)
+        config = dataclasses.replace(
+            config,
+            layout=DockLayout.load(folder / "layout.yaml"),
+            robot=RobotConfig.load(folder / "robot.yaml"),
+            camera=CameraModel.load(folder / "camera.yaml"),
+        )
     t0 = time.perf_counter()
     sim_runs: list[TrialResult] = run_dock_sim(config, progress=False)
     sim_wall = time.perf_counter() - t0
     t0 = time.perf_counter()
     with ThreadPoolExecutor(args.jobs) as pool:
-        ros_runs = list(pool.map(over_ros, [r.start for r in sim_runs]))
+        ros_runs = list(pool.map(lambda r: over_ros(r.start, args.setup), sim_runs))
     ros_wall = time.perf_counter() - t0
 
     rows = []

@@ -9,6 +9,7 @@ Argument: one JSON object with
            garbage: malformed images published on the camera topic from then on),
            "for": seconds a silenced sensor stays silent (camera)};
     sim: optional, monodock_sim's parameters (e.g. cmd_vel_timeout);
+    setup: optional, a folder with layout.yaml, robot.yaml and camera.yaml (default: the built-in set-up);
     params: optional, the dock node's parameters, given as a params file (nested mappings);
     record: optional, a folder for an MCAP recording of the run (monodock-record-ros).
 Prints JSON lines: {"kind": "step", ...} per mission, {"kind": "fault", ...}, {"kind": "end", ...}.
@@ -40,8 +41,16 @@ from monodock.ros.recorder import RecorderOptions, RecorderProcess
 
 spec = json.loads(sys.argv[1])
 folder = Path(tempfile.mkdtemp())
-DockLayout.default().save(folder / "layout.yaml")
-robot_config = RobotConfig.default()
+if spec.get("setup"):  # another set-up: its layout, robot (mounts) and camera, for the sim and the node alike
+    setup = Path(spec["setup"])
+    DockLayout.load(setup / "layout.yaml").save(folder / "layout.yaml")
+    robot_config = RobotConfig.load(setup / "robot.yaml")
+    spec.setdefault("sim", {}).update(
+        layout=str(setup / "layout.yaml"), robot=str(setup / "robot.yaml"), camera=str(setup / "camera.yaml")
+    )
+else:
+    DockLayout.default().save(folder / "layout.yaml")
+    robot_config = RobotConfig.default()
 robot_config.save(folder / "robot.yaml")
 start = json.dumps(spec["start"])
 

@@ -44,6 +44,9 @@ def test_the_simulated_robot_publishes_and_drives() -> None:
         (["-p", "nuisances:=foggy"], "parameter nuisances: 'default' or 'clean'"),
         (["-p", "camera_rate:=0.0"], "parameter camera_rate: expected a positive number"),
         (["-p", "layout:=/nonexistent/layout.yaml"], "/nonexistent/layout.yaml"),
+        (["-p", "seed:=abc"], "parameter 'seed'"),
+        (["-p", "start:=[1.0, 2.0]"], "parameter start: [x, y, yaw]"),
+        (["-p", "start:=hello"], "parameter 'start'"),
     ],
 )
 def test_bad_parameters_are_one_line_and_exit_2(args: list[str], message: str) -> None:

@@ -49,6 +49,7 @@ __all__ = [
     "raw_header_stamp",
     "scan_from_msg",
     "scan_msg",
+    "split_stamp",
     "stamp_seconds",
     "tf_static_msg",
     "transform_of",
@@ -116,13 +117,14 @@ def header_stamp(msg: Any) -> float:
     return stamp_seconds(msg.header.stamp)
 
 
-def _split_stamp(stamp: float) -> tuple[int, int]:
+def split_stamp(stamp: float) -> tuple[int, int]:
+    """(sec, nanosec) of a stamp in seconds, the nanoseconds carried into the seconds when they round up."""
     ns = round(stamp * 1e9)
     return ns // 1_000_000_000, ns % 1_000_000_000
 
 
 def _header(ts: Typestore, stamp: float, frame_id: str) -> Any:
-    sec, nsec = _split_stamp(stamp)
+    sec, nsec = split_stamp(stamp)
     Time = ts.types["builtin_interfaces/msg/Time"]
     return ts.types["std_msgs/msg/Header"](stamp=Time(sec=sec, nanosec=nsec), frame_id=frame_id)
 

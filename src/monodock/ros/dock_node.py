@@ -441,7 +441,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         rotate = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # odom frame → base_link, odometry exact
         cov = rotate @ track.cov @ rotate.T
         out = self._msgs["PoseStamped"]()
-        _fill_stamp(out.header.stamp, odom.stamp)
+        out.header.stamp.sec, out.header.stamp.nanosec = m.split_stamp(odom.stamp)
         out.header.frame_id = self.options.frame_id
         out.pose.position.x, out.pose.position.y = dock.x, dock.y
         out.pose.orientation.z, out.pose.orientation.w = math.sin(0.5 * dock.theta), math.cos(0.5 * dock.theta)
@@ -511,11 +511,6 @@ def _key_value(key: str, value: str) -> Any:
     from diagnostic_msgs.msg import KeyValue  # type: ignore[import-not-found, unused-ignore]
 
     return KeyValue(key=key, value=value)
-
-
-def _fill_stamp(stamp: Any, seconds: float) -> None:
-    stamp.sec = int(math.floor(seconds))
-    stamp.nanosec = min(int(round((seconds - math.floor(seconds)) * 1e9)), 999_999_999)
 
 
 def _typed(name: str, value: Any, default: Any) -> Any:

@@ -30,6 +30,7 @@ from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.interface import CameraFrame, Odometry
 from monodock.errors import InputError, MonodockError
+from monodock.recording.messages import split_stamp
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.shutdown import ShutdownFlag
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
@@ -57,8 +58,7 @@ class SimSettings:
 
 
 def _stamp(msg_time: Any, seconds: float) -> Any:
-    msg_time.sec = int(math.floor(seconds))
-    msg_time.nanosec = int(round((seconds - math.floor(seconds)) * 1e9)) % 1_000_000_000
+    msg_time.sec, msg_time.nanosec = split_stamp(seconds)
     return msg_time
 
 
@@ -104,6 +104,8 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.declare_parameter("nuisances", d.nuisances)
         p = self.get_parameter
         start = [float(v) for v in p("start").value]
+        if len(start) != 3 or not all(math.isfinite(v) for v in start):
+            raise InputError(f"parameter start: [x, y, yaw] (metres, radians), got {start}")
         self.settings = SimSettings(
             start=(start[0], start[1], start[2]),
             seed=int(p("seed").value),
@@ -257,6 +259,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
 
 def run_sim(argv: Sequence[str], duration: float = math.inf) -> int:
     """Run the node until shut down (or ``duration`` simulated seconds)."""
+    from rclpy.exceptions import ParameterException  # type: ignore[import-not-found, unused-ignore]
     from rclpy.signals import SignalHandlerOptions  # type: ignore[import-not-found, unused-ignore]
 
     # SIGINT and SIGTERM end the run loop here, before the context goes (rclpy's handlers would invalidate the
@@ -265,8 +268,8 @@ def run_sim(argv: Sequence[str], duration: float = math.inf) -> int:
     stop = ShutdownFlag()
     try:
         node = SimNode()
-    except (MonodockError, ValueError, TypeError) as exc:  # a bad parameter or calibration file: one line
-        print(f"monodock-sim-ros: error: {exc}", file=sys.stderr)
+    except (MonodockError, ValueError, TypeError, ParameterException) as exc:  # a bad parameter or file: one line
+        print(f"monodock-sim-ros: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     node.stop = stop
