@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from monodock.cli.main import parser
 from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
 from monodock.dock.controller import Observation
@@ -34,7 +35,7 @@ STRONG_LENS = CameraModel.from_intrinsics(640, 480, 615.0, 613.0, 322.4, 237.1, 
 SET = "m1m2m3"
 FEATURES = ("size", "ratio", "noise_a", "noise_b")
 SPARSE_SEGMENT = 3  # 40-45 cm: only 10 rows of its own
-META = {"feature_schema": "test-features/1", "layout": {"marker_size": 0.1}}
+META = {"feature_schema": "test-features/1", "layout": DockLayout.default().to_dict()}
 
 
 def pose_at(depth: float, y: float, yaw_deg: float) -> DockPose:

@@ -7,6 +7,7 @@ calibration files. Pixel coordinates follow OpenCV: the centre of the top-left p
 from __future__ import annotations
 
 import functools
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,13 +18,19 @@ import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from monodock.core.config import Fields, load_yaml, write_text_atomic
+from monodock.core.config import MAX_FILE_BYTES, Fields, load_yaml, write_text_atomic
 from monodock.errors import ConfigError
 
 __all__ = ["CameraModel"]
 
 _DISTORTION_COUNTS = {"plumb_bob": (5,), "rational_polynomial": (8,)}
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+
+# What a camera file may hold (docs/input-files.md): anything outside is a typo or a unit slip, and a lens the
+# model cannot invert over the image turns markers into poses tens of metres away.
+MAX_IMAGE_SIDE = 16384
+FOCAL_RANGE = (0.1, 10.0)  # times the image's longer side: from a 157° fisheye to a 6° telephoto
+MAX_SKEW = 0.1  # times fx
 
 
 @dataclass(frozen=True)
@@ -115,6 +122,36 @@ class CameraModel:
         """(width, height) in pixels."""
         return self.width, self.height
 
+    def check_plausible(self, source: str = "camera") -> None:
+        """ConfigError, one line naming ``source`` and the key, unless this is a camera that can exist.
+
+        The ranges: image sides 1..MAX_IMAGE_SIDE; fx and fy within FOCAL_RANGE times the longer side; the
+        principal point on the image; skew within MAX_SKEW * fx; K's last row 0 0 1; and a lens that OpenCV's
+        model inverts over the whole image, one to one (checked on the border and a grid, ~2 ms).
+        """
+        side = max(self.width, self.height)
+        if not (self.width <= MAX_IMAGE_SIDE and self.height <= MAX_IMAGE_SIDE):
+            raise ConfigError(f"{source}: image size {self.width}x{self.height} is over {MAX_IMAGE_SIDE} px a side")
+        lo, hi = FOCAL_RANGE[0] * side, FOCAL_RANGE[1] * side
+        for key, value in (("fx", self.fx), ("fy", self.fy)):
+            if not lo <= value <= hi:
+                raise ConfigError(
+                    f"{source}: camera_matrix: {key} must be within {FOCAL_RANGE[0]:g}-{FOCAL_RANGE[1]:g} times the "
+                    f"image's longer side ({lo:g} to {hi:g} px), got {value:g}"
+                )
+        for key, value, size in (("cx", self.cx, self.width), ("cy", self.cy, self.height)):
+            if not 0.0 <= value <= size:
+                raise ConfigError(
+                    f"{source}: camera_matrix: {key} must be on the image (0 to {size} px), got {value:g}"
+                )
+        if not abs(self.K[1]) <= MAX_SKEW * self.fx:
+            raise ConfigError(f"{source}: camera_matrix: skew must be within {MAX_SKEW:g} fx, got {self.K[1]:g}")
+        if (self.K[3], self.K[6], self.K[7], self.K[8]) != (0.0, 0.0, 0.0, 1.0):
+            raise ConfigError(f"{source}: camera_matrix: expected [fx s cx; 0 fy cy; 0 0 1], got {list(self.K)}")
+        problem = _lens_problem(self)
+        if problem:
+            raise ConfigError(f"{source}: distortion_coefficients: {problem}")
+
     # --- geometry -------------------------------------------------------------------------------
 
     def project(self, points_optical: ArrayLike) -> NDArray[np.float64]:
@@ -180,8 +217,8 @@ class CameraModel:
     def from_ros_dict(cls, data: dict[str, Any], source: str = "camera") -> CameraModel:
         """Build from a camera_info YAML mapping; also accepts ROS 1 / ROS 2 message spellings (K, D, k, d)."""
         f = Fields(data, source)
-        width = f.integer("image_width" if f.has("image_width") else "width", minimum=1)
-        height = f.integer("image_height" if f.has("image_height") else "height", minimum=1)
+        width = f.integer("image_width" if f.has("image_width") else "width", minimum=1, maximum=MAX_IMAGE_SIDE)
+        height = f.integer("image_height" if f.has("image_height") else "height", minimum=1, maximum=MAX_IMAGE_SIDE)
 
         def matrix_field(names: tuple[str, ...], counts: tuple[int, ...]) -> list[float]:
             for name in names:
@@ -201,10 +238,13 @@ class CameraModel:
         if len(D) == 4:  # k1 k2 p1 p2 without k3, as some calibrators write it
             D.append(0.0)
         name = f.string("camera_name", "camera")
+        f.warn_unknown(_ROS_KEYS)
         try:
-            return cls(width, height, tuple(K), tuple(D), model, name)
+            camera = cls(width, height, tuple(K), tuple(D), model, name)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}") from None
+        camera.check_plausible(source)
+        return camera
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> CameraModel:
@@ -251,7 +291,93 @@ def _vertex_rays(camera: CameraModel) -> NDArray[np.float64]:
     return out
 
 
+_ROS_KEYS = (
+    "image_width",
+    "image_height",
+    "width",
+    "height",
+    "camera_name",
+    "camera_matrix",
+    "K",
+    "k",
+    "distortion_model",
+    "distortion_coefficients",
+    "D",
+    "d",
+    "rectification_matrix",
+    "projection_matrix",
+    "R",
+    "P",
+    "r",
+    "p",
+    "header",
+    "binning_x",
+    "binning_y",
+    "roi",
+)
+
+
+def _lens_problem(camera: CameraModel) -> str | None:
+    """Why the lens cannot be used over this image, or None.
+
+    Two things must hold for every pixel: undistortion finds a ray that projects back onto it, and the lens maps
+    rays outward from the principal point one to one (a polynomial that turns over folds far rays back into the
+    picture, so a marker there would be read at the wrong place). Checked on the border pixels, a grid inside,
+    and 48 points along the ray to each border pixel.
+    """
+    w, h = camera.width, camera.height
+    step = max(1.0, max(w, h) / 128.0)
+    us = np.append(np.arange(-0.5, w - 0.5, step), w - 0.5)
+    vs = np.append(np.arange(-0.5, h - 0.5, step), h - 0.5)
+    border = np.concatenate(
+        [
+            np.c_[us, np.full_like(us, -0.5)],
+            np.c_[us, np.full_like(us, h - 0.5)],
+            np.c_[np.full_like(vs, -0.5), vs],
+            np.c_[np.full_like(vs, w - 0.5), vs],
+        ]
+    )
+    gu, gv = np.meshgrid(np.linspace(0, w - 1, 16), np.linspace(0, h - 1, 12))
+    pixels = np.concatenate([border, np.c_[gu.ravel(), gv.ravel()]])
+    with np.errstate(all="ignore"):
+        rays = camera.normalize(pixels)
+        back = camera.project(np.c_[rays, np.ones(len(rays))])
+        worst = float(np.max(np.abs(back - pixels)))
+        if not worst < 0.1:  # a strong real lens comes back within ~0.01 px; one that cannot be inverted, by pixels
+            return f"the lens cannot be inverted over the image (a pixel comes back {worst:.2g} px off)"
+        # The field of view the lens gives the image, as the focal length of a pinhole seeing the same field: a
+        # distortion of 1e6 keeps fx plausible and shrinks the field to a degree (markers read 49 m away).
+        spread = np.ptp(rays[: len(border)], axis=0)
+        equivalent = float(min(w / spread[0], h / spread[1])) if np.all(spread > 0) else math.inf
+        lo, hi = FOCAL_RANGE[0] * max(w, h), FOCAL_RANGE[1] * max(w, h)
+        if not lo <= equivalent <= hi:
+            return (
+                f"with this distortion the image sees the field of a {equivalent:.3g} px focal length, outside "
+                f"{FOCAL_RANGE[0]:g}-{FOCAL_RANGE[1]:g} times the image's longer side ({lo:g} to {hi:g} px)"
+            )
+        t = np.linspace(0.02, 1.0, 48)
+        outward = (rays[: len(border), None, :] * t[None, :, None]).reshape(-1, 2)
+        px = camera.project(np.c_[outward, np.ones(len(outward))]).reshape(len(border), len(t), 2)
+        centre = camera.project(np.array([[0.0, 0.0, 1.0]]))[0]
+        radius = np.linalg.norm(px - centre, axis=2)
+        if not np.all(np.diff(radius, axis=1) > 0):
+            return "the lens folds back inside the image (distortion turns over before the border)"
+    return None
+
+
 def _load_opencv_storage(path: Path) -> CameraModel:
+    if path.stat().st_size > MAX_FILE_BYTES:
+        raise ConfigError(f"{path}: too large for a camera file (at most {MAX_FILE_BYTES} bytes)")
+    try:
+        return _read_opencv_storage(path)
+    except (cv2.error, SystemError, TypeError, ValueError, OverflowError) as exc:
+        # OpenCV's parser reports a malformed file as cv2.error (or, from some nodes, SystemError); a node of the
+        # wrong kind comes back as None or an empty matrix.
+        detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"{path}: cannot be read as an OpenCV FileStorage camera file ({detail[:120]})") from None
+
+
+def _read_opencv_storage(path: Path) -> CameraModel:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     if not fs.isOpened():
         raise ConfigError(f"{path}: cannot be read as an OpenCV FileStorage file")
@@ -286,15 +412,30 @@ def _load_opencv_storage(path: Path) -> CameraModel:
                 size = np.asarray(m).ravel() if m is not None else np.zeros(0)
             if size.size != 2:
                 raise ConfigError(f"{path}: image_size: expected [width, height]")
-            width, height = int(size[0]), int(size[1])
+            width_f, height_f = float(size[0]), float(size[1])
         else:
-            width, height = int(wn.real()), int(hn.real())
+            width_f, height_f = float(wn.real()), float(hn.real())
         if D.size == 4:
             D = np.r_[D, 0.0]
         model = "rational_polynomial" if D.size == 8 else "plumb_bob"
+        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
+            raise ConfigError(f"{path}: camera_matrix or distortion_coefficients hold NaN or infinite values")
+        if not (math.isfinite(width_f) and math.isfinite(height_f)) or not (
+            0 < width_f <= MAX_IMAGE_SIDE
+            and 0 < height_f <= MAX_IMAGE_SIDE
+            and width_f == int(width_f)
+            and height_f == int(height_f)
+        ):
+            raise ConfigError(
+                f"{path}: image size must be whole numbers 1 to {MAX_IMAGE_SIDE} px, got {width_f:g}x{height_f:g}"
+            )
         try:
-            return CameraModel(width, height, tuple(K.ravel().tolist()), tuple(D.tolist()), model, path.stem)
+            camera = CameraModel(
+                int(width_f), int(height_f), tuple(K.ravel().tolist()), tuple(D.tolist()), model, path.stem
+            )
         except ConfigError as exc:
             raise ConfigError(f"{path}: {exc}") from None
+        camera.check_plausible(str(path))
+        return camera
     finally:
         fs.release()

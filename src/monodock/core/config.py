@@ -1,9 +1,17 @@
-"""The one loader for monodock's YAML files: typed field access with messages that name the field."""
+"""The one validation layer for the files a user hands in: YAML and JSON read with size, depth and count limits,
+then typed field access with plausible ranges, and every error one line naming the file, the key and the range.
+
+Every loader of a user file goes through here: the camera (``core.camera``), the layout, the robot, the docking
+config, a bundle's manifest and a dataset's metadata. ``docs/input-files.md`` lists the ranges.
+"""
 
 from __future__ import annotations
 
+import json
+import logging
 import math
 import os
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -12,21 +20,110 @@ import yaml
 from monodock.core.atomic import write_text_atomic
 from monodock.errors import ConfigError
 
-__all__ = ["Fields", "load_yaml", "write_text_atomic"]
+__all__ = [
+    "MAX_DEPTH",
+    "MAX_FILE_BYTES",
+    "MAX_VALUES",
+    "Fields",
+    "check_structure",
+    "load_json",
+    "load_yaml",
+    "parse_json",
+    "write_text_atomic",
+]
+
+_log = logging.getLogger("monodock")
+
+# A calibration or config file is a few kB and a bundle manifest a few hundred; these limits are far above
+# anything real and far below what would exhaust memory (a YAML alias bomb, 100,000 nested lists).
+MAX_FILE_BYTES = 16 * 1024 * 1024
+MAX_VALUES = 1_000_000
+MAX_DEPTH = 32
 
 
-def load_yaml(path: str | os.PathLike[str], what: str) -> dict[str, Any]:
-    """Read a YAML mapping, or raise ConfigError naming the file and the problem."""
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _read_text(path: str | os.PathLike[str], what: str, max_bytes: int) -> tuple[Path, str]:
     p = Path(path)
     if not p.is_file():
         raise ConfigError(f"{what} file not found: {p}")
+    size = p.stat().st_size
+    if size > max_bytes:
+        raise ConfigError(f"{p}: {size} bytes is too large for a {what} file (at most {max_bytes})")
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ConfigError(f"{p}: not valid YAML ({first})") from exc
+        return p, p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text ({_first_line(exc)})") from None
+
+
+def check_structure(data: Any, source: str, *, max_values: int = MAX_VALUES, max_depth: int = MAX_DEPTH) -> None:
+    """ConfigError when ``data`` nests deeper than ``max_depth`` or holds more than ``max_values`` values.
+
+    Counts a value every time it is reached, so a YAML alias bomb (anchors that refer to each other, a few
+    lines that expand to billions of values when copied or written out) is refused here, not when it is used.
+    """
+    budget = max_values
+    stack: list[tuple[Any, int]] = [(data, 0)]
+    while stack:
+        value, depth = stack.pop()
+        budget -= 1
+        if budget < 0:
+            raise ConfigError(f"{source}: holds more than {max_values} values (YAML aliases expanding?)")
+        if isinstance(value, dict | list):
+            if depth >= max_depth:
+                raise ConfigError(f"{source}: nested more than {max_depth} levels deep")
+            items = value.values() if isinstance(value, dict) else value
+            stack.extend((v, depth + 1) for v in items)
+            if isinstance(value, dict):
+                bad = next((k for k in value if not isinstance(k, str | int | float | bool) and k is not None), None)
+                if bad is not None:
+                    raise ConfigError(f"{source}: a key is a {type(bad).__name__}, not a name")
+
+
+def load_yaml(path: str | os.PathLike[str], what: str, *, max_bytes: int = MAX_FILE_BYTES) -> dict[str, Any]:
+    """Read a YAML mapping, or raise ConfigError naming the file and the problem."""
+    p, text = _read_text(path, what, max_bytes)
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{p}: not valid YAML ({_first_line(exc)})") from None
+    except (ValueError, OverflowError) as exc:  # an integer of more digits than Python converts
+        raise ConfigError(f"{p}: a value cannot be read ({_first_line(exc)})") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: nested too deep to read") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a YAML mapping at the top level")
+    check_structure(data, str(p))
+    return data
+
+
+def parse_json(text: str | bytes, source: str) -> Any:
+    """JSON text as Python values, with the limits of ``check_structure``; ConfigError naming ``source``."""
+    try:
+        data = json.loads(text, parse_constant=_refuse_constant)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{source}: not valid JSON ({_first_line(exc)})") from None
+    except (ValueError, OverflowError) as exc:  # NaN/Infinity, or an integer of more digits than Python converts
+        raise ConfigError(f"{source}: a value cannot be read ({_first_line(exc)})") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deep to read") from None
+    check_structure(data, source)
+    return data
+
+
+def _refuse_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def load_json(path: str | os.PathLike[str], what: str, *, max_bytes: int = MAX_FILE_BYTES) -> dict[str, Any]:
+    """Read a JSON object, or raise ConfigError naming the file and the problem."""
+    p, text = _read_text(path, what, max_bytes)
+    data = parse_json(text, str(p))
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: expected a JSON object at the top level")
     return data
 
 
@@ -58,30 +155,60 @@ class Fields:
             raise ConfigError(f"{self.source}: missing field '{self._name(key)}'")
         return self.data[key]
 
-    def number(self, key: str, default: float | None = None, *, positive: bool = False) -> float:
-        """A finite real number (ints accepted); ``default`` makes the key optional."""
+    def number(
+        self,
+        key: str,
+        default: float | None = None,
+        *,
+        positive: bool = False,
+        within: tuple[float, float] | None = None,
+        unit: str = "",
+    ) -> float:
+        """A finite real number (ints accepted), inside ``within`` (inclusive) when given; ``default`` makes the
+        key optional."""
         if key not in self.data and default is not None:
             return default
         value = self.raw(key)
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.error(key, f"expected a number, got {value!r}")
-        out = float(value)
+            raise self.error(key, f"expected a number, got {_show(value)}")
+        try:
+            out = float(value)
+        except OverflowError:
+            out = math.inf
         if not math.isfinite(out):
-            raise self.error(key, f"expected a finite number, got {value!r}")
+            raise self.error(key, f"expected a finite number, got {_show(value)}")
         if positive and out <= 0:
-            raise self.error(key, f"must be positive, got {value!r}")
+            raise self.error(key, f"must be positive, got {_show(value)}")
+        if within is not None and not within[0] <= out <= within[1]:
+            raise self.error(key, f"must be within {_span(within, unit)}, got {_show(value)}")
         return out
 
-    def integer(self, key: str, default: int | None = None, *, minimum: int | None = None) -> int:
-        """An integer; ``default`` makes the key optional."""
+    def integer(
+        self, key: str, default: int | None = None, *, minimum: int | None = None, maximum: int | None = None
+    ) -> int:
+        """An integer from ``minimum`` to ``maximum``; ``default`` makes the key optional."""
         if key not in self.data and default is not None:
             return default
         value = self.raw(key)
         if isinstance(value, bool) or not isinstance(value, int):
-            raise self.error(key, f"expected an integer, got {value!r}")
+            raise self.error(key, f"expected an integer, got {_show(value)}")
         if minimum is not None and value < minimum:
-            raise self.error(key, f"must be at least {minimum}, got {value}")
+            raise self.error(key, f"must be at least {minimum}, got {_show(value)}")
+        if maximum is not None and value > maximum:
+            raise self.error(key, f"must be at most {maximum}, got {_show(value)}")
         return value
+
+    def warn_unknown(self, known: Iterable[str]) -> None:
+        """Log a warning for every key of this mapping that is not in ``known``: ignored, never copied on."""
+        names = tuple(known)
+        for key in self.data:
+            if key not in names:
+                _log.warning(
+                    "%s: unknown key '%s' is ignored (known: %s)",
+                    self.source,
+                    self._name(str(key))[:80],
+                    ", ".join(names),
+                )
 
     def string(self, key: str, default: str | None = None) -> str:
         """A string; ``default`` makes the key optional."""
@@ -89,7 +216,7 @@ class Fields:
             return default
         value = self.raw(key)
         if not isinstance(value, str):
-            raise self.error(key, f"expected a string, got {value!r}")
+            raise self.error(key, f"expected a string, got {_show(value)}")
         return value
 
     def numbers(self, key: str, count: int | tuple[int, ...]) -> list[float]:
@@ -98,14 +225,31 @@ class Fields:
         counts = (count,) if isinstance(count, int) else count
         if not isinstance(value, list) or len(value) not in counts:
             want = " or ".join(str(c) for c in counts)
-            raise self.error(key, f"expected a list of {want} numbers, got {value!r}")
+            raise self.error(key, f"expected a list of {want} numbers, got {_show(value)}")
         out = []
         for item in value:
-            if isinstance(item, bool) or not isinstance(item, int | float) or not math.isfinite(item):
-                raise self.error(key, f"expected finite numbers, got {item!r}")
-            out.append(float(item))
+            number = float(item) if isinstance(item, float) else math.inf
+            if isinstance(item, int) and not isinstance(item, bool) and abs(item) < 10**300:
+                number = float(item)
+            if not math.isfinite(number):
+                raise self.error(key, f"expected finite numbers, got {_show(item)}")
+            out.append(number)
         return out
 
     def child(self, key: str) -> Fields:
         """The nested mapping under a required key."""
         return Fields(self.raw(key), self.source, f"{self._name(key)}.")
+
+
+def _show(value: Any, limit: int = 40) -> str:
+    """A value as an error message quotes it: its repr, cut short (a 5,000-digit number, a long list)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**30:
+        return f"an integer of about {int(value.bit_length() * 0.30103) + 1} digits"
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def _span(within: tuple[float, float], unit: str) -> str:
+    lo, hi = within
+    unit = f" {unit}" if unit else ""
+    return f"{lo:g} to {hi:g}{unit}"

@@ -8,7 +8,7 @@ bottom-right, bottom-left. In the ``dock`` frame (x into the charger, y left, z 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +25,11 @@ __all__ = ["ROLES", "DockLayout", "MarkerSpec"]
 # The papers' markers 1, 2, 3 from the robot's left to its right; marker 2 marks the docking point.
 ROLES: tuple[str, str, str] = ("left", "center", "right")
 ROLE_NUMBER: dict[str, int] = {"left": 1, "center": 2, "right": 3}
+
+# What a layout file may hold (docs/input-files.md): printed markers from 5 mm to 2 m, within 5 m of the dock
+# origin.
+MARKER_SIZE_RANGE = (0.005, 2.0)
+MAX_OFFSET = 5.0
 
 
 def _dictionary_size(name: str) -> int:
@@ -55,7 +60,6 @@ class DockLayout:
     dictionary: str
     marker_size: float
     markers: tuple[MarkerSpec, MarkerSpec, MarkerSpec]
-    extra: dict[str, Any] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
         if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
@@ -101,18 +105,23 @@ class DockLayout:
         dictionary = f.string("dictionary")
         if not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
             raise f.error("dictionary", f"unknown ArUco dictionary '{dictionary}' (e.g. DICT_4X4_50)")
-        marker_size = f.number("marker_size", positive=True)
+        marker_size = f.number("marker_size", within=MARKER_SIZE_RANGE, unit="m")
         mf = f.child("markers")
-        unknown = sorted(set(mf.data) - set(ROLES))
+        unknown = sorted(str(k) for k in set(mf.data) - set(ROLES))
         if unknown:
             raise mf.error(unknown[0], f"unknown marker role (expected {', '.join(ROLES)})")
         specs = []
         for role in ROLES:
             m = mf.child(role)
-            specs.append(MarkerSpec(role, m.integer("id", minimum=0), m.number("y"), m.number("z")))
-        extra = {k: v for k, v in data.items() if k not in ("dictionary", "marker_size", "markers")}
+            marker_id = m.integer("id", minimum=0)  # the dictionary's range is checked with its name below
+            y = m.number("y", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
+            z = m.number("z", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
+            m.warn_unknown(("id", "y", "z"))
+            specs.append(MarkerSpec(role, marker_id, y, z))
+        # Unknown keys are reported and dropped: nothing a file holds beyond the schema travels into outputs.
+        f.warn_unknown(("dictionary", "marker_size", "markers"))
         try:
-            return cls(dictionary, marker_size, (specs[0], specs[1], specs[2]), extra)
+            return cls(dictionary, marker_size, (specs[0], specs[1], specs[2]))
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}") from None
 
@@ -122,10 +131,9 @@ class DockLayout:
         return cls.from_dict(load_yaml(path, "layout"), str(path))
 
     def to_dict(self) -> dict[str, Any]:
-        """The YAML mapping of DESIGN.md (plus any optional keys read in)."""
+        """The YAML mapping of DESIGN.md."""
         out: dict[str, Any] = {"dictionary": self.dictionary, "marker_size": self.marker_size}
         out["markers"] = {m.role: {"id": m.id, "y": m.y, "z": m.z} for m in self.markers}
-        out.update(self.extra)
         return out
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:

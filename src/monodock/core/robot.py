@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,13 +44,26 @@ class Mount:
 
     @classmethod
     def from_fields(cls, f: Fields) -> Mount:
-        return cls(*(f.number(k, 0.0 if k in ("roll", "pitch", "yaw") else None) for k in _MOUNT_KEYS))
+        """A mount from its mapping: x, y, z within MAX_MOUNT_OFFSET metres, angles within ±π (default 0)."""
+        position = [f.number(k, within=(-MAX_MOUNT_OFFSET, MAX_MOUNT_OFFSET), unit="m") for k in ("x", "y", "z")]
+        angles = [f.number(k, 0.0, within=(-math.pi, math.pi), unit="rad") for k in ("roll", "pitch", "yaw")]
+        f.warn_unknown(_MOUNT_KEYS)
+        return cls(*position, *angles)
 
     def to_dict(self) -> dict[str, float]:
         return {k: float(getattr(self, k)) for k in _MOUNT_KEYS}
 
 
 _MOUNT_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
+
+# What a robot file may hold (docs/input-files.md): sensors within 5 m of base_link, angles within ±π, speeds a
+# wheeled base can have.
+MAX_MOUNT_OFFSET = 5.0
+MAX_LINEAR_SPEED = 5.0  # m/s
+MAX_ANGULAR_SPEED = 10.0  # rad/s
+
+
+_ROBOT_KEYS = ("camera_mount", "laser_mount", "front_offset", "max_linear_speed", "max_angular_speed")
 
 
 @dataclass(frozen=True)
@@ -100,13 +114,23 @@ class RobotConfig:
         f = Fields(data, source)
         d = cls()
         try:
-            return cls(
+            robot = cls(
                 camera_mount=Mount.from_fields(f.child("camera_mount")),
                 laser_mount=Mount.from_fields(f.child("laser_mount")),
-                front_offset=f.number("front_offset"),
-                max_linear_speed=f.number("max_linear_speed", d.max_linear_speed, positive=True),
-                max_angular_speed=f.number("max_angular_speed", d.max_angular_speed, positive=True),
+                front_offset=f.number("front_offset", within=(0.0, MAX_MOUNT_OFFSET), unit="m"),
+                max_linear_speed=f.number(
+                    "max_linear_speed", d.max_linear_speed, positive=True, within=(0.0, MAX_LINEAR_SPEED), unit="m/s"
+                ),
+                max_angular_speed=f.number(
+                    "max_angular_speed",
+                    d.max_angular_speed,
+                    positive=True,
+                    within=(0.0, MAX_ANGULAR_SPEED),
+                    unit="rad/s",
+                ),
             )
+            f.warn_unknown(_ROBOT_KEYS)
+            return robot
         except ConfigError as exc:
             if str(exc).startswith(source):
                 raise
@@ -118,6 +142,7 @@ class RobotConfig:
         return cls.from_dict(load_yaml(path, "robot"), str(path))
 
     def to_dict(self) -> dict[str, Any]:
+        """The YAML mapping of DESIGN.md."""
         return {
             "camera_mount": self.camera_mount.to_dict(),
             "laser_mount": self.laser_mount.to_dict(),

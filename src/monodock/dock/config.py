@@ -2,8 +2,9 @@
 
 The file mirrors ``DockingConfig`` field by field, its nested sections (``planner``, ``track`` with its
 ``odometry``, ``measurement``) as nested mappings. Every key is optional (a missing one keeps its default) and
-every key must be known: a misspelt gain is refused, not ignored. Values are checked for type and finiteness
-here and for their ranges by the dataclasses themselves; any error is one line naming the file and the key.
+every key must be known: a misspelt gain is refused, not ignored. Values are checked for type, finiteness and
+a broad range (0 to MAX_NUMBER, counts to MAX_COUNT) here and for their own rules by the dataclasses; any error
+is one line naming the file and the key.
 ``monodock dock-sim --config`` and the docking node's parameters read the same schema.
 """
 
@@ -24,6 +25,11 @@ from monodock.errors import ConfigError
 __all__ = ["docking_config_from_dict", "docking_config_to_dict", "load_docking_config", "save_docking_config"]
 
 D = TypeVar("D")
+
+# Every number of the config is a non-negative distance (m), speed, rate, time (s), gain, angle (°) or noise:
+# none is plausibly beyond these. The dataclasses check the finer rules.
+MAX_NUMBER = 10_000.0
+MAX_COUNT = 1_000
 
 
 def _from_fields(cls: type[D], f: Fields) -> D:
@@ -46,9 +52,9 @@ def _from_fields(cls: type[D], f: Fields) -> D:
                 raise f.error(name, f"expected true or false, got {value!r}")
             values[name] = value
         elif isinstance(default, int):
-            values[name] = f.integer(name, minimum=0)
+            values[name] = f.integer(name, minimum=0, maximum=MAX_COUNT)
         elif isinstance(default, float):
-            values[name] = f.number(name)
+            values[name] = f.number(name, within=(0.0, MAX_NUMBER))
         elif isinstance(default, str):
             values[name] = f.string(name)
         else:  # pragma: no cover - every DockingConfig field is one of the above
@@ -56,7 +62,20 @@ def _from_fields(cls: type[D], f: Fields) -> D:
     try:
         return dataclasses.replace(defaults, **values)  # type: ignore[type-var]
     except ConfigError as exc:
-        raise ConfigError(f"{f.source}: {exc}") from None
+        raise ConfigError(
+            f"{f.source}: {_culprit(defaults, values, f)}{str(exc).removeprefix('docking config: ')}"
+        ) from None
+
+
+def _culprit(defaults: Any, values: dict[str, Any], f: Fields) -> str:
+    """``key: `` of the one value that the dataclass's own check refuses on its own, else nothing: the checks
+    in ``__post_init__`` know the rule but not the file's key."""
+    for name, value in values.items():
+        try:
+            dataclasses.replace(defaults, **{name: value})
+        except ConfigError:
+            return f"{f.prefix}{name}: "
+    return ""
 
 
 def docking_config_from_dict(data: dict[str, Any], source: str = "docking config") -> DockingConfig:

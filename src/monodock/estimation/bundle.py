@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
+from monodock.core.config import load_json
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.errors import ConfigError, InputError
@@ -162,11 +163,9 @@ class Bundle:
         if not mf.is_file():
             raise InputError(f"{p} is not a model bundle: it has no {BUNDLE_FILE}")
         try:
-            manifest = json.loads(mf.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"{mf} is not valid JSON: {exc}") from None
-        if not isinstance(manifest, dict):
-            raise InputError(f"{mf} is not a bundle manifest (not a JSON object)")
+            manifest = load_json(mf, "bundle manifest")
+        except ConfigError as exc:
+            raise InputError(str(exc)) from None
         version = manifest.get("schema_version")
         if version != BUNDLE_SCHEMA_VERSION:
             raise InputError(
@@ -221,7 +220,13 @@ class Bundle:
                 raise InputError(f"{mf} is malformed: marker set {name} has no depth model")
             depth[name] = model
             yaw[name] = [_open(p, e, nf, mf) for e in yaw_entries]
-        return cls(p, manifest, segments, depth, yaw)
+        bundle = cls(p, manifest, segments, depth, yaw)
+        # The calibration it was trained with is checked as its files would be, before any estimate (the part
+        # that is there: a bundle lacking one is refused, naming it, where it is needed).
+        for key, read in (("camera", bundle.camera), ("layout", bundle.layout), ("robot", bundle.robot)):
+            if key in bundle.metadata:
+                read()
+        return bundle
 
     # --- what the models were trained with ------------------------------------------------------------------
 

@@ -36,9 +36,10 @@ from tqdm import tqdm
 from monodock import __version__
 from monodock.core.atomic import write_bytes_atomic
 from monodock.core.camera import CameraModel
+from monodock.core.config import parse_json
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.errors import InputError
+from monodock.errors import ConfigError, InputError
 from monodock.learning.label import LABEL_COLUMNS, LidarLabel, label_frame
 from monodock.perception.detect import MarkerDetector, as_gray
 from monodock.perception.features import FEATURE_NAMES, REFINED_CORNER_NAMES, feature_vector, refined_vector
@@ -95,6 +96,7 @@ class Dataset:
 
     columns: dict[str, NDArray[Any]]
     metadata: dict[str, Any]
+    source: str = "dataset"  # the file it was read from, for messages
 
     def __len__(self) -> int:
         return len(self.columns["frame"])
@@ -112,16 +114,24 @@ class Dataset:
 
     def subset(self, rows: NDArray[Any]) -> Dataset:
         """The dataset of some rows (a boolean mask or indices), with the same metadata."""
-        return Dataset({n: np.asarray(v)[rows] for n, v in self.columns.items()}, dict(self.metadata))
+        return Dataset({n: np.asarray(v)[rows] for n, v in self.columns.items()}, dict(self.metadata), self.source)
 
     def camera(self) -> CameraModel:
-        return CameraModel.from_ros_dict(self.metadata["camera"], "dataset camera")
+        """The camera the features were measured with (validated like a camera file)."""
+        return CameraModel.from_ros_dict(self._meta("camera"), f"{self.source}: metadata camera")
 
     def robot(self) -> RobotConfig:
-        return RobotConfig.from_dict(self.metadata["robot"], "dataset robot")
+        """The robot's mounts the labels were made with."""
+        return RobotConfig.from_dict(self._meta("robot"), f"{self.source}: metadata robot")
 
     def layout(self) -> DockLayout:
-        return DockLayout.from_dict(self.metadata["layout"], "dataset layout")
+        """The dock layout the features were measured on."""
+        return DockLayout.from_dict(self._meta("layout"), f"{self.source}: metadata layout")
+
+    def _meta(self, key: str) -> Any:
+        if key not in self.metadata:
+            raise InputError(f"{self.source}: its metadata has no '{key}'")
+        return self.metadata[key]
 
 
 def write_dataset(path: str | os.PathLike[str], dataset: Dataset, *, force: bool = False) -> None:
@@ -151,19 +161,32 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
     raw_meta = (table.schema.metadata or {}).get(b"monodock")
     if raw_meta is None:
         raise InputError(f"{p}: not a monodock dataset (no 'monodock' metadata; write it with monodock label)")
-    meta = json.loads(raw_meta)
+    try:
+        meta = parse_json(raw_meta, f"{p}: metadata")
+    except ConfigError as exc:
+        raise InputError(str(exc)) from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{p}: metadata: expected a JSON object, got {type(meta).__name__}")
     if meta.get("schema") not in _READABLE_SCHEMAS:
         raise InputError(f"{p}: dataset schema {meta.get('schema')!r}, this monodock reads {DATASET_SCHEMA!r}")
     optional = _NEW_IN_SCHEMA_2 if meta.get("schema") != DATASET_SCHEMA else ()
     missing = [n for n in dataset_columns() if n not in table.column_names and n not in optional]
     if missing:
         raise InputError(f"{p}: dataset lacks columns {', '.join(missing[:5])}{' …' if len(missing) > 5 else ''}")
+    if table.num_rows == 0:
+        raise InputError(f"{p}: the dataset has no rows")
     cols: dict[str, NDArray[Any]] = {}
     for n in dataset_columns():
         if n not in table.column_names:
             cols[n] = np.full(table.num_rows, -1 if n in _INT else np.nan, dtype=np.int64 if n in _INT else np.float64)
             continue
         col = table.column(n)
+        want = _arrow_type(n)
+        if col.type != want:
+            try:
+                col = col.cast(want)
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+                raise InputError(f"{p}: column {n} holds {col.type}, expected {want}") from None
         if n in _STR:
             cols[n] = np.array(col.to_pylist(), dtype=object)
         elif n in _BOOL:
@@ -172,7 +195,10 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
             cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
         else:
             cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
-    return Dataset(cols, meta)
+    dataset = Dataset(cols, meta, str(p))
+    # The calibration the features were measured with is checked as its files would be, before any work.
+    dataset.camera(), dataset.robot(), dataset.layout()
+    return dataset
 
 
 @dataclass

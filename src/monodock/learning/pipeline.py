@@ -152,9 +152,10 @@ def bundle_metadata(dataset: Dataset, *, depth_label: str, angle_label: str, sou
     return {
         "feature_schema": MODEL_FEATURE_SCHEMA,
         "raw_features": list(FEATURE_NAMES),
-        "layout": dataset.metadata["layout"],
-        "camera": dataset.metadata["camera"],
-        "robot": dataset.metadata["robot"],
+        # Written from the validated objects, never copied from the file: nothing unknown travels on.
+        "layout": dataset.layout().to_dict(),
+        "camera": dataset.camera().to_ros_dict(),
+        "robot": dataset.robot().to_dict(),
         "depth_label": DEPTH_LABELS[depth_label],
         "angle_label": ANGLE_LABELS[angle_label],
         "depth_definition": "targets: DockPose x (m) and yaw (deg) in base_link; segments: x minus camera_mount.x",
