@@ -63,6 +63,10 @@ def run(args: argparse.Namespace) -> int:
     ds = label(args, layout, None)
     if len(ds) == 0:
         raise MonodockError(f"{args.recording}: no images")
+    if not ds["label_valid"].any():
+        # A dataset without one label trains nothing; the counts line above says why (unreadable images, no
+        # marker 2, no scans), and writing it would look like success.
+        raise MonodockError(f"{args.recording}: no image could be labelled; nothing written")
     write_dataset(args.out, ds, force=args.force)
     errs = label_errors(ds)
     if errs:

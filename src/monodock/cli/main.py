@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
 from collections.abc import Iterable, Sequence
 from typing import NoReturn
@@ -55,13 +56,45 @@ def parser(commands: Iterable[str] = COMMANDS) -> argparse.ArgumentParser:
     return p
 
 
+class _Warnings(logging.Handler):
+    """monodock's warnings as ``monodock CMD: warning: ...`` lines on stderr.
+
+    Warnings about the input files (an unknown key, logger ``monodock.config``) are held until the command ends
+    and shown only if it did not refuse its input, so that a refusal stays one line.
+    """
+
+    def __init__(self, command: str) -> None:
+        super().__init__(logging.WARNING)
+        self.command = command
+        self.held: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        line = f"monodock {self.command}: warning: {record.getMessage()}"
+        if record.name == "monodock.config":
+            if line not in self.held:
+                self.held.append(line)
+        else:
+            print(line, file=sys.stderr)
+
+    def release(self) -> None:
+        for line in self.held:
+            print(line, file=sys.stderr)
+        self.held.clear()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; user errors print one line on stderr and return a non-zero code."""
     words = list(sys.argv[1:] if argv is None else argv)
     name = _command(words)
     args = parser([name] if name in COMMANDS else COMMANDS).parse_args(words)
+    logger = logging.getLogger("monodock")
+    warnings = _Warnings(args.command)
+    logger.addHandler(warnings)
+    logger.propagate = False
     try:
-        return int(args.func(args))
+        code = int(args.func(args))
+        warnings.release()
+        return code
     except MonodockError as exc:
         print(f"monodock {args.command}: error: {exc}", file=sys.stderr)
         return 2
@@ -81,6 +114,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 1
+    finally:
+        logger.removeHandler(warnings)
+        logger.propagate = True
 
 
 if __name__ == "__main__":

@@ -32,7 +32,8 @@ __all__ = [
     "write_text_atomic",
 ]
 
-_log = logging.getLogger("monodock")
+# Warnings about the files read (an unknown key): the CLI shows them once the command has not refused its input.
+_log = logging.getLogger("monodock.config")
 
 # A calibration or config file is a few kB and a bundle manifest a few hundred; these limits are far above
 # anything real and far below what would exhaust memory (a YAML alias bomb, 100,000 nested lists).
