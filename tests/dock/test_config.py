@@ -54,7 +54,10 @@ def test_a_partial_file_sets_only_its_keys_nested_ones_included(tmp_path: Path) 
         ({"cruise_speed": -0.1}, r"docking.yaml: cruise_speed: must be within 0 to 10000, got -0.1"),
         ({"cruise_speed": 0.0}, r"docking.yaml: cruise_speed: cruise_speed must be positive, got 0.0"),
         ({"cruise_speed": 1e300}, r"docking.yaml: cruise_speed: must be within 0 to 10000, got 1e\+300"),
-        ({"max_retries": 10**40}, r"docking.yaml: max_retries: must be at most 1000, got an integer of about 41 digits"),
+        (
+            {"max_retries": 10**40},
+            r"docking.yaml: max_retries: must be at most 1000, got an integer of about 41 digits",
+        ),
         ({"min_speed": 0.5}, r"docking.yaml: min_speed: min_speed must not exceed approach_speed"),
         ({"max_retries": 1.5}, r"docking.yaml: max_retries: expected an integer, got 1.5"),
         ({"max_retries": -1}, r"docking.yaml: max_retries: must be at least 0"),
