@@ -17,11 +17,11 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
+from monodock.core.config import Fields, load_yaml
 from monodock.core.scan import LaserScan
-from monodock.errors import InputError
+from monodock.errors import ConfigError, InputError
 from monodock.io.frames import read_image
 
 __all__ = ["S_AXIS", "T_AXIS", "DiamondTarget", "TargetView", "read_target_views", "write_target_views"]
@@ -65,31 +65,44 @@ class DiamondTarget:
     @classmethod
     def from_dict(cls, data: dict[str, Any], source: str = "target") -> DiamondTarget:
         """Build from ``{side, marker_size, dictionary, markers: [{id, s, t}, ...]}`` (all optional)."""
-        if not isinstance(data, dict):
-            raise InputError(f"{source}: expected a mapping")
-        d = cls()
         try:
-            markers = data.get("markers")
-            ids = tuple(int(m["id"]) for m in markers) if markers else d.marker_ids
-            centres = tuple((float(m["s"]), float(m["t"])) for m in markers) if markers else d.marker_centres
+            f = Fields(data, source)
+            d = cls()
+            markers = f.raw("markers") if f.has("markers") else None
+            if markers is not None and (not isinstance(markers, list) or not markers):
+                raise f.error("markers", "expected a list of {id, s, t}")
+            items = [Fields(m, source, f"markers[{k}].") for k, m in enumerate(markers or [])]
+            side = f.number("side", d.side, within=(0.05, 5.0), unit="m")
+            ids = tuple(m.integer("id", minimum=0) for m in items) or d.marker_ids
+            centres = (
+                tuple(
+                    (m.number("s", within=(0.0, side), unit="m"), m.number("t", within=(0.0, side), unit="m"))
+                    for m in items
+                )
+                or d.marker_centres
+            )
+            f.warn_unknown(("side", "marker_size", "dictionary", "markers"))
             return cls(
-                side=float(data.get("side", d.side)),
-                marker_size=float(data.get("marker_size", d.marker_size)),
+                side=side,
+                marker_size=f.number("marker_size", d.marker_size, within=(0.005, 2.0), unit="m"),
                 marker_ids=ids,
                 marker_centres=centres,
-                dictionary=str(data.get("dictionary", d.dictionary)),
+                dictionary=f.string("dictionary", d.dictionary),
             )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise InputError(f"{source}: bad target field ({exc})") from None
+        except ConfigError as exc:
+            raise InputError(str(exc)) from None
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DiamondTarget:
-        """Read a target YAML (see from_dict)."""
-
+        """Read a target YAML (see from_dict); an empty file is the default target."""
         p = Path(path)
-        if not p.is_file():
-            raise InputError(f"target file not found: {p}")
-        return cls.from_dict(yaml.safe_load(p.read_text(encoding="utf-8")) or {}, str(p))
+        if p.is_file() and not p.read_bytes().strip():
+            return cls()
+        try:
+            data = load_yaml(p, "target")
+        except ConfigError as exc:
+            raise InputError(str(exc)) from None
+        return cls.from_dict(data, str(p))
 
     def aruco_dictionary(self) -> Any:
         """The OpenCV dictionary object."""
