@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from monodock.cli.label import label
 from monodock.cli.options import SubParsers, add_topics, bundle_calibration, int_in, jobs
 from monodock.core.atomic import atomic_directory, check_writable
@@ -124,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
         ds = read_dataset(args.recording)
     else:
         ds = label(args, layout, camera if args.camera else None)
+    if not (ds["label_valid"].any() or np.isfinite(ds["truth_x_m"]).any()):
+        raise InputError(f"{args.recording}: no row has a LiDAR label or the truth: nothing to evaluate against")
     regression = RegressionEstimator(bundle, ds.camera(), robot)
     fused = None
     if bundle.has_fusion_tables:

@@ -26,6 +26,7 @@ __all__ = [
     "MAX_VALUES",
     "Fields",
     "check_structure",
+    "json_text",
     "load_json",
     "load_yaml",
     "parse_json",
@@ -113,6 +114,22 @@ def parse_json(text: str | bytes, source: str) -> Any:
         raise ConfigError(f"{source}: nested too deep to read") from None
     check_structure(data, source)
     return data
+
+
+def json_text(data: Any, *, indent: int | None = 2) -> str:
+    """Strict JSON text of ``data``: NaN and ±inf become null (JSON has no token for them, and Python's NaN makes a
+    file that other readers refuse); anything else JSON cannot hold becomes its text."""
+
+    def finite(value: Any) -> Any:
+        if isinstance(value, float):
+            return value if math.isfinite(value) else None
+        if isinstance(value, dict):
+            return {k: finite(v) for k, v in value.items()}
+        if isinstance(value, list | tuple):
+            return [finite(v) for v in value]
+        return value
+
+    return json.dumps(finite(data), indent=indent, default=str, allow_nan=False)
 
 
 def _refuse_constant(name: str) -> Any:

@@ -27,6 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from monodock.core.camera import CameraModel
+from monodock.core.config import json_text
 from monodock.core.layout import DockLayout
 from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose, wrap_angle
@@ -998,7 +999,7 @@ class DockSimSummary:
 
     def to_json(self) -> str:
         """summary.json's text."""
-        return json.dumps(self.to_dict(), indent=2, default=str)
+        return json_text(self.to_dict())
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> DockSimSummary:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import json
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
+from monodock.core.config import json_text
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.estimation.fused import FusedEstimator
@@ -411,7 +411,7 @@ class HeldoutSummary:
 
     def to_json(self) -> str:
         """summary.json's text."""
-        return json.dumps(self.to_dict(), indent=2, default=str)
+        return json_text(self.to_dict())
 
 
 @dataclass(frozen=True)

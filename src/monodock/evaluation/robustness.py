@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import json
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -35,6 +34,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from monodock.core.camera import CameraModel
+from monodock.core.config import json_text
 from monodock.core.layout import ROLE_NUMBER, ROLES, DockLayout
 from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
@@ -692,7 +692,7 @@ class RobustnessSummary:
 
     def to_json(self) -> str:
         """summary.json's text."""
-        return json.dumps(self.to_dict(), indent=2, default=str)
+        return json_text(self.to_dict())
 
 
 @dataclass(frozen=True)
