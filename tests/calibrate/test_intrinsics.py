@@ -224,6 +224,24 @@ def test_cli_writes_camera_info_and_coverage(
     assert (tmp_path / "cov.png").is_file()
 
 
+def test_cli_refuses_to_write_a_lens_the_views_do_not_constrain(
+    tmp_path: pytest.TempPathFactory, views: list[BoardView]
+) -> None:
+    """Six views aimed at the same place fit a distortion that turns over inside the image (49 px off at the
+    corners). Every loader would refuse that file, so calibrate refuses to write it, naming what the views lacked."""
+    folder = tmp_path / "same"
+    folder.mkdir()
+    for k in range(6):
+        cv2.imwrite(str(folder / f"v{k}.png"), views[4 + 9 * (k % 2)].image)
+    out = tmp_path / "camera.yaml"
+    args = _harness().parse_args(["intrinsics", str(folder), "--board", "8x6", "--square", "0.025", "--out", str(out)])
+    with pytest.raises(
+        InputError, match=r"the calibration: distortion_coefficients: .*nothing written \(corners cover"
+    ):
+        args.func(args)
+    assert not out.exists()
+
+
 def test_parse_board() -> None:
     assert parse_board("8x6") == (8, 6)
     assert parse_board("9X7") == (9, 7)

@@ -42,7 +42,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.projection import project_to_image, scan_in_base
 from monodock.core.robot import RobotConfig
-from monodock.errors import InputError
+from monodock.errors import ConfigError, InputError
 from monodock.io.frames import open_frames, read_image
 from monodock.recording.read import is_recording
 from monodock.report.calibration import coverage_png, overlay_png
@@ -120,6 +120,12 @@ def run_intrinsics(args: argparse.Namespace) -> int:
         min_views=args.min_views,
         name=args.name,
     )
+    # What every loader would refuse is not written: the warnings say what the views lacked.
+    try:
+        result.camera.check_plausible("the calibration")
+    except ConfigError as exc:
+        lacking = "; ".join(result.warnings) or "take more views, nearer the image's edges and corners"
+        raise InputError(f"{exc}; nothing written ({lacking})") from None
     result.camera.save(out, force=args.force)
     write_bytes_atomic(cov, coverage_png(result), force=args.force)
     print(summary(result))
