@@ -228,7 +228,6 @@ def build(root: Path, run: Callable[..., subprocess.CompletedProcess[str]]) -> l
                 ["calibrate", "extrinsics", "--target-views", str(npz / kind), cal[0], cal[2], "--out", o(".yaml")],
             )
         )
-    sim_out = str(out / "simulated")
     numbers = [
         ["--seed", "-1"],
         ["--seed", "99999999999999999999999"],
@@ -270,7 +269,7 @@ def build(root: Path, run: Callable[..., subprocess.CompletedProcess[str]]) -> l
     ]
     for extra in numbers:
         frames = [] if "--frames" in extra else ["--frames", "1"]
-        cases.append(Case("numbers", "simulate " + " ".join(extra), ["simulate", "--out", sim_out, *frames, *extra]))
+        cases.append(Case("numbers", "simulate " + " ".join(extra), ["simulate", "--out", o(""), *frames, *extra]))
     others = [
         ["train", str(root / "none.parquet"), "--out", o(""), "--trials", "0"],
         ["train", str(root / "none.parquet"), "--out", o(""), "--trials", "100000000"],

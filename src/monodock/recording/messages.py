@@ -373,7 +373,9 @@ def decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
         dtype = np.dtype(">u2" if msg.is_bigendian else "<u2")
         wide = np.ascontiguousarray(rows).view(dtype).reshape(height, width)
         return np.ascontiguousarray((wide >> 8).astype(np.uint8))
-    img: NDArray[Any] = np.ascontiguousarray(rows).reshape((height, width) if channels == 1 else (height, width, channels))
+    img: NDArray[Any] = np.ascontiguousarray(rows).reshape(
+        (height, width) if channels == 1 else (height, width, channels)
+    )
     if conversion is not None:
         img = cv2.cvtColor(img, conversion)
     return np.asarray(img, dtype=np.uint8)
