@@ -113,8 +113,10 @@ def add_parser(subparsers: Any) -> None:
         default=0.008,
         help="camera exposure, s, less than one frame: motion blur from the robot's motion (0.008)",
     )
-    d.add_argument("--frame-drop-rate", type=_rate, default=0.0, help="chance that a frame never arrives (0)")
-    d.add_argument("--latency-spike-rate", type=_rate, default=0.0, help="chance that a frame arrives 0.3 s late (0)")
+    d.add_argument("--frame-drop-rate", type=_rate, default=0.0, help="chance that a frame never arrives, 0-1 (0)")
+    d.add_argument(
+        "--latency-spike-rate", type=_rate, default=0.0, help="chance that a frame arrives 0.3 s late, 0-1 (0)"
+    )
     d.add_argument("--no-rear-sensor", action="store_true", help="the robot has no rear range sensor")
     d.add_argument(
         "--no-charging-signal",
@@ -157,7 +159,7 @@ def add_parser(subparsers: Any) -> None:
         "--supersample",
         type=int_in(1, MAX_SUPERSAMPLE),
         default=16,
-        help="S: pixels where three surfaces meet get SxS samples (16; other edges are exact)",
+        help=f"S, 1-{MAX_SUPERSAMPLE}: pixels where three surfaces meet get SxS samples (16; other edges are exact)",
     )
     d.add_argument(
         "--cache", help="cache folder for the self-trained bundle (default $MONODOCK_CACHE or ~/.cache/monodock)"

@@ -60,7 +60,7 @@ def add_parser(subparsers: SubParsers) -> None:
     g.add_argument(
         "--supersample",
         type=int_in(1, MAX_SUPERSAMPLE),
-        help="S: test frames' pixels where three surfaces meet get SxS samples (default 16)",
+        help=f"S, 1-{MAX_SUPERSAMPLE}: test frames' pixels where three surfaces meet get SxS samples (default 16)",
     )
     add_jobs(g)
     add_topics(ev)

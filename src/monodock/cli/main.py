@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
 import io
 import os
@@ -77,6 +78,19 @@ def _shown(filename: object) -> str:
     return printable(os.path.join(head, temp["name"]) if temp else path)
 
 
+def _escape_names(err: UnicodeError) -> tuple[str, int]:
+    """A codec error handler: the bytes of a file name that are not UTF-8 (surrogates) as \\xNN, others as
+    backslashreplace does."""
+    if not isinstance(err, UnicodeEncodeError):
+        raise err
+    bad = err.object[err.start : err.end]
+    text = "".join(
+        f"\\x{ord(c) - 0xDC00:02x}" if 0xDC80 <= ord(c) <= 0xDCFF else c.encode("ascii", "backslashreplace").decode()
+        for c in bad
+    )
+    return text, err.end
+
+
 def _one_line(text: object) -> str:
     """A message on one line (OpenCV's errors and some libraries' span several)."""
     return " ".join(str(text).split())
@@ -87,9 +101,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     words = list(sys.argv[1:] if argv is None else argv)
     name = _command(words)
     args = parser([name] if name in COMMANDS else COMMANDS).parse_args(words)
-    # A file name that is not UTF-8 prints as \xNN rather than failing the print (stderr does so already).
-    if isinstance(sys.stdout, io.TextIOWrapper):
-        sys.stdout.reconfigure(errors="backslashreplace")
+    # A file name that is not UTF-8 prints as \xNN (as core.images.printable) rather than failing the print.
+    codecs.register_error("monodock-names", _escape_names)
+    for stream in (sys.stdout, sys.stderr):
+        if isinstance(stream, io.TextIOWrapper):
+            stream.reconfigure(errors="monodock-names")
     try:
         with command_session(debug=args.debug):
             return int(args.func(args))

@@ -111,7 +111,8 @@ def add_nuisances(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--supersample",
         type=int_in(1, MAX_SUPERSAMPLE),
-        help="S: pixels where three surfaces meet get SxS samples (default 16; other edges are exact)",
+        help=f"S, 1-{MAX_SUPERSAMPLE}: pixels where three surfaces meet get SxS samples (default 16; other edges "
+        "are exact)",
     )
     g.add_argument(
         "--side-walls",
