@@ -110,6 +110,16 @@ def build(root: Path, run: Callable[..., subprocess.CompletedProcess[str]]) -> l
     (vid / "garbage.mp4").write_bytes(os.urandom(20000))
     (vid / "empty.mp4").write_bytes(b"")
     (vid / "header.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + os.urandom(4000))
+    frame = cv2.cvtColor(good, cv2.COLOR_GRAY2BGR)
+    for name, fourcc in (("v.avi", "MJPG"), ("v.mp4", "mp4v")):
+        writer = cv2.VideoWriter(str(vid / name), cv2.VideoWriter_fourcc(*fourcc), 10.0, frame.shape[1::-1])
+        for i in range(20):
+            writer.write(np.roll(frame, 3 * i, axis=1))
+        writer.release()
+        data = bytearray((vid / name).read_bytes())
+        (vid / f"cut_{name}").write_bytes(data[: len(data) * 6 // 10])
+        data[len(data) // 3 : len(data) // 3 + 3000] = np.random.default_rng(0).bytes(3000)
+        (vid / f"mid_{name}").write_bytes(bytes(data))
     # Recordings.
     rec = root / "rec"
     rec.mkdir()
@@ -215,6 +225,10 @@ def build(root: Path, run: Callable[..., subprocess.CompletedProcess[str]]) -> l
     for name in ("garbage.mp4", "empty.mp4", "header.mp4"):
         cases.append(Case("videos", f"estimate {name}", ["estimate", str(vid / name), "--out", o(), *cal]))
         cases.append(Case("videos", f"run {name}", ["run", "--source", str(vid / name), "--out", o(), *cal]))
+    for name in ("cut_v.avi", "mid_v.avi", "mid_v.mp4"):  # frames to the cut or around the damage: exit 0, quietly
+        cases.append(Case("videos", f"estimate {name}", ["estimate", str(vid / name), "--out", o(), *cal], ok=True))
+        cases.append(Case("videos", f"run {name}", ["run", "--source", str(vid / name), "--out", o(), *cal], ok=True))
+    cases.append(Case("videos", "estimate cut_v.mp4", ["estimate", str(vid / "cut_v.mp4"), "--out", o(), *cal]))
     for name in ("garbage_meta", "list_meta", "trunc.mcap", "empty.mcap", "garbage.db3", "noimages.db3"):
         p = str(rec / name)
         cases.append(Case("recordings", f"estimate {name}", ["estimate", p, "--out", o(), *cal]))

@@ -4,12 +4,14 @@ inf, negative seeds, MIN > MAX, counts that would exhaust memory) with one usage
 from __future__ import annotations
 
 import argparse
+import os
 import re
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from monodock.cli import show
 from monodock.cli.main import main, parser
 from monodock.cli.options import SEED_MAX
 
@@ -151,3 +153,29 @@ def test_yaw_range_at_the_limits_is_accepted() -> None:
     args = parser(["simulate"]).parse_args(["simulate", "--out", "x", "--yaw", "-180", "180", "--depth", "0.5", "0.5"])
     assert args.yaw == (-180.0, 180.0)
     assert args.depth == (0.5, 0.5)
+
+
+@pytest.mark.parametrize(
+    ("error", "line"),
+    [
+        (OSError("disk on fire"), "monodock show: error: disk on fire"),
+        (
+            PermissionError(13, "Permission denied", "/data/out/.est.csv.k3j_x9a2"),
+            "/data/out/est.csv: Permission denied",
+        ),
+        (OSError(28, "No space left on device", "/data/.bundle.old.ab12cd34"), "/data/bundle: No space left on device"),
+        (OSError(2, "No such file", os.fsdecode(b"/d/caf\xe9.png")), "/d/caf\\xe9.png: No such file"),
+    ],
+)
+def test_os_errors_read_as_one_line_with_the_users_path(
+    error: OSError, line: str, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """No "error::" when the OSError has no file; an atomic write's temp name is told as the user's path."""
+
+    def fail(_args: argparse.Namespace) -> None:
+        raise error
+
+    monkeypatch.setattr(show, "load_calibration", fail)
+    code, err = run(["show", "x.png", "--out", "o.png", "--camera", "c", "--layout", "l", "--robot", "r"], capfd)
+    assert code == 2
+    assert err.strip() == (line if line.startswith("monodock") else f"monodock show: error: {line}")

@@ -381,3 +381,27 @@ def test_bad_scans_npz_is_one_line(kind: str, scene: Path, tmp_path: Path, capfd
     ]
     code, _, err = run(argv, capfd)
     assert_one_line(code, err, "scans.npz")
+
+
+@pytest.mark.parametrize("damage", ["cut", "middle"])
+def test_damaged_video_gives_its_readable_frames_quietly(
+    damage: str, scene: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """FFmpeg's decoder complains ("[mjpeg @ 0x...] overread 8", "bad vlc") on every damaged frame: not here."""
+    frame = cv2.cvtColor(cv2.imread(str(scene / "plain.png"), cv2.IMREAD_GRAYSCALE), cv2.COLOR_GRAY2BGR)
+    video = tmp_path / "v.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 10.0, frame.shape[1::-1])
+    for _ in range(10):
+        writer.write(frame)
+    writer.release()
+    data = bytearray(video.read_bytes())
+    if damage == "cut":
+        data = data[: len(data) * 6 // 10]
+    else:
+        data[len(data) // 3 : len(data) // 3 + 3000] = np.random.default_rng(0).bytes(3000)
+    video.write_bytes(bytes(data))
+    est = tmp_path / "e.csv"
+    code, _, err = run(["estimate", str(video), "--out", str(est), *cal(scene)], capfd)
+    assert code == 0, err
+    assert_quiet(err)
+    assert sum(r["valid"] == "true" for r in estimate_rows(est)) >= 4
