@@ -305,7 +305,7 @@ def test_output_where_a_file_cannot_go(sim_folder: Path, tmp_path: Path, capsys:
         (["train", "x", "--out", "x", "--trials", "0"], "--trials"),
         (["simulate", "--out", "x", "--format", "rosbag2", "--density", "1,2,x"], "--density"),
         (["simulate", "--out", "x", "--format", "rosbag2", "--density", "steep"], "density"),
-        (["simulate", "--out", "x", "--format", "rosbag2", "--camera-rate", "0"], "camera_rate"),
+        (["simulate", "--out", "x", "--format", "rosbag2", "--camera-rate", "0"], "--camera-rate"),
         (["label", "x", "--layout", "x", "--out", "x", "--tolerance", "-1"], "tolerance"),
     ],
 )

@@ -140,7 +140,8 @@ def test_the_shipped_example_is_every_default() -> None:
         (["--faults", "all,occlusion"], "'all' stands alone"),
         (["--faults", "rain"], "unknown fault 'rain'"),
         (["--frame-drop-rate", "2"], "must be within 0-1"),
-        (["--exposure", "-1"], "--exposure must be within 0 and one frame"),
+        (["--exposure", "-1"], "--exposure: must be a number in [0, 1), got -1"),
+        (["--exposure", "0.1"], "--exposure must be within 0 and one frame"),
     ],
 )
 def test_dock_sim_refuses_bad_docking_options_in_one_line(

@@ -122,13 +122,13 @@ def test_the_occluder_hides_the_share_it_is_built_for() -> None:
     ("extra", "message"),
     [
         (["--robustness", "rec"], "drop the recording"),
-        (["--robustness", "--frames", "0"], "--frames must be at least 1"),
-        (["--robustness", "--calibration-frames", "10"], "--calibration-frames must be at least 50"),
-        (["--robustness", "--jobs", "0"], "--jobs must be at least 1"),
+        (["--robustness", "--frames", "0"], "--frames: must be 1-100000, got 0"),
+        (["--robustness", "--calibration-frames", "10"], "--calibration-frames: must be 50-100000, got 10"),
+        (["--robustness", "--jobs", "0"], "--jobs: must be 1-64, got 0"),
         (["--robustness", "--supersample", "0"], "--supersample: must be 1-64, got 0"),
         (["--frames", "5", "rec"], "--frames only applies with --robustness"),
         ([], "give the held-out RECORDING"),
-        (["--robustness", "--frames", "many"], "invalid int value"),
+        (["--robustness", "--frames", "many"], "expected a whole number"),
     ],
 )
 def test_bad_options_get_one_line_and_exit_2(

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import math
 import os
+import zipfile
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +25,9 @@ from monodock.core.config import Fields, load_yaml
 from monodock.core.scan import LaserScan
 from monodock.errors import ConfigError, InputError
 from monodock.io.frames import read_image
+
+# The most a scans.npz may unpack to.
+MAX_NPZ_BYTES = 2_000_000_000
 
 __all__ = ["S_AXIS", "T_AXIS", "DiamondTarget", "TargetView", "read_target_views", "write_target_views"]
 
@@ -175,16 +180,27 @@ def read_target_views(folder: str | os.PathLike[str]) -> list[TargetView]:
     images = sorted(p.glob("*.png"))
     if not (p / "scans.npz").is_file():
         raise InputError(f"{p}: no scans.npz (the LiDAR scans, one row of ranges per image)")
+    npz = p / "scans.npz"
     try:
-        data = np.load(p / "scans.npz")
-        ranges = np.asarray(data["ranges"], dtype=np.float32)
-        stamps = (
-            np.asarray(data["stamps"], dtype=np.float64) if "stamps" in data else np.arange(len(ranges), dtype=float)
-        )
-        a0, da = float(data["angle_min"]), float(data["angle_increment"])
-        rmin, rmax = float(data["range_min"]), float(data["range_max"])
-    except (KeyError, ValueError, OSError) as exc:
-        raise InputError(f"{p / 'scans.npz'}: unreadable ({exc})") from None
+        # A zip whose members would unpack to more than MAX_NPZ_BYTES is refused before any is read (a zip bomb);
+        # object arrays are never unpickled (allow_pickle=False: a pickle in it is a ValueError).
+        with zipfile.ZipFile(npz) as z:
+            unpacked = sum(info.file_size for info in z.infolist())
+        if unpacked > MAX_NPZ_BYTES:
+            raise InputError(f"{npz}: unpacks to {unpacked / 1e9:.1f} GB (at most {MAX_NPZ_BYTES / 1e9:.0f} GB)")
+        with np.load(npz, allow_pickle=False) as data:
+            ranges = np.asarray(data["ranges"], dtype=np.float32)
+            stamps = (
+                np.asarray(data["stamps"], dtype=np.float64)
+                if "stamps" in data
+                else np.arange(len(ranges), dtype=float)
+            )
+            a0, da = float(data["angle_min"]), float(data["angle_increment"])
+            rmin, rmax = float(data["range_min"]), float(data["range_max"])
+    except (KeyError, ValueError, TypeError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise InputError(f"{npz}: not a readable scans.npz ({' '.join(str(exc).split())})") from None
+    if not all(math.isfinite(v) for v in (a0, da, rmin, rmax)) or da == 0 or not 0 <= rmin < rmax:
+        raise InputError(f"{npz}: angle_min, angle_increment, range_min, range_max must be finite, with 0 <= min < max")
     if ranges.ndim != 2 or len(ranges) != len(images):
         raise InputError(f"{p}: {len(images)} images but {len(ranges)} scans; they must pair one to one")
     n = ranges.shape[1]

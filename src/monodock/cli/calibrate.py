@@ -35,7 +35,7 @@ from monodock.calibrate.intrinsics import (
     summary,
 )
 from monodock.calibrate.target import DiamondTarget, read_target_views
-from monodock.cli.options import SubParsers
+from monodock.cli.options import SubParsers, float_in
 from monodock.core import transforms
 from monodock.core.atomic import check_writable, write_bytes_atomic, write_text_atomic
 from monodock.core.camera import CameraModel
@@ -68,17 +68,19 @@ def _add_intrinsics(calibrate_subparsers: SubParsers) -> None:
     )
     p.add_argument("images", nargs="+", metavar="IMAGES", help="image files, folders of images, videos or recordings")
     p.add_argument("--board", default="8x6", help="inner corners per row x per column (default: 8x6, 9x7 squares)")
-    p.add_argument("--square", type=float, default=0.025, help="square side, metres (default: 0.025)")
+    p.add_argument("--square", type=float, default=0.025, help="square side, metres, in (0, 10] (default: 0.025)")
     p.add_argument("--out", required=True, help="camera_info YAML to write")
     p.add_argument("--coverage", help="coverage heat map PNG (default: <out stem>_coverage.png next to --out)")
-    p.add_argument("--max-views", type=int, default=25, help="views picked from a video or recording (default: 25)")
+    p.add_argument(
+        "--max-views", type=int, default=25, help="views picked from a video or recording, 1-1000 (default: 25)"
+    )
     p.add_argument(
         "--max-blur",
         type=float,
         default=DEFAULT_MAX_BLUR_PX,
-        help=f"reject views whose edges are wider than this, px (default: {DEFAULT_MAX_BLUR_PX:g})",
+        help=f"reject views whose edges are wider than this, px, in (0, 100] (default: {DEFAULT_MAX_BLUR_PX:g})",
     )
-    p.add_argument("--min-views", type=int, default=5, help="fewest usable views (default: 5)")
+    p.add_argument("--min-views", type=int, default=5, help="fewest usable views, 1-1000 (default: 5)")
     p.add_argument("--name", default="camera", help="camera_name in the YAML (default: camera)")
     p.add_argument("--force", action="store_true", help="replace existing output files")
     p.set_defaults(func=run_intrinsics)
@@ -104,8 +106,10 @@ def run_intrinsics(args: argparse.Namespace) -> int:
         raise InputError(f"--square must be a positive length in metres, got {args.square}")
     if not (math.isfinite(args.max_blur) and args.max_blur > 0):
         raise InputError(f"--max-blur must be a positive number of pixels, got {args.max_blur}")
-    if args.max_views < 1 or args.min_views < 1:
-        raise InputError("--max-views and --min-views must be at least 1")
+    if args.square > 10 or args.max_blur > 100:
+        raise InputError(f"--square must be at most 10 m and --max-blur 100 px, got {args.square} and {args.max_blur}")
+    if not (1 <= args.max_views <= 1000 and 1 <= args.min_views <= 1000):
+        raise InputError(f"--max-views and --min-views must be 1-1000, got {args.max_views} and {args.min_views}")
     out = Path(args.out)
     cov = Path(args.coverage) if args.coverage else out.with_name(f"{out.stem}_coverage.png")
     if cov.resolve() == out.resolve():
@@ -168,7 +172,10 @@ def _add_extrinsics(calibrate_subparsers: SubParsers) -> None:
         "--image", help="with --pairs and --overlay: a frame the pairs were clicked in (points: magenta, clicks: blue)"
     )
     p.add_argument(
-        "--tolerance", type=float, default=PAIRING_TOLERANCE_S, help="image/scan pairing tolerance, s (default 0.05)"
+        "--tolerance",
+        type=float_in(0.0, 10.0, low_open=True),
+        default=PAIRING_TOLERANCE_S,
+        help="image/scan pairing tolerance, s, in (0, 10] (default 0.05)",
     )
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.set_defaults(func=run_extrinsics)

@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monodock.cli.options import SubParsers, jobs
+from monodock.cli.options import SubParsers, add_jobs, add_seed, int_in, jobs
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.projection import project_to_image, scan_in_base
@@ -319,12 +319,24 @@ def add_parser(subparsers: SubParsers) -> None:
     """Add ``demo``."""
     d = subparsers.add_parser("demo", help="simulate, label, train, evaluate every method, and write the report")
     d.add_argument("--out", default="demo_report", help="report folder (default: demo_report)")
-    d.add_argument("--train-stops", type=int, default=3000, help="stops of the data-collection drive (3000)")
-    d.add_argument("--test-stops", type=int, default=500, help="stops of the held-out drive (500)")
-    d.add_argument("--trials", type=int, default=4, help="hyperparameter draws per model (4)")
-    d.add_argument("--dock-trials", type=int, default=1, help="closed-loop docking starts per case and method (1)")
-    d.add_argument("--seed", type=int, default=0)
-    d.add_argument("--jobs", type=int)
+    d.add_argument(
+        "--train-stops",
+        type=int_in(1, 100_000),
+        default=3000,
+        help="stops of the data-collection drive, 1-100000 (3000)",
+    )
+    d.add_argument(
+        "--test-stops", type=int_in(1, 100_000), default=500, help="stops of the held-out drive, 1-100000 (500)"
+    )
+    d.add_argument("--trials", type=int_in(1, 1000), default=4, help="hyperparameter draws per model, 1-1000 (4)")
+    d.add_argument(
+        "--dock-trials",
+        type=int_in(1, 1000),
+        default=1,
+        help="closed-loop docking starts per case and method, 1-1000 (1)",
+    )
+    add_seed(d)
+    add_jobs(d)
     d.add_argument("--force", action="store_true", help="replace an existing report folder")
     d.set_defaults(func=run)
 

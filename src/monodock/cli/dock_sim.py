@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from monodock.cli.options import comma_list, int_in
+from monodock.cli.options import add_jobs, add_seed, comma_list, float_in, int_in
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -62,16 +62,6 @@ def _rate(value: str) -> float:
     return r
 
 
-def _positive_int(value: str) -> int:
-    try:
-        n = int(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{value}'") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
-    return n
-
-
 def add_parser(subparsers: Any) -> None:
     """Add ``dock-sim`` to the ``monodock`` sub-command parsers."""
     d = subparsers.add_parser(
@@ -79,7 +69,7 @@ def add_parser(subparsers: Any) -> None:
         help="closed-loop docking in the simulator, camera in the loop: every case, many starts, every method",
     )
     d.add_argument("--cases", type=_cases, default=tuple(CASES), help="'all' (default) or e.g. 1,3,5")
-    d.add_argument("--trials", type=_positive_int, default=25, help="random starts per case (25)")
+    d.add_argument("--trials", type=int_in(1, 10_000), default=25, help="random starts per case, 1-10000 (25)")
     d.add_argument(
         "--method",
         type=comma_list("method", ALL_METHODS),
@@ -94,8 +84,8 @@ def add_parser(subparsers: Any) -> None:
     )
     d.add_argument("--out", help="write summary.json, runs.csv, plots and report.html into this folder")
     d.add_argument("--force", action="store_true", help="replace an existing --out folder")
-    d.add_argument("--seed", type=int, default=0)
-    d.add_argument("--jobs", type=int, help="worker processes (default: the cores, at most 4)")
+    add_seed(d)
+    add_jobs(d)
     d.add_argument(
         "--config",
         help="docking config YAML: the mission's gains, speeds, tolerances, time-outs and retries (docs/docking.md)",
@@ -118,43 +108,68 @@ def add_parser(subparsers: Any) -> None:
         "--redock", action="store_true", help="after each docking, undock to the staging pose and dock again"
     )
     d.add_argument(
-        "--exposure", type=float, default=0.008, help="camera exposure, s: motion blur from the robot's motion (0.008)"
+        "--exposure",
+        type=float_in(0.0, 1.0, high_open=True),
+        default=0.008,
+        help="camera exposure, s, less than one frame: motion blur from the robot's motion (0.008)",
     )
-    d.add_argument("--frame-drop-rate", type=_rate, default=0.0, help="chance that a frame never arrives (0)")
-    d.add_argument("--latency-spike-rate", type=_rate, default=0.0, help="chance that a frame arrives 0.3 s late (0)")
+    d.add_argument("--frame-drop-rate", type=_rate, default=0.0, help="chance that a frame never arrives, 0-1 (0)")
+    d.add_argument(
+        "--latency-spike-rate", type=_rate, default=0.0, help="chance that a frame arrives 0.3 s late, 0-1 (0)"
+    )
     d.add_argument("--no-rear-sensor", action="store_true", help="the robot has no rear range sensor")
     d.add_argument(
         "--no-charging-signal",
         action="store_true",
         help="the robot cannot tell whether it charges: docked is its own estimate inside the tolerances",
     )
-    d.add_argument("--standoff", type=float, help="Point A: floor between front edge and face, m (the config's: 1.0)")
+    d.add_argument(
+        "--standoff",
+        type=float_in(0.0, 10.0, low_open=True),
+        help="Point A: floor between front edge and face, m, in (0, 10] (the config's: 1.0)",
+    )
     d.add_argument(
         "--distance",
-        type=float,
+        type=float_in(0.0, 20.0, low_open=True),
         nargs=2,
         default=(1.0, 2.5),
         metavar=("MIN", "MAX"),
-        help="starts: base_link's distance from the face, m (1.0 2.5)",
+        help="starts: base_link's distance from the face, m, each in (0, 20], MIN < MAX (1.0 2.5)",
     )
-    d.add_argument("--max-heading", type=float, default=30.0, help="starts: heading within ± this, degrees (30)")
-    d.add_argument("--max-retries", type=int, help="back off to Point A and try again up to N times (the config's: 2)")
+    d.add_argument(
+        "--max-heading",
+        type=float_in(0.0, 60.0, low_open=True),
+        default=30.0,
+        help="starts: heading within ± this, degrees, in (0, 60] (30)",
+    )
+    d.add_argument(
+        "--max-retries",
+        type=int_in(0, 100),
+        help="back off to Point A and try again up to N times, 0-100 (the config's: 2)",
+    )
     d.add_argument(
         "--contact-sensor",
         action="store_true",
         help="the charger reports contact and the robot stops on it (default: it stops on its own estimate)",
     )
-    d.add_argument("--camera-rate", type=float, default=15.0, help="camera frames per second (15)")
+    d.add_argument(
+        "--camera-rate", type=float_in(1.0, 240.0), default=15.0, help="camera frames per second, 1-240 (15)"
+    )
     d.add_argument(
         "--supersample",
         type=int_in(1, MAX_SUPERSAMPLE),
         default=16,
-        help="S: pixels where three surfaces meet get SxS samples (16; other edges are exact)",
+        help=f"S, 1-{MAX_SUPERSAMPLE}: pixels where three surfaces meet get SxS samples (16; other edges are exact)",
     )
     d.add_argument(
         "--cache", help="cache folder for the self-trained bundle (default $MONODOCK_CACHE or ~/.cache/monodock)"
     )
-    d.add_argument("--train-stops", type=int, default=3000, help="stops of the self-trained bundle's drive (3000)")
+    d.add_argument(
+        "--train-stops",
+        type=int_in(100, 100_000),
+        default=3000,
+        help="stops of the self-trained bundle's drive, 100-100000 (3000)",
+    )
     d.add_argument("--camera", help="simulate this camera (ROS camera_info YAML); default: the built-in webcam")
     d.add_argument("--layout", help="simulate this dock layout; default: the papers'")
     d.add_argument("--robot", help="simulate this robot (mounts, front_offset); default: the papers'")

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from monodock.cli.label import label
-from monodock.cli.options import SubParsers, add_topics, bundle_calibration, int_in, jobs
+from monodock.cli.options import SubParsers, add_jobs, add_seed, add_topics, bundle_calibration, int_in, jobs
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
@@ -50,17 +50,21 @@ def add_parser(subparsers: SubParsers) -> None:
         help="sweep image nuisances (noise, blur, exposure, occlusion) and calibration errors (focal, marker "
         "size, camera mount) one at a time and plot every method's error against each",
     )
-    g.add_argument("--frames", type=int, help="test poses, the same at every level (default 300)")
     g.add_argument(
-        "--calibration-frames", type=int, help="LiDAR-labelled frames the fused tables are re-learned from (300)"
+        "--frames", type=int_in(1, 100_000), help="test poses, the same at every level, 1-100000 (default 300)"
     )
-    g.add_argument("--seed", type=int, help="seed of the poses and of every frame's draws (default 0)")
+    g.add_argument(
+        "--calibration-frames",
+        type=int_in(50, 100_000),
+        help="LiDAR-labelled frames the fused tables are re-learned from, 50-100000 (300)",
+    )
+    add_seed(g, "seed of the poses and of every frame's draws (default 0)", default=None)
     g.add_argument(
         "--supersample",
         type=int_in(1, MAX_SUPERSAMPLE),
-        help="S: test frames' pixels where three surfaces meet get SxS samples (default 16)",
+        help=f"S, 1-{MAX_SUPERSAMPLE}: test frames' pixels where three surfaces meet get SxS samples (default 16)",
     )
-    g.add_argument("--jobs", type=int, help="render processes (default: cores, at most 4)")
+    add_jobs(g)
     add_topics(ev)
     ev.set_defaults(func=run)
 

@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import codecs
 import importlib
+import io
 import logging
+import os
+import re
 import sys
 from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
+from monodock.core.images import printable
+from monodock.core.quiet import command_session
 from monodock.errors import MonodockError
 
 __all__ = ["COMMANDS", "main", "parser"]
@@ -49,7 +55,11 @@ def parser(commands: Iterable[str] = COMMANDS) -> argparse.ArgumentParser:
         description="Dock a robot onto its charger with one camera and three ArUco markers.",
         epilog="Every command prints one line and exits 2 on bad input; outputs are never overwritten without --force.",
     )
-    p.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    p.add_argument(
+        "--debug",
+        action="store_true",
+        help="show tracebacks of internal errors, and the libraries' own messages (OpenCV, FFmpeg, libpng, libjpeg)",
+    )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in commands:
         importlib.import_module(COMMANDS[name]).add_parser(sub)
@@ -82,6 +92,37 @@ class _Warnings(logging.Handler):
         self.held.clear()
 
 
+# The temp names of core.atomic (".NAME.XXXXXXXX" beside NAME, ".NAME.old.XXXXXXXX" for a replaced folder):
+# an OSError on one is told with the user's NAME.
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+?)\.(?:old\.)?[A-Za-z0-9_]{8}$")
+
+
+def _shown(filename: object) -> str:
+    """How an OSError's file is named: the user's path for an atomic write's temp file, \\xNN for non-UTF-8."""
+    path = os.fsdecode(filename) if isinstance(filename, str | bytes) else str(filename)
+    head, tail = os.path.split(path)
+    temp = _TEMP_NAME.match(tail)
+    return printable(os.path.join(head, temp["name"]) if temp else path)
+
+
+def _escape_names(err: UnicodeError) -> tuple[str, int]:
+    """A codec error handler: the bytes of a file name that are not UTF-8 (surrogates) as \\xNN, others as
+    backslashreplace does."""
+    if not isinstance(err, UnicodeEncodeError):
+        raise err
+    bad = err.object[err.start : err.end]
+    text = "".join(
+        f"\\x{ord(c) - 0xDC00:02x}" if 0xDC80 <= ord(c) <= 0xDCFF else c.encode("ascii", "backslashreplace").decode()
+        for c in bad
+    )
+    return text, err.end
+
+
+def _one_line(text: object) -> str:
+    """A message on one line (OpenCV's errors and some libraries' span several)."""
+    return " ".join(str(text).split())
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; user errors print one line on stderr and return a non-zero code."""
     words = list(sys.argv[1:] if argv is None else argv)
@@ -91,17 +132,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     warnings = _Warnings(args.command)
     logger.addHandler(warnings)
     logger.propagate = False
+    # A file name that is not UTF-8 prints as \xNN (as core.images.printable) rather than failing the print.
+    codecs.register_error("monodock-names", _escape_names)
+    for stream in (sys.stdout, sys.stderr):
+        if isinstance(stream, io.TextIOWrapper):
+            stream.reconfigure(errors="monodock-names")
     try:
-        code = int(args.func(args))
+        with command_session(debug=args.debug):
+            code = int(args.func(args))
         warnings.release()
         return code
     except MonodockError as exc:
-        print(f"monodock {args.command}: error: {exc}", file=sys.stderr)
+        print(f"monodock {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except OSError as exc:
         # A file the user named could not be read or written (permissions, disk full, a folder in the way).
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"monodock {args.command}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
+        where = f"{_shown(exc.filename)}: " if exc.filename else ""
+        print(f"monodock {args.command}: error: {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("monodock: interrupted", file=sys.stderr)
@@ -110,7 +157,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.debug:
             raise
         print(
-            f"monodock {args.command}: internal error: {type(exc).__name__}: {exc} (rerun with --debug)",
+            f"monodock {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} (rerun with --debug)",
             file=sys.stderr,
         )
         return 1

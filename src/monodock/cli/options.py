@@ -23,13 +23,18 @@ else:
     SubParsers = Any
 
 __all__ = [
+    "MAX_JOBS",
+    "SEED_MAX",
     "SubParsers",
     "add_calibration",
     "add_estimator_options",
+    "add_jobs",
+    "add_seed",
     "add_topics",
     "build_estimator",
     "bundle_calibration",
     "comma_list",
+    "float_in",
     "int_in",
     "jobs",
     "load_calibration",
@@ -74,15 +79,63 @@ def comma_list(what: str, available: tuple[str, ...], *, everything: bool = Fals
     return parse
 
 
-def range_option(p: argparse.ArgumentParser, flag: str, default: tuple[float, float], what: str) -> None:
-    """A ``--flag MIN MAX`` option."""
+# Every seed is a whole number in 0-SEED_MAX (numpy's generators refuse negative ones); worker processes 1-MAX_JOBS.
+SEED_MAX = 2**32 - 1
+MAX_JOBS = 64
+
+
+def _bounds(low: float, high: float, low_open: bool, high_open: bool) -> str:
+    return f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+
+
+def float_in(low: float, high: float, *, low_open: bool = False, high_open: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number within ``low``-``high`` (open ends excluded); anything else (NaN, inf,
+    out of range, not a number) is a one-line usage error that gives the range."""
+    where = _bounds(low, high, low_open, high_open)
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number in {where}, got {text!r}") from None
+        inside = (low < value if low_open else low <= value) and (value < high if high_open else value <= high)
+        if not (math.isfinite(value) and inside):
+            raise argparse.ArgumentTypeError(f"must be a number in {where}, got {text}")
+        return value
+
+    return parse
+
+
+class _Ordered(argparse.Action):
+    """``--flag MIN MAX``: MIN must not exceed MAX (a one-line usage error otherwise)."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option: str | None = None
+    ) -> None:
+        lo, hi = values
+        if lo > hi:
+            parser.error(f"argument {option}: MIN must not exceed MAX, got {lo:g} {hi:g}")
+        setattr(namespace, self.dest, (lo, hi))
+
+
+def range_option(
+    p: argparse.ArgumentParser,
+    flag: str,
+    default: tuple[float, float],
+    what: str,
+    bounds: tuple[float, float],
+    *,
+    low_open: bool = False,
+) -> None:
+    """A ``--flag MIN MAX`` option: both finite and within ``bounds``, MIN <= MAX."""
     p.add_argument(
         flag,
-        type=float,
+        type=float_in(*bounds, low_open=low_open),
         nargs=2,
         default=default,
+        action=_Ordered,
         metavar=("MIN", "MAX"),
-        help=f"{what} (default {default[0]:g} {default[1]:g})",
+        help=f"{what}, each in {_bounds(*bounds, low_open, False)}, MIN <= MAX (default {default[0]:g} {default[1]:g})",
     )
 
 
@@ -99,6 +152,17 @@ def int_in(low: int, high: int) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+def add_seed(p: argparse.ArgumentParser | argparse._ArgumentGroup, what: str = "seed", default: int | None = 0) -> None:
+    """``--seed``: a whole number in 0-SEED_MAX."""
+    shown = f" (default {default})" if default is not None else ""
+    p.add_argument("--seed", type=int_in(0, SEED_MAX), default=default, help=f"{what}, 0-{SEED_MAX}{shown}")
+
+
+def add_jobs(p: argparse.ArgumentParser | argparse._ArgumentGroup, default: str = "cores, at most 4") -> None:
+    """``--jobs``: worker processes, 1-MAX_JOBS."""
+    p.add_argument("--jobs", type=int_in(1, MAX_JOBS), help=f"worker processes, 1-{MAX_JOBS} (default: {default})")
 
 
 def jobs(value: int | None) -> int:
@@ -120,7 +184,10 @@ def add_topics(p: argparse.ArgumentParser) -> None:
     g.add_argument("--camera-info-topic", help="sensor_msgs/CameraInfo topic")
     g.add_argument("--scan-topic", help="sensor_msgs/LaserScan topic")
     g.add_argument(
-        "--tolerance", type=float, default=0.05, help="pair an image with a scan at most this far in stamp, s (0.05)"
+        "--tolerance",
+        type=float_in(0.0, 10.0, low_open=True),
+        default=0.05,
+        help="pair an image with a scan at most this far in stamp, s, in (0, 10] (0.05)",
     )
 
 

@@ -11,7 +11,7 @@ from typing import IO
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.cli.options import SubParsers, add_estimator_options, build_estimator
+from monodock.cli.options import SubParsers, add_estimator_options, build_estimator, int_in
 from monodock.core.atomic import check_writable
 from monodock.errors import InputError
 from monodock.estimation.estimator import Estimator, FrameEstimates
@@ -52,7 +52,7 @@ def add_parser(subparsers: SubParsers) -> None:
         help="play a video or recording at its own rate (drops frames "
         "it cannot keep up with); default: as fast as possible",
     )
-    r.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    r.add_argument("--max-frames", type=int_in(1, 10**12), metavar="N", help="stop after N frames, 1-10^12")
     r.add_argument("--image-topic", help="a recording's image topic, when it has several")
     r.add_argument("--force", action="store_true", help="overwrite existing outputs")
     r.set_defaults(func=run)

@@ -9,7 +9,17 @@ from pathlib import Path
 
 import numpy as np
 
-from monodock.cli.options import SubParsers, add_calibration, int_in, jobs, load_calibration, range_option
+from monodock.cli.options import (
+    SubParsers,
+    add_calibration,
+    add_jobs,
+    add_seed,
+    float_in,
+    int_in,
+    jobs,
+    load_calibration,
+    range_option,
+)
 from monodock.core.atomic import atomic_directory
 from monodock.errors import MonodockError
 from monodock.estimation.estimator import Estimator
@@ -20,26 +30,35 @@ from monodock.sim.export import FrameRecord, write_frame_folder
 from monodock.sim.recording import write_recording
 from monodock.sim.render import MAX_SUPERSAMPLE
 
-__all__ = ["add_parser", "run"]
+__all__ = ["MAX_FRAMES", "add_parser", "run"]
+
+# The most frames (or stops) one simulate writes.
+MAX_FRAMES = 100_000
 
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``simulate``."""
     s = subparsers.add_parser("simulate", help="render camera frames, LiDAR scans and ground truth to a folder")
     s.add_argument("--out", required=True, help="output folder")
-    s.add_argument("--frames", type=int, default=200)
-    s.add_argument("--seed", type=int, default=0)
-    range_option(s, "--depth", (0.25, 2.5), "depth from the camera, metres")
-    range_option(s, "--lateral", (-0.4, 0.4), "DockPose y, metres")
-    range_option(s, "--yaw", (-30.0, 30.0), "DockPose yaw, degrees")
+    s.add_argument(
+        "--frames",
+        type=int_in(1, MAX_FRAMES),
+        default=200,
+        help=f"frames (with --format rosbag2: stops), 1-{MAX_FRAMES} (default 200)",
+    )
+    add_seed(s)
+    range_option(s, "--depth", (0.25, 2.5), "depth from the camera, metres", (0.0, 20.0), low_open=True)
+    range_option(s, "--lateral", (-0.4, 0.4), "DockPose y, metres", (-10.0, 10.0))
+    # Yaws are refused outside +-180 degrees rather than wrapped: a range like 170 190 would wrap into two.
+    range_option(s, "--yaw", (-30.0, 30.0), "DockPose yaw, degrees", (-180.0, 180.0))
     s.add_argument(
         "--preview",
-        type=int,
+        type=int_in(0, MAX_FRAMES),
         nargs="?",
         const=5,
         default=0,
         metavar="N",
-        help="also write overlay PNGs of the first N frames (default 5) to OUT/preview",
+        help=f"also write overlay PNGs of the first N frames (default 5) to OUT/preview, 0-{MAX_FRAMES}",
     )
     s.add_argument(
         "--format",
@@ -61,9 +80,13 @@ def add_parser(subparsers: SubParsers) -> None:
         default="uniform",
         help="stops per 5 cm depth segment: uniform (default), paper (Table 2's N), or 45 comma-separated weights",
     )
-    g.add_argument("--camera-rate", type=float, default=15.0, help="camera frame rate, Hz (default 15)")
-    g.add_argument("--lidar-rate", type=float, default=10.0, help="LiDAR scan rate, Hz (default 10)")
-    s.add_argument("--jobs", type=int, help="worker processes (default: cores, at most 4)")
+    g.add_argument(
+        "--camera-rate", type=float_in(1.0, 240.0), default=15.0, help="camera frame rate, Hz, 1-240 (default 15)"
+    )
+    g.add_argument(
+        "--lidar-rate", type=float_in(1.0, 100.0), default=10.0, help="LiDAR scan rate, Hz, 1-100 (default 10)"
+    )
+    add_jobs(s)
     s.add_argument("--force", action="store_true", help="replace an existing output folder")
     add_calibration(s, required=False)
     add_nuisances(s)
@@ -74,22 +97,29 @@ def add_nuisances(p: argparse.ArgumentParser) -> None:
     """The simulator's nuisance knobs (``sim.Nuisances``)."""
     g = p.add_argument_group("nuisances (defaults: a cheap indoor webcam)")
     g.add_argument("--clean", action="store_true", help="no nuisance at all: the exact render")
-    g.add_argument("--read-noise", type=float, help="sensor read noise, 8-bit digital numbers")
-    g.add_argument("--shot-noise", type=float, help="photon noise variance per digital number")
-    g.add_argument("--defocus", type=float, help="lens blur sigma, pixels")
-    g.add_argument("--motion-blur", type=float, help="motion streak length, pixels")
-    g.add_argument("--exposure", type=float, help="exposure gain")
-    g.add_argument("--exposure-jitter", type=float, help="per-frame log-normal spread of the exposure")
-    g.add_argument("--gamma", type=float, help="display gamma (1: linear)")
-    g.add_argument("--vignetting", type=float, help="relative fall-off at the image corners")
-    g.add_argument("--occluder-probability", type=float, help="chance per frame of an object hiding a marker")
+    knob = g.add_argument
+    knob("--read-noise", type=float_in(0, 255), help="sensor read noise, 8-bit digital numbers, 0-255")
+    knob("--shot-noise", type=float_in(0, 100), help="photon noise variance per digital number, 0-100")
+    knob("--defocus", type=float_in(0, 50), help="lens blur sigma, pixels, 0-50")
+    knob("--motion-blur", type=float_in(0, 200), help="motion streak length, pixels, 0-200")
+    knob("--exposure", type=float_in(0, 100, low_open=True), help="exposure gain, in (0, 100]")
+    knob("--exposure-jitter", type=float_in(0, 2), help="per-frame log-normal spread of the exposure, 0-2")
+    knob("--gamma", type=float_in(0.1, 10), help="display gamma (1: linear), 0.1-10")
+    knob("--vignetting", type=float_in(0, 1), help="relative fall-off at the image corners, 0-1")
+    knob("--occluder-probability", type=float_in(0, 1), help="chance per frame of an object hiding a marker, 0-1")
     g.add_argument("--no-clutter", action="store_true", help="no posters or foreign markers around the charger")
     g.add_argument(
         "--supersample",
         type=int_in(1, MAX_SUPERSAMPLE),
-        help="S: pixels where three surfaces meet get SxS samples (default 16; other edges are exact)",
+        help=f"S, 1-{MAX_SUPERSAMPLE}: pixels where three surfaces meet get SxS samples (default 16; other edges "
+        "are exact)",
     )
-    g.add_argument("--side-walls", type=float, metavar="DIST", help="side walls DIST metres either side of the dock")
+    g.add_argument(
+        "--side-walls",
+        type=float_in(0.0, 50.0, low_open=True),
+        metavar="DIST",
+        help="side walls DIST metres either side of the dock, in (0, 50]",
+    )
 
 
 def nuisances(args: argparse.Namespace) -> Nuisances:
@@ -120,10 +150,6 @@ def nuisances(args: argparse.Namespace) -> Nuisances:
 def run(args: argparse.Namespace) -> int:
     """``monodock simulate``: frames to a folder, or a data-collection drive to a rosbag2 recording."""
     camera, layout, robot = load_calibration(args)
-    if args.frames < 1:
-        raise MonodockError("--frames must be at least 1")
-    if args.preview < 0:
-        raise MonodockError("--preview must not be negative")
     dist = PoseDistribution(depth=tuple(args.depth), lateral=tuple(args.lateral), yaw_deg=tuple(args.yaw))
     for name, (lo, hi) in (("depth", args.depth), ("lateral", args.lateral), ("yaw", args.yaw)):
         if not lo <= hi:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from monodock.cli.options import SubParsers, jobs
+from monodock.cli.options import SubParsers, add_jobs, add_seed, float_in, int_in, jobs
 from monodock.core.atomic import check_writable
 from monodock.errors import MonodockError
 from monodock.learning.dataset import read_dataset
@@ -24,7 +24,9 @@ def add_parser(subparsers: SubParsers) -> None:
     )
     tr.add_argument("dataset", help="dataset Parquet file from monodock label")
     tr.add_argument("--out", required=True, help="bundle directory to write")
-    tr.add_argument("--trials", type=int, default=10, help="hyperparameter draws per model (default 10)")
+    tr.add_argument(
+        "--trials", type=int_in(1, 1000), default=10, help="hyperparameter draws per model, 1-1000 (default 10)"
+    )
     tr.add_argument(
         "--sets",
         default="m1m2m3,m2",
@@ -34,12 +36,13 @@ def add_parser(subparsers: SubParsers) -> None:
     tr.add_argument("--angle-label", choices=("line", "endpoints"), default="line", help="endpoints: the papers'")
     tr.add_argument(
         "--fusion-holdout",
-        type=float,
+        type=float_in(0.0, 0.5, high_open=True),
         default=0.1,
-        help="share of rows kept out of the regression to learn the fused method's tables from (0.1; 0: none)",
+        help="share of rows kept out of the regression to learn the fused method's tables from, in [0, 0.5) "
+        "(0.1; 0: none)",
     )
-    tr.add_argument("--seed", type=int, default=0)
-    tr.add_argument("--jobs", type=int, help="worker processes (default: all cores)")
+    add_seed(tr)
+    add_jobs(tr, "all cores")
     tr.add_argument("--force", action="store_true", help="replace an existing bundle")
     tr.set_defaults(func=run)
 

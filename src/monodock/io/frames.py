@@ -22,6 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.frame import Frame
+from monodock.core.images import ImageError, decode, printable
+from monodock.core.quiet import library_output
 from monodock.errors import InputError
 from monodock.recording.read import Recording, is_recording, open_recording
 
@@ -44,32 +46,30 @@ _log = logging.getLogger("monodock")
 
 
 def read_image(path: str | Path) -> NDArray[np.uint8]:
-    """An image file's pixels (mono or BGR), or InputError naming the file."""
+    """An image file's pixels as 8-bit mono or BGR (``core.images.decode``), or InputError naming the file."""
     p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{printable(str(p))} is a folder, not an image")
     if not p.is_file():
-        raise InputError(f"image not found: {p}")
+        raise InputError(f"image not found: {printable(str(p))}")
     data = np.fromfile(p, dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise InputError(f"cannot read image {p}: not an image or corrupt")
-    return np.asarray(img)
-
-
-def _quietly(opener: Callable[[], Any]) -> Any:
-    """Open a capture without OpenCV's own warnings on stderr: a failure is told once, as an InputError."""
-    level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
     try:
-        return opener()
-    finally:
-        cv2.utils.logging.setLogLevel(level)
+        return decode(data)
+    except ImageError as exc:
+        raise InputError(f"cannot read image {printable(str(p))}: {exc}") from None
+
+
+def _quietly(call: Callable[[], Any]) -> Any:
+    """A capture's open or read without OpenCV's and FFmpeg's own lines on stderr (``core.quiet``)."""
+    with library_output():
+        return call()
 
 
 def _open_video(path: Path) -> Any:
     cap = _quietly(lambda: cv2.VideoCapture(str(path)))
     if not cap.isOpened():
         cap.release()
-        raise InputError(f"cannot open video {path}")
+        raise InputError(f"cannot open video {printable(str(path))}: not a video, or truncated or corrupt")
     return cap
 
 
@@ -83,12 +83,12 @@ def _expand(inputs: Sequence[str | Path]) -> list[Path]:
         elif p.is_dir():
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in IMAGE_SUFFIXES)
             if not found:
-                raise InputError(f"no images in folder {p}")
+                raise InputError(f"no images in folder {printable(str(p))}")
             paths += found
         elif p.exists():
             paths.append(p)
         else:
-            raise InputError(f"input not found: {p}")
+            raise InputError(f"input not found: {printable(str(p))}")
     return paths
 
 
@@ -166,11 +166,11 @@ class FrameSource:
                     cap.release()
             else:
                 try:
-                    yield Frame(p.name, math.nan, read_image(p), arrival=time.perf_counter())
+                    yield Frame(printable(p.name), math.nan, read_image(p), arrival=time.perf_counter())
                 except InputError as exc:
                     if not self.skip_bad:
                         raise
-                    yield Frame(p.name, math.nan, None, str(exc), arrival=time.perf_counter())
+                    yield Frame(printable(p.name), math.nan, None, str(exc), arrival=time.perf_counter())
 
     def _recording_frames(self, rec: Recording) -> Iterator[Frame]:
         said = 0
@@ -197,7 +197,7 @@ class FrameSource:
         index = 0
         last = time.monotonic()
         while True:
-            ok, img = cap.read()
+            ok, img = _quietly(cap.read)
             if ok and img is not None:
                 arrival = time.perf_counter()
                 stamp = time.time() if live else float(cap.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0

@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
-from monodock.core import transforms
+from monodock.core import images, transforms
 from monodock.core.camera import CameraModel
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
@@ -316,20 +316,6 @@ _RAW: dict[str, tuple[int, int, int | None]] = {
 }
 
 
-def _to_uint8(image: NDArray[Any]) -> NDArray[np.uint8]:
-    """8-bit mono or BGR of what cv2.imdecode returns (16-bit scaled as cv_bridge does: 1/256)."""
-    img = np.asarray(image)
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    elif img.dtype != np.uint8:
-        raise DecodeError(f"compressed image has pixel type {img.dtype}, expected 8 or 16 bit", "compressed")
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-    elif img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
-    return np.ascontiguousarray(img, dtype=np.uint8)
-
-
 def _raw_layout(msg: Any) -> tuple[int, int, int | None, int]:
     """(channels, bytes per channel, conversion, bytes per row) of a raw image; DecodeError if they cannot hold."""
     encoding = str(msg.encoding)
@@ -372,12 +358,12 @@ def decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
     """
     data = np.frombuffer(np.asarray(msg.data, dtype=np.uint8), dtype=np.uint8)
     if msgtype == COMPRESSED_IMAGE:
-        if data.size == 0:
-            raise DecodeError("compressed image is empty", "compressed")
-        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise DecodeError(f"compressed image (format '{msg.format}') does not decode", "compressed")
-        return _to_uint8(img)
+        try:
+            return images.decode(data)
+        except images.ImageError as exc:
+            raise DecodeError(
+                f"compressed image (format '{msg.format}') does not decode: {exc}", "compressed"
+            ) from None
     channels, depth, conversion, row = _raw_layout(msg)
     width, height, step = int(msg.width), int(msg.height), int(msg.step)
     if data.size < step * (height - 1) + row:
@@ -387,7 +373,9 @@ def decode_image(msg: Any, msgtype: str) -> NDArray[np.uint8]:
         dtype = np.dtype(">u2" if msg.is_bigendian else "<u2")
         wide = np.ascontiguousarray(rows).view(dtype).reshape(height, width)
         return np.ascontiguousarray((wide >> 8).astype(np.uint8))
-    img = np.ascontiguousarray(rows).reshape((height, width) if channels == 1 else (height, width, channels))
+    img: NDArray[Any] = np.ascontiguousarray(rows).reshape(
+        (height, width) if channels == 1 else (height, width, channels)
+    )
     if conversion is not None:
         img = cv2.cvtColor(img, conversion)
     return np.asarray(img, dtype=np.uint8)

@@ -10,12 +10,13 @@ before the cut, including those inside a chunk that is only partly there.
 from __future__ import annotations
 
 import bz2
+import os
 import sqlite3
 import struct
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import lz4.frame  # type: ignore[import-untyped]
 from backports import zstd
@@ -33,6 +34,15 @@ SQLITE_MAGIC = b"SQLite format 3\x00"
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
+
+
+def _read_at_most(fh: BinaryIO, length: int) -> bytes:
+    """``fh.read(length)``, but no more than the file holds: a corrupt record length reads to the end of the file
+    (and is found cut) instead of allocating its length first (a MemoryError)."""
+    here = fh.tell()
+    end = fh.seek(0, os.SEEK_END)
+    fh.seek(here)
+    return fh.read(max(0, min(length, end - here)))
 
 
 class SalvageError(Exception):
@@ -226,7 +236,7 @@ class Salvage:
                 op, length = head[0], int(_U64.unpack(head[1:])[0])
                 if op in (0x02, 0x0F):  # footer, data end: the data section is complete
                     return
-                body = fh.read(length)
+                body = _read_at_most(fh, length)  # a corrupt length must not allocate exabytes
                 cut = len(body) < length
                 if cut and op != 0x06:
                     self.reason = f"the file ends inside a record at byte {pos}"
@@ -367,7 +377,7 @@ class Salvage:
                     if not indexed:
                         self.reason = "the bag ends without its index"
                     return
-                header_bytes = fh.read(int(_U32.unpack(raw)[0])) if len(raw) == 4 else b""
+                header_bytes = _read_at_most(fh, int(_U32.unpack(raw)[0])) if len(raw) == 4 else b""
                 size_raw = fh.read(4)
                 if len(size_raw) < 4:
                     self.reason = f"the bag ends inside a record at byte {pos}"
@@ -378,7 +388,7 @@ class Salvage:
                     self.reason = f"the record at byte {pos} is corrupt"
                     return
                 size = int(_U32.unpack(size_raw)[0])
-                data = fh.read(size)
+                data = _read_at_most(fh, size)
                 cut = len(data) < size
                 op = header.get("op", b"\x00")[0]
                 if op == 0x05:  # chunk
