@@ -124,7 +124,7 @@ def capture_fds() -> Iterator[dict[str, str]]:
     sys.stdout.flush()
     sys.stderr.flush()
     saved = {fd: os.dup(fd) for fd in (1, 2)}
-    files = {fd: tempfile.TemporaryFile(mode="w+b") for fd in (1, 2)}
+    files = {fd: tempfile.TemporaryFile(mode="w+b") for fd in (1, 2)}  # noqa: SIM115 - closed in the finally
     py = (sys.stdout, sys.stderr)
     for fd, f in files.items():
         os.dup2(f.fileno(), fd)
@@ -200,7 +200,7 @@ def run_cli(
                     code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
         except Hang:
             hung = True
-        except BaseException:  # noqa: BLE001 - anything that escapes main() is the finding
+        except BaseException:
             escaped = traceback.format_exc()
 
     if capfd is not None:
@@ -230,7 +230,10 @@ def _csv_problems(path: Path, expect: Expect) -> list[tuple[str, str]]:
             continue
         if expect.refuse:
             found.append(
-                ("silent wrong", f"valid=true row from an implausible input: x={r['x_m']} y={r['y_m']} yaw={r['yaw_deg']}")
+                (
+                    "silent wrong",
+                    f"valid=true row from an implausible input: x={r['x_m']} y={r['y_m']} yaw={r['yaw_deg']}",
+                )
             )
         elif expect.truth is not None:
             from fuzz.world import TRUTH_TOLERANCE_DEG, TRUTH_TOLERANCE_M
@@ -240,7 +243,10 @@ def _csv_problems(path: Path, expect: Expect) -> list[tuple[str, str]]:
             dyaw = (float(r["yaw_deg"]) - yaw + 180.0) % 360.0 - 180.0
             if abs(dx) > TRUTH_TOLERANCE_M or abs(dy) > TRUTH_TOLERANCE_M or abs(dyaw) > TRUTH_TOLERANCE_DEG:
                 found.append(
-                    ("silent wrong", f"{r['method']} x={r['x_m']} y={r['y_m']} yaw={r['yaw_deg']} (truth {x:.3f} {y:.3f} {yaw:.1f})")
+                    (
+                        "silent wrong",
+                        f"{r['method']} x={r['x_m']} y={r['y_m']} yaw={r['yaw_deg']} (truth {x:.3f} {y:.3f} {yaw:.1f})",
+                    )
                 )
     return found
 
@@ -313,7 +319,8 @@ def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
         last = run.escaped.strip().splitlines()[-1]
         found.append(("internal error", f"escaped main(): {last}"))
     elif run.code == 1 or (run.code not in (0, 2, None)):
-        detail = err_lines[-1] if err_lines else f"exit {run.code}"
+        said = [line for line in err_lines if "internal error" in line]
+        detail = (said or err_lines or [f"exit {run.code}"])[0]
         found.append(("internal error", f"exit {run.code}: {detail[:200]}"))
     if "Traceback" in run.err or "Traceback" in run.out:
         found.append(("traceback/noise", "a traceback"))
@@ -343,7 +350,9 @@ def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
         found.append(("half-written", f"temporary {name} left behind"))
     for p in expect.inputs:
         if run.before.get(str(p)) != run.after.get(str(p)):
-            found.append(("input destroyed", f"{p.name} changed: {run.before.get(str(p))[:20]} -> {run.after.get(str(p))[:20]}"))
+            found.append(
+                ("input destroyed", f"{p.name} changed: {run.before.get(str(p))[:20]} -> {run.after.get(str(p))[:20]}")
+            )
     for p in expect.outputs:
         b = run.before.get(str(p), "absent")
         if b.startswith("special:") and run.after.get(str(p)) != b:
@@ -370,9 +379,7 @@ def dump(run: Run) -> str:
     )
 
 
-def run_library(
-    call: Any, *, inputs: Sequence[Path] = (), refuse: bool = False, timeout: float = DEFAULT_TIMEOUT_S
-) -> Run:
+def run_library(call: Any, *, inputs: Sequence[Path] = (), timeout: float = DEFAULT_TIMEOUT_S) -> Run:
     """A library entry point judged like a command: returning is exit 0, a MonodockError is the one-line exit 2
     (``monodock lib: error: ...``, its text must be one line), any other exception escapes (an internal error).
     An AssertionError raised by ``call`` itself (a check on what it returned) counts as a silently wrong result.
@@ -401,7 +408,7 @@ def run_library(
                     err = f"silent: {exc}\n"
         except Hang:
             hung = True
-        except BaseException:  # noqa: BLE001
+        except BaseException:
             escaped = traceback.format_exc()
     run = Run(["<library>"], code, cap["out"], cap["err"] + err, escaped, hung, time.perf_counter() - t0)
     run.before, run.after = before, snapshot(inputs)

@@ -22,16 +22,16 @@ from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 
 __all__ = [
-    "HUGE_INT",
     "HOSTILE_VALUES",
+    "HUGE_INT",
     "alias_bomb_yaml",
     "deep_list_json",
     "deep_list_yaml",
     "dump_yaml",
-    "png_with_ihdr",
     "plausible_camera",
     "plausible_layout",
     "plausible_robot",
+    "png_with_ihdr",
 ]
 
 
@@ -151,7 +151,7 @@ def plausible_camera(data: dict[str, Any]) -> bool:
     try:
         cam = CameraModel.from_ros_dict(data)
         cam.vertex_rays()  # raises when the lens cannot be inverted over the image
-    except Exception:  # noqa: BLE001 - anything monodock itself cannot take is not plausible
+    except Exception:
         return False
     return True
 
@@ -169,7 +169,7 @@ def plausible_layout(data: dict[str, Any]) -> bool:
         return False
     try:
         DockLayout.from_dict(data)
-    except Exception:  # noqa: BLE001
+    except Exception:
         return False
     return True
 
@@ -195,7 +195,7 @@ def plausible_robot(data: dict[str, Any]) -> bool:
                 if v is None or not 0 < v <= 100:
                     return False
         RobotConfig.from_dict(data)
-    except Exception:  # noqa: BLE001
+    except Exception:
         return False
     return True
 

@@ -10,18 +10,23 @@ import sys
 import time
 from pathlib import Path
 
-from fuzz.harness import Expect, Run
+from fuzz.harness import Run
 
 __all__ = ["STOP_WITHIN_S", "run_interrupted"]
 
 STOP_WITHIN_S = 5.0
 
 
-def run_interrupted(spec: list[str], expect: Expect, folder: Path) -> Run:
+def run_interrupted(spec: list[str], folder: Path) -> Run:
     """``spec`` is [signal name, seconds before it, *argv]; the Run's code is 2 when the command stopped on the
     signal (exit 130/143 or killed by it), its err the command's stderr."""
     signame, after, argv = spec[0], float(spec[1]), spec[2:]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[2] / "src"), os.environ.get("PYTHONPATH", "")])}
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(
+            [str(Path(__file__).resolve().parents[2] / "src"), os.environ.get("PYTHONPATH", "")]
+        ),
+    }
     t0 = time.perf_counter()
     proc = subprocess.Popen(
         [sys.executable, "-m", "monodock.cli.main", *argv],
@@ -53,5 +58,4 @@ def run_interrupted(spec: list[str], expect: Expect, folder: Path) -> Run:
         code = 2
     elif stopped:
         code = 2
-    run = Run(argv, code, out.decode("utf-8", "backslashreplace"), text, "", hung, time.perf_counter() - t0)
-    return run
+    return Run(argv, code, out.decode("utf-8", "backslashreplace"), text, "", hung, time.perf_counter() - t0)

@@ -20,9 +20,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests folder: `fuzz` and `shared`
 
-from fuzz.catalogue import CASES, FAMILIES, run_case  # noqa: E402
-from fuzz.harness import KINDS, outcome  # noqa: E402
-from fuzz.world import build_world  # noqa: E402
+from fuzz.catalogue import CASES, FAMILIES, run_case
+from fuzz.harness import KINDS, outcome
+from fuzz.world import build_world
 
 COLUMNS = ("cases", "clean refusal", "ok", *KINDS)
 

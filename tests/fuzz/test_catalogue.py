@@ -1,6 +1,7 @@
 """The hostile-input catalogue (``catalogue.py``), one test per case: each input is refused with one line and exit
 2, or accepted with sane outputs, never an internal error, a traceback, a silently wrong number, a hang, a
-half-written output or an input destroyed. The interruption cases run subprocesses and are marked slow."""
+half-written output or an input destroyed. The default run takes the issue's examples and every third other case
+(``in_default_run``); the rest, the heavy cases and the interruptions (subprocesses) are marked slow."""
 
 from __future__ import annotations
 
@@ -8,13 +9,14 @@ from pathlib import Path
 
 import pytest
 
-from fuzz.catalogue import CASES, Case, run_case
+from fuzz.catalogue import CASES, Case, in_default_run, run_case
 from fuzz.harness import dump, outcome
 from fuzz.world import World
 
 
 def _param(c: Case) -> object:
-    return pytest.param(c, id=c.id, marks=[pytest.mark.slow, pytest.mark.timeout(120)] if c.slow else [])
+    """The issue's examples and every third other case in the default run; all of them with ``-m slow``."""
+    return pytest.param(c, id=c.id, marks=[] if in_default_run(c) else [pytest.mark.slow, pytest.mark.timeout(180)])
 
 
 @pytest.mark.timeout(90)

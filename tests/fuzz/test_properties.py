@@ -109,7 +109,7 @@ def parsed(text: str | bytes) -> Any:
     """What PyYAML makes of a file's text (None when it cannot)."""
     try:
         return yaml.safe_load(text)
-    except Exception:  # noqa: BLE001 - any failure means "not a valid file"
+    except Exception:
         return None
 
 
@@ -185,7 +185,9 @@ def _write(folder: Path, name: str, content: str | bytes) -> Path:
     return p
 
 
-def _estimate(world: World, folder: Path, *, refuse: bool, truth: bool = False, **swap: Path) -> tuple[list[str], Expect]:
+def _estimate(
+    world: World, folder: Path, *, refuse: bool, truth: bool = False, **swap: Path
+) -> tuple[list[str], Expect]:
     out = folder / "EST.csv"
     image = swap.pop("image", world.image)
     argv = ["estimate", str(image), *world.calibration(**swap), "--out", str(out)]
@@ -298,7 +300,8 @@ def _docking(world: World, folder: Path, capfd: Any, text: str | bytes) -> None:
     # Plausible: a mapping of known keys whose numbers are finite and within 1e6 (the dataclass checks the rest).
     config = assert_loader(lambda: load_docking_config(path), capfd, plausible=True)
     if config is not None:
-        assert isinstance(data, dict) and UNKNOWN_MARK not in data
+        assert isinstance(data, dict)
+        assert UNKNOWN_MARK not in data
         for leaf in _leaf_paths(docking_config_to_dict(config)):
             v = _get(docking_config_to_dict(config), leaf)
             assert not isinstance(v, float) or (math.isfinite(v) and abs(v) <= 1e6), (leaf, v)
@@ -317,7 +320,12 @@ def manifest_edits(draw: st.DrawFn) -> tuple[list[tuple[tuple[Any, ...], Any]], 
     other = [p for p in _leaf_paths(base) if p[0] in ("segments", "sets", "schema_version")]
     edits = []
     for path in draw(st.lists(st.sampled_from(meta_paths * 3 + other), min_size=1, max_size=2)):
-        value = draw(st.one_of(hostile_numbers.filter(lambda v: not (isinstance(v, float) and not math.isfinite(v))), near(_get(base, path))))
+        value = draw(
+            st.one_of(
+                hostile_numbers.filter(lambda v: not (isinstance(v, float) and not math.isfinite(v))),
+                near(_get(base, path)),
+            )
+        )
         edits.append((path, value))
     return edits, draw(st.booleans()) or draw(st.booleans())  # sealed 3 times in 4
 
@@ -348,7 +356,11 @@ def _bundle_plausible(manifest: dict[str, Any]) -> bool:
 
 
 def _plausible_dict(check: Callable[[dict[str, Any]], bool], data: Any) -> bool:
-    return isinstance(data, dict) and not any(isinstance(_get(data, p), HugeInt) for p in _leaf_paths(data)) and check(data)
+    return (
+        isinstance(data, dict)
+        and not any(isinstance(_get(data, p), HugeInt) for p in _leaf_paths(data))
+        and check(data)
+    )
 
 
 def _bundle_property(world: World, folder: Path, capfd: Any, example: tuple[list[Any], bool]) -> None:
@@ -438,20 +450,28 @@ def image_bytes(draw: st.DrawFn) -> tuple[str, str, Any]:
     if kind in ("truncate", "jpeg-truncate"):
         return kind, ".png" if kind == "truncate" else ".jpg", draw(st.floats(0.0, 1.0, exclude_max=True))
     if kind in ("flip", "jpeg-flip"):
-        return kind, ".png" if kind == "flip" else ".jpg", draw(
-            st.lists(st.tuples(st.floats(0.0, 1.0, exclude_max=True), st.integers(0, 255)), min_size=1, max_size=12)
+        return (
+            kind,
+            ".png" if kind == "flip" else ".jpg",
+            draw(
+                st.lists(st.tuples(st.floats(0.0, 1.0, exclude_max=True), st.integers(0, 255)), min_size=1, max_size=12)
+            ),
         )
     if kind == "ihdr":
-        return kind, ".png", draw(
-            st.fixed_dictionaries(
-                {},
-                optional={
-                    "width": st.one_of(st.integers(0, 2**31 - 1), st.sampled_from([0, 1, 639, 641, 60000])),
-                    "height": st.one_of(st.integers(0, 2**31 - 1), st.sampled_from([0, 1, 479, 481, 60000])),
-                    "bit_depth": st.sampled_from([0, 1, 2, 4, 8, 16, 3, 255]),
-                    "color_type": st.sampled_from([0, 2, 3, 4, 6, 1, 7, 255]),
-                },
-            )
+        return (
+            kind,
+            ".png",
+            draw(
+                st.fixed_dictionaries(
+                    {},
+                    optional={
+                        "width": st.one_of(st.integers(0, 2**31 - 1), st.sampled_from([0, 1, 639, 641, 60000])),
+                        "height": st.one_of(st.integers(0, 2**31 - 1), st.sampled_from([0, 1, 479, 481, 60000])),
+                        "bit_depth": st.sampled_from([0, 1, 2, 4, 8, 16, 3, 255]),
+                        "color_type": st.sampled_from([0, 2, 3, 4, 6, 1, 7, 255]),
+                    },
+                )
+            ),
         )
     if kind == "depth":
         return kind, draw(st.sampled_from([".png", ".tiff"])), draw(st.sampled_from(["uint16", "float32", "int8"]))
@@ -474,11 +494,20 @@ def _image(world: World, kind: str, suffix: str, p: Any) -> tuple[bytes, bool]:
         return h, h == world.png
     if kind == "depth":
         img = world.pixels
-        arr = {"uint16": img.astype(np.uint16) * 257, "float32": img.astype(np.float32) / 255, "int8": (img // 2).astype(np.int8)}[p]
+        arr = {
+            "uint16": img.astype(np.uint16) * 257,
+            "float32": img.astype(np.float32) / 255,
+            "int8": (img // 2).astype(np.int8),
+        }[p]
         ok, buf = cv2.imencode(suffix, arr)
         return (bytes(buf) if ok else b""), ok and p != "int8"
     img = world.pixels
-    arr = {1: img, 2: np.dstack([img, np.full_like(img, 255)]), 3: cv2.cvtColor(img, cv2.COLOR_GRAY2BGR), 4: cv2.cvtColor(img, cv2.COLOR_GRAY2BGRA)}[p]
+    arr = {
+        1: img,
+        2: np.dstack([img, np.full_like(img, 255)]),
+        3: cv2.cvtColor(img, cv2.COLOR_GRAY2BGR),
+        4: cv2.cvtColor(img, cv2.COLOR_GRAY2BGRA),
+    }[p]
     return bytes(cv2.imencode(".png", arr)[1]), True
 
 
@@ -553,7 +582,17 @@ _number_text = st.one_of(
     st.integers(min_value=-(10**6), max_value=10**6).map(str),
     st.sampled_from(["nan", "inf", "-inf", "1e999", "1e-300", "9" * 5000, "", "abc", "0x10", "1_000", " 1"]),
 )
-_SIMULATE = ["--seed", "--depth", "--lateral", "--yaw", "--read-noise", "--exposure", "--gamma", "--vignetting", "--side-walls"]
+_SIMULATE = [
+    "--seed",
+    "--depth",
+    "--lateral",
+    "--yaw",
+    "--read-noise",
+    "--exposure",
+    "--gamma",
+    "--vignetting",
+    "--side-walls",
+]
 
 
 @st.composite
@@ -574,7 +613,12 @@ def _simulate(world: World, folder: Path, capfd: Any, options: list[str]) -> Non
 test_simulate_options, test_simulate_options_slow = _simulate
 
 
-@properties(st.tuples(st.sampled_from(["label --tolerance", "train --trials", "train --fusion-holdout", "calibrate --square"]), _number_text))
+@properties(
+    st.tuples(
+        st.sampled_from(["label --tolerance", "train --trials", "train --fusion-holdout", "calibrate --square"]),
+        _number_text,
+    )
+)
 def _other_options(world: World, folder: Path, capfd: Any, example: tuple[str, str]) -> None:
     which, value = example
     if which.startswith("label"):

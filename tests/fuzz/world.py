@@ -41,7 +41,7 @@ TRUTH_TOLERANCE_M = 0.15
 TRUTH_TOLERANCE_DEG = 5.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, repr=False)
 class World:
     """Paths of the valid inputs (see the module docstring) and the pixels and bytes they hold."""
 
@@ -60,6 +60,9 @@ class World:
     pixels: np.ndarray
     png: bytes
     jpg: bytes
+
+    def __repr__(self) -> str:
+        return f"World({self.root})"
 
     def calibration(
         self, camera: Path | None = None, layout: Path | None = None, robot: Path | None = None
