@@ -1350,7 +1350,10 @@ for _v in _NUMBERS:
             F_NUMERIC,
             f"dock-sim {_opt} {_v[:8]}",
             lambda w, f, o=_opt, v=_v: (
-                ["dock-sim", "--method", "board", "--cases", "1", "--trials", "1", "--out", str(f / "ds"), o, v],
+                [
+                    *("dock-sim", "--method", "board", "--cases", "1", "--trials", "1", "--cache", str(f / "cache")),
+                    *("--out", str(f / "ds"), o, v),
+                ],
                 Expect(refuse=True, outputs=(f / "ds",)),
             ),
         )
@@ -1620,21 +1623,35 @@ _output_case(
             "--force",
             "--camera",
             str(fl["camera"]),
+            "--cache",
+            str(f / "cache"),
         ],
         f,
     ),
 )
 _output_case(
     "dock-sim --out exists, no --force (checked before training)",
-    lambda w, f, fl: (["dock-sim", "--out", str(fl["bundle"]), "--trials", "1", "--cases", "1"], fl["bundle"]),
+    lambda w, f, fl: (
+        ["dock-sim", "--out", str(fl["bundle"]), "--trials", "1", "--cases", "1", "--cache", str(f / "cache")],
+        fl["bundle"],
+    ),
 )
 
 
 # --- interruption (subprocesses; slow) ---------------------------------------------------------------------
 
 
-def _interrupt(name: str, argv: Callable[[World, Path], list[str]], signum: str, after_s: float, out: str) -> None:
+def _interrupt(
+    name: str,
+    argv: Callable[[World, Path], list[str]],
+    signum: str,
+    after_s: float,
+    out: str,
+    prepare: Callable[[World, Path], None] | None = None,
+) -> None:
     def build(world: World, folder: Path) -> Plan:
+        if prepare is not None:
+            prepare(world, folder)
         return ["__subprocess__", signum, str(after_s), *argv(world, folder)], Expect(outputs=(folder / out,))
 
     CASES.append(Case(F_INTERRUPT, name, build, slow=True))
@@ -1675,6 +1692,8 @@ _interrupt(
         "2",
         "--train-stops",
         "600",
+        "--cache",
+        str(f / "cache"),
     ],
     "SIGINT",
     6.0,
@@ -1712,3 +1731,27 @@ if __name__ == "__main__":  # pragma: no cover
     for fam, n in family_counts().items():
         print(f"{fam:30s} {n}")
     print("total", len(CASES), file=sys.stderr)
+
+
+def _trainable_dataset(world: World, folder: Path) -> None:
+    """A dataset of 300 labelled stops (simulated and labelled in-process, ~30 s): training it takes minutes."""
+    from fuzz.harness import capture_fds
+    from monodock.cli.main import main
+
+    rec, ds = folder / "rec", folder / "train.parquet"
+    common = ["--frames", "300", "--supersample", "1", "--jobs", "2", "--clean", "--format", "rosbag2"]
+    with capture_fds() as said:
+        made = main(["simulate", "--out", str(rec), *common]) == 0
+        made = made and main(["label", str(rec), "--layout", str(world.layout), "--out", str(ds)]) == 0
+    assert made, said
+
+
+for _signal in ("SIGINT", "SIGTERM"):
+    _interrupt(
+        f"{_signal} during train --jobs 2 (issue: hung, bundle half-written)",
+        lambda w, f: ["train", str(f / "train.parquet"), "--out", str(f / "bundle"), "--jobs", "2", "--trials", "3"],
+        _signal,
+        8.0,
+        "bundle",
+        prepare=_trainable_dataset,
+    )

@@ -4,6 +4,7 @@ no traceback, and leave nothing at its output path and no temporary folder besid
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -15,6 +16,7 @@ from fuzz.harness import Run
 __all__ = ["STOP_WITHIN_S", "run_interrupted"]
 
 STOP_WITHIN_S = 5.0
+_NOISE = re.compile(r"Traceback|Error\b|Warning\b|warnings\.warn|\[ WARN|^\s+File \"|^\s+\^")
 
 
 def run_interrupted(spec: list[str], folder: Path) -> Run:
@@ -52,7 +54,9 @@ def run_interrupted(spec: list[str], folder: Path) -> Run:
     text = err.decode("utf-8", "backslashreplace")
     lines = [line for line in text.splitlines() if line.strip()]
     stopped = code in (130, 143, 2, -signal.SIGINT, -signal.SIGTERM)
-    if stopped and len(lines) <= 1 and "Traceback" not in text:
+    # monodock's own progress lines may come before the last one; a library's lines may not
+    noise = [line for line in lines if _NOISE.search(line)]
+    if stopped and not noise:
         # A clean stop on the signal: judged as a refusal (one line, nothing left behind).
         text = "monodock interrupted: error: interrupted\n"
         code = 2
