@@ -166,6 +166,20 @@ def _alarm(seconds: float) -> Iterator[None]:
         signal.signal(signal.SIGALRM, old)
 
 
+@contextmanager
+def _python_warnings(said: list[str]) -> Iterator[None]:
+    """Python warnings raised during the run, as the lines a command line would print on stderr (pytest would
+    otherwise swallow them into its own summary)."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        try:
+            yield
+        finally:
+            said.extend(warnings.formatwarning(w.message, w.category, w.filename, w.lineno) for w in caught)
+
+
 def run_cli(
     argv: Sequence[str],
     *,
@@ -190,10 +204,12 @@ def run_cli(
     hung = False
     t0 = time.perf_counter()
 
+    said: list[str] = []
+
     def call() -> None:
         nonlocal code, escaped, hung
         try:
-            with _alarm(timeout):
+            with _alarm(timeout), _python_warnings(said):
                 try:
                     code = int(main(list(argv)))
                 except SystemExit as exc:  # argparse's usage errors
@@ -214,7 +230,7 @@ def run_cli(
         out, err = cap["out"], cap["err"]
     seconds = time.perf_counter() - t0
     after = snapshot(watched)
-    return Run(list(argv), code, out, err, escaped, hung, seconds, before, after, existed)
+    return Run(list(argv), code, out, "".join(said) + err, escaped, hung, seconds, before, after, existed)
 
 
 def _csv_problems(path: Path, expect: Expect) -> list[tuple[str, str]]:
@@ -314,7 +330,9 @@ def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
     found: list[tuple[str, str]] = []
     err_lines = [line for line in run.err.splitlines() if line.strip()]
     if run.hung:
-        found.append(("hang", f"still running after the time limit ({run.seconds:.0f} s)"))
+        found.append(
+            ("hang", f"still running at its time limit (run {run.seconds:.0f} s; interrupted: 5 s after the signal)")
+        )
     if run.escaped:
         last = run.escaped.strip().splitlines()[-1]
         found.append(("internal error", f"escaped main(): {last}"))
@@ -389,6 +407,7 @@ def run_library(call: Any, *, inputs: Sequence[Path] = (), timeout: float = DEFA
     from monodock.errors import MonodockError
 
     before = snapshot(inputs)
+    noted: list[str] = []
     code: int | None = None
     err = ""
     escaped = ""
@@ -396,7 +415,7 @@ def run_library(call: Any, *, inputs: Sequence[Path] = (), timeout: float = DEFA
     t0 = time.perf_counter()
     with capture_fds() as cap:
         try:
-            with _alarm(timeout):
+            with _alarm(timeout), _python_warnings(noted):
                 try:
                     call()
                     code = 0
@@ -410,6 +429,7 @@ def run_library(call: Any, *, inputs: Sequence[Path] = (), timeout: float = DEFA
             hung = True
         except BaseException:
             escaped = traceback.format_exc()
-    run = Run(["<library>"], code, cap["out"], cap["err"] + err, escaped, hung, time.perf_counter() - t0)
+    err = "".join(noted) + cap["err"] + err
+    run = Run(["<library>"], code, cap["out"], err, escaped, hung, time.perf_counter() - t0)
     run.before, run.after = before, snapshot(inputs)
     return run

@@ -49,6 +49,9 @@ from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.estimation.bundle import seal_manifest
 
+# Examples are whole files; Hypothesis warns that printing them is long, which is what they are.
+pytestmark = pytest.mark.filterwarnings("ignore:Generating overly large repr")
+
 # --- machinery ---------------------------------------------------------------------------------------------
 
 Body = Callable[[World, Path, Any, Any], None]
