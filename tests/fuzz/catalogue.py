@@ -1398,7 +1398,21 @@ def _copy_world(world: World, folder: Path) -> dict[str, Path]:
     shutil.copytree(world.recording, out["recording"])
     out["bundle"] = folder / "bundle"
     shutil.copytree(world.bundle, out["bundle"])
+    out["pairs"] = _pairs_csv(folder / "pairs.csv")
     return out
+
+
+def _pairs_csv(path: Path) -> Path:
+    """LiDAR point / pixel pairs of the default robot and camera (``calibrate extrinsics --pairs``), exact."""
+    from monodock.core import transforms
+    from monodock.core.projection import project_to_image
+
+    robot, camera = RobotConfig.default(), CameraModel.default()
+    pts = np.array([[x, y, 0.0] for x in (0.8, 1.2, 1.6, 2.0) for y in (-0.3, -0.1, 0.1, 0.3)])
+    px = project_to_image(transforms.apply(robot.base_T_laser(), pts), camera, robot)
+    rows = [f"{p[0]},{p[1]},{q[0]},{q[1]}" for p, q in zip(pts, px, strict=True)]
+    path.write_text("x,y,u,v\n" + "\n".join(rows) + "\n")
+    return path
 
 
 def _output_case(
@@ -1574,7 +1588,7 @@ _output_case(
             "calibrate",
             "extrinsics",
             "--pairs",
-            str(f / "p.csv"),
+            str(fl["pairs"]),
             "--camera",
             str(fl["camera"]),
             "--robot",
@@ -1593,7 +1607,7 @@ _output_case(
             "calibrate",
             "extrinsics",
             "--pairs",
-            str(f / "p.csv"),
+            str(fl["pairs"]),
             "--camera",
             str(fl["camera"]),
             "--robot",

@@ -49,6 +49,8 @@ UNKNOWN_MARK = "fuzz_unknown_key_7f3a"
 MAX_OUTPUT_BYTES = 20_000_000
 DEFAULT_TIMEOUT_S = 60.0
 
+# The hidden temporary file or folder of an atomic write (``.NAME.<8 random characters>``).
+_TEMP_NAME = re.compile(r"/\.[^/\s]+\.[A-Za-z0-9_]{8}(?![A-Za-z0-9_])")
 _ONE_LINE = re.compile(r"^monodock(?: [a-z-]+)*: error: \S.*$")
 
 
@@ -344,6 +346,8 @@ def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
         found.append(("traceback/noise", "a traceback"))
     if run.code == 2:
         good = [line for line in err_lines if _ONE_LINE.match(line) and "error::" not in line]
+        if any(_TEMP_NAME.search(line) for line in err_lines):
+            found.append(("traceback/noise", f"names a temporary path, not the user's: {err_lines[-1][:150]}"))
         if len(err_lines) != 1 or len(good) != 1:
             shown = " | ".join(line[:120] for line in err_lines[:3])
             found.append(("traceback/noise", f"{len(err_lines)} stderr lines: {shown}"))
