@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 import shutil
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -41,9 +40,15 @@ TRUTH_TOLERANCE_M = 0.15
 TRUTH_TOLERANCE_DEG = 5.0
 
 
-@dataclass(frozen=True, repr=False)
 class World:
-    """Paths of the valid inputs (see the module docstring) and the pixels and bytes they hold."""
+    """Paths of the valid inputs (see the module docstring) and the pixels and bytes they hold.
+
+    A plain class, not a dataclass, so that Hypothesis prints a failing example's world as one short line.
+    """
+
+    def __init__(self, **fields: Any) -> None:
+        for name in self.__annotations__:
+            setattr(self, name, fields[name])
 
     root: Path
     camera: Path
