@@ -388,6 +388,16 @@ for _fmt in ("yaml", "xml"):
     )
 add(F_CAMERA_CV, "json empty object", _camera_text_case("{}", name="camera.json"))
 add(F_CAMERA_CV, "json garbage", _camera_text_case('{"camera_matrix": [', name="camera.json"))
+add(
+    F_CAMERA_CV,
+    "yaml cx=.nan (issue: 'no PnP solution' instead of naming the file)",
+    _camera_text_case(opencv_camera_text("yaml", cx=".nan"), name="camera.yaml"),
+)
+add(
+    F_CAMERA,
+    "k1 1e6 (issue: valid poses 49 m away, truth 1.85 m)",
+    _camera_value_case("k1", 1e6),
+)
 add(F_CAMERA_CV, "yaml header only", _camera_text_case("%YAML:1.0\n", name="camera.yaml"))
 add(F_CAMERA_CV, "xml header only", _camera_text_case('<?xml version="1.0"?>\n', name="camera.xml"))
 add(
@@ -468,7 +478,12 @@ for _label, _text, _refuse, _label_cmd in [
     ("the valid file", _LAY_TEXT, False, False),
     ("unknown key (estimate)", _LAY_TEXT + f"{UNKNOWN_MARK}: 1\n", False, False),
     ("unknown key (label: never copied into the dataset)", _LAY_TEXT + f"{UNKNOWN_MARK}: 1\n", False, True),
-    ("alias bomb in an unknown key (label)", _LAY_TEXT + alias_bomb_yaml(UNKNOWN_MARK), False, True),
+    (
+        "alias bomb in an unknown key, label (issue: expanded into the dataset)",
+        _LAY_TEXT + alias_bomb_yaml(UNKNOWN_MARK),
+        False,
+        True,
+    ),
     ("alias bomb in an unknown key (estimate)", _LAY_TEXT + alias_bomb_yaml(UNKNOWN_MARK), False, False),
     ("python object tag", "!!python/object/apply:os.system ['echo pwned']\n", True, False),
     ("nested lists 100,000 deep", deep_list_yaml(), True, False),
@@ -1092,7 +1107,7 @@ for _label, _info in [
     ("camera_info D of 1000", {"d": np.zeros(1000)}),
     ("camera_info K all zero (uncalibrated)", {"k": np.zeros(9)}),
     ("camera_info width 0", {"width": 0}),
-    ("camera_info width 1280 (images 640: issue)", {"width": 1280, "height": 960}),
+    ("camera_info 1280x960, images 640x480 (issue: 0 rows labelled, exit 0)", {"width": 1280, "height": 960}),
     ("camera_info height 2^32-1", {"height": 2**32 - 1}),
     ("camera_info distortion_model equidistant", {"distortion_model": "equidistant"}),
     ("camera_info distortion_model non-ASCII", {"distortion_model": "plumb_bob\u00e9"}),
@@ -1622,7 +1637,7 @@ _output_case(
     ),
 )
 _output_case(
-    "dock-sim --out = the folder holding --camera --force (checked before training)",
+    "dock-sim --out = the folder holding --camera --force (issue: checked only after training)",
     lambda w, f, fl: (
         [
             "dock-sim",
@@ -1644,7 +1659,7 @@ _output_case(
     ),
 )
 _output_case(
-    "dock-sim --out exists, no --force (checked before training)",
+    "dock-sim --out exists, no --force (issue: checked only after training)",
     lambda w, f, fl: (
         ["dock-sim", "--out", str(fl["bundle"]), "--trials", "1", "--cases", "1", "--cache", str(f / "cache")],
         fl["bundle"],
