@@ -148,14 +148,30 @@ def estimate(
     image: Path | None = None,
     refuse: bool = False,
     truth: bool = False,
+    strict: bool = False,
     extra: tuple[str, ...] = (),
 ) -> Plan:
-    """``estimate`` of the dock image with some calibration files swapped."""
+    """``estimate`` of the dock image with some calibration files swapped.
+
+    ``refuse``: the file is implausible; exit 0 is allowed only without a valid row, unless ``strict`` (a value that
+    is not a finite number at all: the file must be refused, naming it, not turned into "no PnP solution" rows).
+    """
     out = folder / "EST.csv"
     img = image or world.image
     argv = ["estimate", str(img), *world.calibration(camera, layout, robot), "--out", str(out), *extra]
     inputs = tuple(p for p in (camera, layout, robot, img) if p is not None)
-    return argv, Expect(refuse=refuse, truth=TRUTH_ROW if truth else None, outputs=(out,), inputs=inputs)
+    expect = Expect(
+        refuse=refuse,
+        truth=TRUTH_ROW if truth else None,
+        outputs=(out,),
+        inputs=inputs,
+        implausible_ok_without_valid=not strict,
+    )
+    return argv, expect
+
+
+# HOSTILE_VALUES that are no finite number at all: a file holding one must be refused outright.
+INVALID = {"nan", "inf", "-inf", "huge-int", "string", "list", "mapping", "null", "bool", "empty", "1e999"}
 
 
 def write(folder: Path, name: str, content: str | bytes) -> Path:
@@ -195,18 +211,18 @@ _CAM_OK = {
 }
 
 
-def _camera_value_case(field: str, value: Any) -> Builder:
+def _camera_value_case(field: str, value: Any, label: str = "") -> Builder:
     def build(world: World, folder: Path) -> Plan:
         data = set_path(CAM, CAM_FIELDS[field], value)
         cam = write(folder, "camera.yaml", dump_yaml(data))
-        return estimate(world, folder, camera=cam, refuse=not plausible_camera(data))
+        return estimate(world, folder, camera=cam, refuse=not plausible_camera(data), strict=label in INVALID)
 
     return build
 
 
 for _field in ("image_width", "fx", "cx", "k1", "p2"):
     for _label, _value in HOSTILE_VALUES:
-        add(F_CAMERA, f"{_field}={_label}", _camera_value_case(_field, _value))
+        add(F_CAMERA, f"{_field}={_label}", _camera_value_case(_field, _value, _label))
 
 # Implausible but finite: the issue's k1 1e6 (valid poses 49 m away; truth 1.85 m) and friends.
 for _field, _value, _ok in [
@@ -246,10 +262,11 @@ for _field, _value, _ok in [
 
 
 def _camera_text_case(
-    text: str | bytes, *, refuse: bool = True, truth: bool = False, name: str = "camera.yaml"
+    text: str | bytes, *, refuse: bool = True, truth: bool = False, name: str = "camera.yaml", strict: bool = False
 ) -> Builder:
     def build(world: World, folder: Path) -> Plan:
-        return estimate(world, folder, camera=write(folder, name, text), refuse=refuse, truth=truth)
+        cam = write(folder, name, text)
+        return estimate(world, folder, camera=cam, refuse=refuse, truth=truth, strict=strict)
 
     return build
 
@@ -344,7 +361,12 @@ for _fmt in ("yaml", "xml"):
             add(
                 F_CAMERA_CV,
                 f"{_fmt} {_field}={_label}",
-                _camera_text_case(opencv_camera_text(_fmt, **{_field: tok}), refuse=not ok, name=f"camera.{_fmt}"),
+                _camera_text_case(
+                    opencv_camera_text(_fmt, **{_field: tok}),
+                    refuse=not ok,
+                    name=f"camera.{_fmt}",
+                    strict=_label in INVALID,
+                ),
             )
     add(F_CAMERA_CV, f"{_fmt} k1=1e6", _camera_text_case(opencv_camera_text(_fmt, k1="1e6"), name=f"camera.{_fmt}"))
     add(
@@ -391,12 +413,12 @@ add(F_CAMERA_CV, "json garbage", _camera_text_case('{"camera_matrix": [', name="
 add(
     F_CAMERA_CV,
     "yaml cx=.nan (issue: 'no PnP solution' instead of naming the file)",
-    _camera_text_case(opencv_camera_text("yaml", cx=".nan"), name="camera.yaml"),
+    _camera_text_case(opencv_camera_text("yaml", cx=".nan"), name="camera.yaml", strict=True),
 )
 add(
     F_CAMERA,
     "k1 1e6 (issue: valid poses 49 m away, truth 1.85 m)",
-    _camera_value_case("k1", 1e6),
+    _camera_value_case("k1", 1e6, "1e6"),
 )
 add(F_CAMERA_CV, "yaml header only", _camera_text_case("%YAML:1.0\n", name="camera.yaml"))
 add(F_CAMERA_CV, "xml header only", _camera_text_case('<?xml version="1.0"?>\n', name="camera.xml"))
@@ -434,14 +456,16 @@ LAYOUT_FIELDS: dict[str, tuple[Any, ...]] = {
 _LAYOUT_OK = {"center.z": {"1e-300", "zero", "negative"}, "center.id": {"zero"}, "left.y": set(), "right.y": set()}
 
 
-def _layout_case(text: str | bytes, *, refuse: bool, truth: bool = False, label: bool = False) -> Builder:
+def _layout_case(
+    text: str | bytes, *, refuse: bool, truth: bool = False, label: bool = False, strict: bool = False
+) -> Builder:
     def build(world: World, folder: Path) -> Plan:
         lay = write(folder, "layout.yaml", text)
         if label:
             out = folder / "ds.parquet"
             argv = ["label", str(world.recording), "--layout", str(lay), "--out", str(out)]
             return argv, Expect(refuse=refuse, outputs=(out,), inputs=(lay, world.recording))
-        return estimate(world, folder, layout=lay, refuse=refuse, truth=truth)
+        return estimate(world, folder, layout=lay, refuse=refuse, truth=truth, strict=strict)
 
     return build
 
@@ -449,7 +473,11 @@ def _layout_case(text: str | bytes, *, refuse: bool, truth: bool = False, label:
 for _field, _path in list(LAYOUT_FIELDS.items())[:3]:
     for _label, _value in HOSTILE_VALUES:
         _data = set_path(LAYOUT, _path, _value)
-        add(F_LAYOUT, f"{_field}={_label}", _layout_case(dump_yaml(_data), refuse=not plausible_layout(_data)))
+        add(
+            F_LAYOUT,
+            f"{_field}={_label}",
+            _layout_case(dump_yaml(_data), refuse=not plausible_layout(_data), strict=_label in INVALID),
+        )
 for _label, _path, _value, _refuse in [
     ("marker_size 1e-300 (issue)", ("marker_size",), 1e-300, True),
     ("marker_size 4 mm", ("marker_size",), 0.004, True),
@@ -514,10 +542,10 @@ _ROBOT_OK = {
 }
 
 
-def _robot_case(data: Any, *, refuse: bool, text: str | bytes | None = None) -> Builder:
+def _robot_case(data: Any, *, refuse: bool, text: str | bytes | None = None, strict: bool = False) -> Builder:
     def build(world: World, folder: Path) -> Plan:
         rob = write(folder, "robot.yaml", text if text is not None else dump_yaml(data))
-        return estimate(world, folder, robot=rob, refuse=refuse)
+        return estimate(world, folder, robot=rob, refuse=refuse, strict=strict)
 
     return build
 
@@ -525,7 +553,11 @@ def _robot_case(data: Any, *, refuse: bool, text: str | bytes | None = None) -> 
 for _field, _path in ROBOT_FIELDS.items():
     for _label, _value in HOSTILE_VALUES:
         _data = set_path(ROBOT, _path, _value)
-        add(F_ROBOT, f"{_field}={_label}", _robot_case(_data, refuse=not plausible_robot(_data)))
+        add(
+            F_ROBOT,
+            f"{_field}={_label}",
+            _robot_case(_data, refuse=not plausible_robot(_data), strict=_label in INVALID),
+        )
 for _label, _path, _value in [
     ("camera mount x 1e308 m (issue)", ("camera_mount", "x"), 1e308),
     ("camera mount x 6 m", ("camera_mount", "x"), 6.0),

@@ -150,10 +150,19 @@ def plausible_camera(data: dict[str, Any]) -> bool:
         return False
     try:
         cam = CameraModel.from_ros_dict(data)
-        cam.vertex_rays()  # raises when the lens cannot be inverted over the image
+        rays = cam.vertex_rays()  # raises when the lens cannot be inverted over the image
     except Exception:
         return False
-    return True
+    # Invertible is not enough (k1 = 1e6 is monotonic, so invertible, and shrinks the field of view 100-fold): the
+    # lens may bend the image's border at most 2x in or out of where the pinhole alone would put it.
+    pinhole = np.array(
+        [(-0.5 - cam.cx) / cam.fx, (w - 0.5 - cam.cx) / cam.fx, (-0.5 - cam.cy) / cam.fy, (h - 0.5 - cam.cy) / cam.fy]
+    )
+    lens = np.array([rays[:, 0, 0].min(), rays[:, -1, 0].max(), rays[0, :, 1].min(), rays[-1, :, 1].max()])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = lens / pinhole
+    big = np.abs(pinhole) > 0.05  # a side the principal point sits on says nothing
+    return bool(np.all(np.isfinite(ratio[big])) and np.all((ratio[big] > 0.5) & (ratio[big] < 2)))
 
 
 def plausible_layout(data: dict[str, Any]) -> bool:
