@@ -337,7 +337,7 @@ def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
         )
     if run.escaped:
         last = run.escaped.strip().splitlines()[-1]
-        found.append(("internal error", f"escaped main(): {last}"))
+        found.append(("internal error", f"escaped (not a MonodockError): {last}"))
     elif run.code == 1 or (run.code not in (0, 2, None)):
         said = [line for line in err_lines if "internal error" in line]
         detail = (said or err_lines or [f"exit {run.code}"])[0]

@@ -427,11 +427,9 @@ def _dataset_property(world: World, folder: Path, capfd: Any, edits: list[tuple[
         and _plausible_dict(plausible_layout, meta.get("layout"))
     )
 
-    def load() -> None:
+    def load() -> object:
         ds = read_dataset(ds_path)
-        ds.camera()
-        ds.robot()
-        ds.layout()
+        return ds.camera(), ds.robot(), ds.layout()
 
     assert_loader(load, capfd, plausible=ok)
     out = folder / "bundle"
