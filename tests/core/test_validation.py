@@ -71,16 +71,18 @@ def test_the_true_camera_finds_the_dock_where_it_is(scene, tmp_path: Path, capfd
         (
             ("distortion_coefficients", 0),
             1e6,
-            r"distortion_coefficients: with this distortion the image sees the field",
+            r"distortion_coefficients: the distortion changes the image's field of view 0.0\d+ times",
         ),
         (("distortion_coefficients", 0), -0.9, r"distortion_coefficients: the lens (cannot be inverted|folds back)"),
         (("camera_matrix", 0), 1e308, r"camera_matrix: fx must be within 0.1-10 times the image's longer side"),
         (("camera_matrix", 0), 30.0, r"camera_matrix: fx must be within .* \(64 to 6400 px\), got 30"),
         (("camera_matrix", 2), -5.0, r"camera_matrix: cx must be on the image \(0 to 640 px\), got -5"),
         (("camera_matrix", 8), 2.0, r"camera_matrix: expected \[fx s cx; 0 fy cy; 0 0 1\]"),
+        (("camera_matrix", 1), 50.0, r"camera_matrix: skew must be 0 \(OpenCV's PnP ignores it"),
+        (("distortion_coefficients", 0), 50.0, r"field of view 0.\d+ times against the pinhole"),
         (("image_width", None), 10**6, r"image_width: must be at most 16384"),
     ],
-    ids=["k1 1e6", "k1 folding", "fx 1e308", "fx tiny", "cx off the image", "K[8] 2", "width 1e6"],
+    ids=["k1 1e6", "k1 folding", "fx 1e308", "fx tiny", "cx off the image", "K[8] 2", "skew", "k1 50", "width 1e6"],
 )
 def test_an_implausible_camera_is_refused_not_estimated(
     scene, tmp_path: Path, capfd: pytest.CaptureFixture[str], where: tuple[str, int | None], value: float, message: str

@@ -30,7 +30,8 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 # model cannot invert over the image turns markers into poses tens of metres away.
 MAX_IMAGE_SIDE = 16384
 FOCAL_RANGE = (0.1, 10.0)  # times the image's longer side: from a 157° fisheye to a 6° telephoto
-MAX_SKEW = 0.1  # times fx
+MAX_SKEW = 1e-3  # times fx: OpenCV's PnP and projectPoints ignore skew, so a file with skew cannot be honoured
+FIELD_SCALE_RANGE = (0.5, 2.0)  # how much the distortion may widen or narrow the field against the pinhole
 
 
 @dataclass(frozen=True)
@@ -126,8 +127,9 @@ class CameraModel:
         """ConfigError, one line naming ``source`` and the key, unless this is a camera that can exist.
 
         The ranges: image sides 1..MAX_IMAGE_SIDE; fx and fy within FOCAL_RANGE times the longer side; the
-        principal point on the image; skew within MAX_SKEW * fx; K's last row 0 0 1; and a lens that OpenCV's
-        model inverts over the whole image, one to one (checked on the border and a grid, ~2 ms).
+        principal point on the image; no skew (MAX_SKEW); K's last row 0 0 1; and a lens that OpenCV's model
+        inverts over the whole image, one to one, changing the field of view by FIELD_SCALE_RANGE at most
+        (checked on the border and a grid, a few ms).
         """
         side = max(self.width, self.height)
         if not (self.width <= MAX_IMAGE_SIDE and self.height <= MAX_IMAGE_SIDE):
@@ -145,7 +147,10 @@ class CameraModel:
                     f"{source}: camera_matrix: {key} must be on the image (0 to {size} px), got {value:g}"
                 )
         if not abs(self.K[1]) <= MAX_SKEW * self.fx:
-            raise ConfigError(f"{source}: camera_matrix: skew must be within {MAX_SKEW:g} fx, got {self.K[1]:g}")
+            raise ConfigError(
+                f"{source}: camera_matrix: skew must be 0 (OpenCV's PnP ignores it; at most {MAX_SKEW:g} fx), "
+                f"got {self.K[1]:g}"
+            )
         if (self.K[3], self.K[6], self.K[7], self.K[8]) != (0.0, 0.0, 0.0, 1.0):
             raise ConfigError(f"{source}: camera_matrix: expected [fx s cx; 0 fy cy; 0 0 1], got {list(self.K)}")
         problem = _lens_problem(self)
@@ -345,15 +350,16 @@ def _lens_problem(camera: CameraModel) -> str | None:
         worst = float(np.max(np.abs(back - pixels)))
         if not worst < 0.1:  # a strong real lens comes back within ~0.01 px; one that cannot be inverted, by pixels
             return f"the lens cannot be inverted over the image (a pixel comes back {worst:.2g} px off)"
-        # The field of view the lens gives the image, as the focal length of a pinhole seeing the same field: a
-        # distortion of 1e6 keeps fx plausible and shrinks the field to a degree (markers read 49 m away).
+        # How much the lens widens or narrows the image's field against the pinhole of the same K: a real lens by
+        # well under 2x; a k1 of 50 or 1e6 keeps fx plausible and shrinks the field 3 to 100 times (markers read
+        # 0.4 m or 46 m too far).
         spread = np.ptp(rays[: len(border)], axis=0)
-        equivalent = float(min(w / spread[0], h / spread[1])) if np.all(spread > 0) else math.inf
-        lo, hi = FOCAL_RANGE[0] * max(w, h), FOCAL_RANGE[1] * max(w, h)
-        if not lo <= equivalent <= hi:
+        scale = spread * np.array([camera.fx / w, camera.fy / h])
+        if not np.all((scale >= FIELD_SCALE_RANGE[0]) & (scale <= FIELD_SCALE_RANGE[1])):
+            worst_scale = float(scale[np.argmax(np.abs(np.log(np.maximum(scale, 1e-300))))])
             return (
-                f"with this distortion the image sees the field of a {equivalent:.3g} px focal length, outside "
-                f"{FOCAL_RANGE[0]:g}-{FOCAL_RANGE[1]:g} times the image's longer side ({lo:g} to {hi:g} px)"
+                f"the distortion changes the image's field of view {worst_scale:.3g} times against the pinhole; "
+                f"a real lens changes it {FIELD_SCALE_RANGE[0]:g} to {FIELD_SCALE_RANGE[1]:g} times"
             )
         t = np.linspace(0.02, 1.0, 48)
         outward = (rays[: len(border), None, :] * t[None, :, None]).reshape(-1, 2)
@@ -377,6 +383,16 @@ def _load_opencv_storage(path: Path) -> CameraModel:
         raise ConfigError(f"{path}: cannot be read as an OpenCV FileStorage camera file ({detail[:120]})") from None
 
 
+def _numbers(matrix: Any, key: str, path: Path) -> NDArray[np.float64]:
+    """A FileStorage matrix as float64; refused when it is not one, or stored in a type too small for a camera
+    (``dt: u`` keeps focal lengths modulo 256)."""
+    if not isinstance(matrix, np.ndarray):
+        raise ConfigError(f"{path}: {key}: expected a matrix")
+    if matrix.dtype not in (np.float32, np.float64, np.int32):
+        raise ConfigError(f"{path}: {key}: stored as {matrix.dtype} (dt), which cannot hold it; use d or f")
+    return np.asarray(matrix, dtype=np.float64)
+
+
 def _read_opencv_storage(path: Path) -> CameraModel:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     if not fs.isOpened():
@@ -393,13 +409,13 @@ def _read_opencv_storage(path: Path) -> CameraModel:
         km = node("camera_matrix", "cameraMatrix", "K", "intrinsic_matrix")
         if km is None:
             raise ConfigError(f"{path}: missing field 'camera_matrix'")
-        K = np.asarray(km.mat(), dtype=np.float64)
+        K = _numbers(km.mat(), "camera_matrix", path)
         if K.size != 9:
             raise ConfigError(f"{path}: camera_matrix: expected a 3x3 matrix")
         dn = node("distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
         if dn is None:
             raise ConfigError(f"{path}: missing field 'distortion_coefficients'")
-        D = np.asarray(dn.mat(), dtype=np.float64).ravel()
+        D = _numbers(dn.mat(), "distortion_coefficients", path).ravel()
         wn, hn = node("image_width", "width"), node("image_height", "height")
         if wn is None or hn is None:
             sn = node("image_size", "imageSize")

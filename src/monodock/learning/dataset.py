@@ -75,6 +75,9 @@ def dataset_columns() -> tuple[str, ...]:
     return _FRAME_COLUMNS + FEATURE_NAMES + REFINED_CORNER_NAMES + LABEL_COLUMNS + TRUTH_COLUMNS
 
 
+# Stamps are seconds since 1970 (~1.8e9); pixels, metres and degrees are far smaller.
+MAX_DATASET_VALUE = 1e11
+
 _BOOL = {"paired", "label_valid"}
 _INT = {"frame", "label_points", "label_face_points", "label_face_rejected"}
 _STR = {"markers_seen", "label_reason"}
@@ -194,7 +197,13 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
         elif n in _INT:
             cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
         else:
-            cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+            values = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+            # NaN is "none" (a marker not seen, a row without a label); anything else is pixels, metres, degrees or
+            # seconds, and far beyond MAX_DATASET_VALUE is a damaged file, not a measurement.
+            bad = np.flatnonzero(~np.isnan(values) & ~(np.abs(values) <= MAX_DATASET_VALUE))
+            if bad.size:
+                raise InputError(f"{p}: column {n}, row {bad[0]}: {values[bad[0]]:g} is not a plausible value")
+            cols[n] = values
     dataset = Dataset(cols, meta, str(p))
     # The calibration the features were measured with is checked as its files would be, before any work.
     dataset.camera(), dataset.robot(), dataset.layout()
