@@ -405,3 +405,29 @@ def test_damaged_video_gives_its_readable_frames_quietly(
     assert code == 0, err
     assert_quiet(err)
     assert sum(r["valid"] == "true" for r in estimate_rows(est)) >= 4
+
+
+def test_a_jpeg_that_libjpeg_decodes_only_by_filling_in_is_refused(
+    scene: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """Bytes flipped in a JPEG's entropy-coded data: libjpeg warns ("Corrupt JPEG data") and fills in what it
+    could not read, and the board pose of that picture was 0.75 m off the truth. Its warning marks the image
+    damaged: one line naming it, or with --skip-bad an invalid row; never a pose."""
+    ok, jpg = cv2.imencode(".jpg", cv2.imread(str(scene / "plain.png"), cv2.IMREAD_UNCHANGED))
+    assert ok
+    data = bytearray(jpg.tobytes())
+    rng = np.random.default_rng(9)
+    for pos in rng.integers(len(data) // 2, len(data) - 2, 20):
+        data[int(pos)] = int(rng.integers(0, 255))
+    bad = tmp_path / "damaged.jpg"
+    bad.write_bytes(bytes(data))
+    assert cv2.imread(str(bad)) is not None, "OpenCV still decodes it: the case this test is about"
+    capfd.readouterr()  # libjpeg's own line, from the imread just above (outside a command)
+
+    out = tmp_path / "e.csv"
+    code, _, err = run(["estimate", str(bad), "--method", "board", *cal(scene), "--out", str(out)], capfd)
+    assert_one_line(code, err, "damaged image data (Corrupt JPEG data")
+    assert not out.exists()
+    code, _, err = run(["estimate", str(bad), "--method", "board", *cal(scene), "--out", str(out), "--skip-bad"], capfd)
+    assert code == 0, err
+    assert [row["valid"] for row in estimate_rows(out)] == ["false"]

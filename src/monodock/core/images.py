@@ -7,6 +7,7 @@ a file name that is not UTF-8 appears in messages and output rows.
 
 from __future__ import annotations
 
+import re
 import struct
 from typing import Any
 
@@ -26,6 +27,11 @@ MAX_IMAGE_PIXELS = 100_000_000
 
 class ImageError(ValueError):
     """Bytes that do not give a usable image; the text says why (without the file's name)."""
+
+
+# What libjpeg says about an image it decoded anyway, filling what it could not read (libpng's warnings are about
+# ancillary chunks, and it fails outright on damaged pixel data).
+_DAMAGED = re.compile(r"Corrupt JPEG data|Premature end of JPEG|Invalid SOS|Huffman")
 
 
 def printable(name: str) -> str:
@@ -151,10 +157,15 @@ def decode(data: NDArray[np.uint8] | bytes) -> NDArray[np.uint8]:
         if w == 0 or h == 0:
             raise ImageError(f"its header claims {w}x{h} pixels")
     try:
-        with library_output():
+        with library_output() as said:
             img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     except cv2.error:  # OpenCV's own size limits, a decoder's assertion
         img = None
     if img is None or img.size == 0:
         raise ImageError("not an image, or truncated or corrupt")
+    damage = next((line for line in said.text.splitlines() if _DAMAGED.search(line)), None)
+    if damage is not None:
+        # libjpeg fills what it cannot decode and only warns: the picture is wrong where the markers may be
+        # (flipped bytes gave board poses 0.75 m off). Seen only in a command session, where fd 2 is captured.
+        raise ImageError(f"damaged image data ({damage.strip()[:100]})")
     return to_uint8(img)

@@ -7,7 +7,8 @@ On bad input the CLI prints one line of its own (issue 18); the C libraries unde
 - ``command_session`` (``monodock.cli.main`` runs every command inside it): OpenCV's log level to SILENT and
   FFmpeg's to quiet (``OPENCV_FFMPEG_LOGLEVEL``) for the command, both put back after it.
 - ``library_output`` around each call that decodes a file or opens or reads a capture: libpng and libjpeg write
-  straight to file descriptor 2, past any log level, so during the call fd 2 points at /dev/null. It only does so
+  straight to file descriptor 2, past any log level, so during the call fd 2 points at a temporary file, whose
+  text the caller gets (libjpeg's "Corrupt JPEG data" on an image it still decoded marks it damaged). It only does so
   inside a command session (a library user, a ROS node with threads that log, keeps its stderr); outside one it
   holds OpenCV's log at ERROR while a capture opens, as before.
 
@@ -19,11 +20,12 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import tempfile
 from collections.abc import Iterator
 
 import cv2
 
-__all__ = ["command_session", "library_output"]
+__all__ = ["Said", "command_session", "library_output"]
 
 # FFmpeg's AV_LOG_QUIET; OpenCV's FFmpeg back end reads the variable each time it opens a file.
 _FFMPEG_QUIET = "-8"
@@ -51,32 +53,45 @@ def command_session(*, debug: bool) -> Iterator[None]:
             os.environ["OPENCV_FFMPEG_LOGLEVEL"] = saved_env
 
 
+class Said:
+    """What the libraries wrote on fd 2 during a ``library_output`` block (inside a command session only)."""
+
+    def __init__(self) -> None:
+        self.text = ""
+
+
 @contextlib.contextmanager
-def library_output() -> Iterator[None]:
-    """Around a decode or a capture's open or read: what the C libraries write on fd 2 is dropped (see above)."""
+def library_output() -> Iterator[Said]:
+    """Around a decode or a capture's open or read: what the C libraries write on fd 2 is kept off stderr (see
+    above) and handed back in the yielded ``Said``, so that a caller can tell a damaged file by its complaint."""
+    said = Said()
     if _state["debug"]:
-        yield
+        yield said
         return
     level = cv2.utils.logging.getLogLevel()
     cv2.utils.logging.setLogLevel(min(level, cv2.utils.logging.LOG_LEVEL_ERROR))
     saved = -1
+    sink = None
     if _state["session"]:
         with contextlib.suppress(ValueError, OSError):  # a closed or replaced sys.stderr: nothing to flush
             sys.stderr.flush()
         try:
             saved = os.dup(2)
-            null = os.open(os.devnull, os.O_WRONLY)
+            sink = tempfile.TemporaryFile()  # noqa: SIM115 - closed in the finally below
         except OSError:  # no fd 2 (a daemon) or no file descriptors left: the libraries may speak
             if saved >= 0:
                 os.close(saved)
             saved = -1
         else:
-            os.dup2(null, 2)
-            os.close(null)
+            os.dup2(sink.fileno(), 2)
     try:
-        yield
+        yield said
     finally:
         if saved >= 0:
             os.dup2(saved, 2)
             os.close(saved)
+        if sink is not None:
+            sink.seek(0)
+            said.text = sink.read(4096).decode("utf-8", "replace")
+            sink.close()
         cv2.utils.logging.setLogLevel(level)
