@@ -426,7 +426,7 @@ def test_a_jpeg_that_libjpeg_decodes_only_by_filling_in_is_refused(
 
     out = tmp_path / "e.csv"
     code, _, err = run(["estimate", str(bad), "--method", "board", *cal(scene), "--out", str(out)], capfd)
-    assert_one_line(code, err, "damaged image data (Corrupt JPEG data")
+    assert_one_line(code, err, "damaged JPEG data: the decoder filled in what it could not read")
     assert not out.exists()
     code, _, err = run(["estimate", str(bad), "--method", "board", *cal(scene), "--out", str(out), "--skip-bad"], capfd)
     assert code == 0, err
