@@ -220,3 +220,25 @@ def test_a_malformed_opencv_file_is_one_line(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"cam.xml: cannot be read as an OpenCV FileStorage") as info:
         CameraModel.load(path)
     assert "\n" not in str(info.value)
+
+
+def test_a_refusal_stays_one_line_when_the_file_also_has_an_unknown_key(
+    scene, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """The unknown key's warning is held while the command runs and dropped when it refuses (a refusal is one
+    line); when the command succeeds, it is shown once."""
+    folder, camera = scene
+    broken = json.loads(json.dumps(camera))
+    broken["vendor_note"] = "lens B"
+    broken["camera_matrix"]["data"][4] = -24628.0
+    code, err, _ = _estimate(folder, broken, tmp_path, capfd)
+    assert code == 2
+    assert err.strip().splitlines() == [err.strip()], err
+    assert "vendor_note" not in err
+
+    broken["camera_matrix"]["data"][4] = camera["camera_matrix"]["data"][4]  # type: ignore[index]
+    (tmp_path / "ok").mkdir()
+    code, err, rows = _estimate(folder, broken, tmp_path / "ok", capfd)
+    assert code == 0, err
+    assert err.count("unknown key 'vendor_note' is ignored") == 1, err
+    assert rows[0]["valid"] == "true"

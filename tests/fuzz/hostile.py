@@ -278,7 +278,10 @@ def set_path(data: Any, path: tuple[Any, ...], value: Any) -> Any:
             del out[head]
         return out
     out_list = list(data)
-    out_list[head] = set_path(data[head], rest, value)
+    if not rest and value is DELETE:
+        del out_list[head]
+    else:
+        out_list[head] = set_path(data[head], rest, value)
     return out_list
 
 

@@ -12,6 +12,7 @@ and ``test_x_slow`` under ``fuzz-slow``, marked slow (``pytest -m slow``). See R
 from __future__ import annotations
 
 import copy
+import io
 import json
 import math
 import shutil
@@ -503,12 +504,13 @@ def _image(world: World, kind: str, suffix: str, p: Any) -> tuple[bytes, bool]:
         ok, buf = cv2.imencode(suffix, arr)
         return (bytes(buf) if ok else b""), ok and p != "int8"
     img = world.pixels
-    arr = {
-        1: img,
-        2: np.dstack([img, np.full_like(img, 255)]),
-        3: cv2.cvtColor(img, cv2.COLOR_GRAY2BGR),
-        4: cv2.cvtColor(img, cv2.COLOR_GRAY2BGRA),
-    }[p]
+    if p == 2:  # grey and alpha: a PNG colour type OpenCV reads but cannot write
+        from PIL import Image
+
+        buf = io.BytesIO()
+        Image.fromarray(np.dstack([img, np.full_like(img, 255)]), mode="LA").save(buf, format="PNG")
+        return buf.getvalue(), True
+    arr = {1: img, 3: cv2.cvtColor(img, cv2.COLOR_GRAY2BGR), 4: cv2.cvtColor(img, cv2.COLOR_GRAY2BGRA)}[p]
     return bytes(cv2.imencode(".png", arr)[1]), True
 
 

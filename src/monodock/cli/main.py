@@ -86,7 +86,7 @@ class _Warnings(logging.Handler):
         else:
             print(line, file=sys.stderr)
 
-    def release(self) -> None:
+    def show_held(self) -> None:
         for line in self.held:
             print(line, file=sys.stderr)
         self.held.clear()
@@ -140,7 +140,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with command_session(debug=args.debug):
             code = int(args.func(args))
-        warnings.release()
+        warnings.show_held()
         return code
     except MonodockError as exc:
         print(f"monodock {args.command}: error: {_one_line(exc)}", file=sys.stderr)
