@@ -8,6 +8,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
+from monodock.core.interrupt import Terminated, install_signal_handlers
 from monodock.errors import MonodockError
 
 __all__ = ["COMMANDS", "main", "parser"]
@@ -55,11 +56,28 @@ def parser(commands: Iterable[str] = COMMANDS) -> argparse.ArgumentParser:
     return p
 
 
+def _interrupted(exc: KeyboardInterrupt, command: str | None) -> int:
+    """One line for SIGINT (exit 130) or SIGTERM (exit 143), the shells' 128 + signal number."""
+    who = f"monodock {command}" if command else "monodock"
+    if isinstance(exc, Terminated):
+        print(f"{who}: terminated (SIGTERM)", file=sys.stderr)
+        return 143
+    print(f"{who}: interrupted", file=sys.stderr)
+    return 130
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; user errors print one line on stderr and return a non-zero code."""
     words = list(sys.argv[1:] if argv is None else argv)
     name = _command(words)
-    args = parser([name] if name in COMMANDS else COMMANDS).parse_args(words)
+    if argv is None:
+        # The console script: SIGTERM stops it like Ctrl-C (an exception, so that temp folders and worker pools
+        # are cleaned up), one line, exit 143; not when called as a library (the caller owns the handlers).
+        install_signal_handlers()
+    try:
+        args = parser([name] if name in COMMANDS else COMMANDS).parse_args(words)
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc, name if name in COMMANDS else None)
     try:
         return int(args.func(args))
     except MonodockError as exc:
@@ -70,9 +88,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f" {exc.filename}" if exc.filename else ""
         print(f"monodock {args.command}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("monodock: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
+        return _interrupted(exc, args.command)
     except Exception as exc:
         if args.debug:
             raise
