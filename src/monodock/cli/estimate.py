@@ -61,9 +61,10 @@ def _estimate_all(args: argparse.Namespace, estimator: Estimator) -> list[FrameE
 def run(args: argparse.Namespace) -> int:
     """``monodock estimate``."""
     estimator = build_estimator(args)
-    check_writable(args.out, force=args.force)
+    inputs = (*args.inputs, args.model, args.camera, args.layout, args.robot)
+    check_writable(args.out, force=args.force, inputs=inputs)
     if args.bag:
-        check_writable(args.bag, force=args.force)
+        check_writable(args.bag, force=args.force, inputs=(*inputs, args.out))
     results = _estimate_all(args, estimator)
     text = estimates_csv(results)
     write_text_atomic(args.out, text, force=args.force)
