@@ -20,7 +20,7 @@ import sys
 import time
 import warnings
 import zlib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Generator, Mapping, Sequence
 from contextlib import closing
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -656,7 +656,7 @@ def _run(
     data: Sequence[tuple[NDArray[np.float64], TrainingSet]],
     n_workers: int,
     progress: bool,
-) -> Iterator[_Outcome]:
+) -> Generator[_Outcome, None, None]:
 
     def args(job: _Job) -> tuple[Any, ...]:
         t = tasks[job.task]
