@@ -175,7 +175,8 @@ def test_full_disk_while_training_leaves_nothing(
     assert code == 2
     assert len(err.strip().splitlines()) == 1, err
     assert "No space left on device" in err
-    assert str(out) in err and ".bundle." not in err  # the user's path, not the temp folder's
+    assert str(out) in err  # the user's path, not the temp folder's
+    assert ".bundle." not in err
     assert not out.exists()
     assert _temps(out) == []
 
@@ -191,7 +192,7 @@ def test_full_disk_names_the_output_and_keeps_the_old_one(tmp_path: Path, monkey
     assert info.value.filename == str(old / "sub" / "figure.png")
     assert (old / "keep.txt").read_text() == "old"
     assert _temps(old) == []
-    with pytest.raises(OSError) as info:
+    with pytest.raises(OSError, match="No space") as info:
         write_bytes_atomic(tmp_path / "a.csv", b"x")
     assert info.value.filename == str(tmp_path / "a.csv")
     assert list(tmp_path.glob(".a.csv.*")) == []
@@ -249,7 +250,8 @@ def test_output_that_is_an_input_is_refused_even_with_force(
     code = main(_show(folder, out, image))
     _one_line(code, capsys.readouterr().err, str(out), "input", "even with --force")
     assert {p: p.read_bytes() for p in before} == before
-    assert not list(tmp_path.glob(".*")) and not list(folder.glob(".*"))
+    assert not list(tmp_path.glob(".*"))
+    assert not list(folder.glob(".*"))
 
 
 def test_train_out_equal_to_its_dataset_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
