@@ -674,7 +674,9 @@ def _run(
                 yield _fit_one(*args(job))
                 bar.update()
             return
-        parallel = Parallel(n_jobs=n_workers, backend="loky", return_as="generator_unordered")
+        # max_nbytes=None: the fits' arrays are small and go pickled, not through temp memory-mapped folders, whose
+        # tracker would print a "leaked folder" warning after the parent when the workers are killed mid-fit.
+        parallel = Parallel(n_jobs=n_workers, backend="loky", return_as="generator_unordered", max_nbytes=None)
         # The loky workers start here (and take the blocked SIGINT: a Ctrl-C is the parent's to handle).
         with sigint_blocked():
             outputs = parallel(delayed(_fit_one)(*args(job)) for job in order)
