@@ -85,8 +85,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except OSError as exc:
         # A file the user named could not be read or written (permissions, disk full, a folder in the way).
-        where = f" {exc.filename}" if exc.filename else ""
-        print(f"monodock {args.command}: error:{where}: {exc.strerror or exc}", file=sys.stderr)
+        where = f" {exc.filename}:" if exc.filename else ""
+        print(f"monodock {args.command}: error:{where} {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
         return _interrupted(exc, args.command)
