@@ -140,6 +140,25 @@ def test_train_with_loky_workers_stops_cleanly(sig: int, group: bool, work: Path
     _interrupt_and_check(proc, sig, group, out, err)
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_dock_sim_with_workers_stops_cleanly(sig: int, tmp_path: Path) -> None:
+    out, err = tmp_path / "report", tmp_path / "err.txt"
+    argv = ["dock-sim", "--method", "board", "--cases", "1", "--trials", "40", "--jobs", "2", "--out", str(out)]
+    proc = _start([*argv, "--supersample", "2"], err)
+    _wait_for(lambda: len(_descendants(proc.pid)) >= 3, proc)  # the resource tracker and two workers
+    time.sleep(1.0)
+    _interrupt_and_check(proc, sig, sig == signal.SIGINT, out, err)
+
+
+def test_label_stops_cleanly_on_sigterm(work: Path, tmp_path: Path) -> None:
+    """One process, no pool: SIGTERM is an exception like Ctrl-C, so nothing is half-written."""
+    out, err = tmp_path / "ds.parquet", tmp_path / "err.txt"
+    proc = _start(["label", str(work / "train_rec"), "--layout", str(work / "layout.yaml"), "--out", str(out)], err)
+    time.sleep(4.0)  # started up and reading the recording (it labels for about 20 s)
+    assert proc.poll() is None
+    _interrupt_and_check(proc, signal.SIGTERM, False, out, err)
+
+
 # --- a full disk -----------------------------------------------------------------------------------------
 
 
