@@ -12,6 +12,7 @@ import stat
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -23,6 +24,7 @@ from monodock.cli.main import main
 from monodock.core import atomic
 from monodock.core.atomic import atomic_directory, check_writable, write_bytes_atomic
 from monodock.errors import InputError
+from monodock.learning import pipeline
 from monodock.sim import Nuisances, Simulator
 from shared import pose_at
 
@@ -187,6 +189,8 @@ def test_full_disk_while_training_leaves_nothing(
 ) -> None:
     """The bundle is assembled beside its final path: a full disk half-way through its report leaves nothing."""
     out = tmp_path / "bundle"
+    real = pipeline.train  # one model type only: seconds, not minutes, before the bundle's files are written
+    monkeypatch.setattr(pipeline, "train", lambda sets, cfg, **kw: real(sets, replace(cfg, models=("ridge",)), **kw))
     _full_disk(monkeypatch)
     argv = ["train", str(work / "train.parquet"), "--out", str(out), "--trials", "1", "--jobs", "1", "--sets", "m2"]
     code = main([*argv, "--fusion-holdout", "0"])
