@@ -84,6 +84,14 @@ def _wait_for(condition: object, proc: subprocess.Popen[bytes], timeout: float =
         time.sleep(0.05)
 
 
+def _has_open(pid: int, folder: Path) -> bool:
+    """Whether the process has a file in ``folder`` open."""
+    try:
+        return any(os.readlink(fd).startswith(str(folder)) for fd in Path(f"/proc/{pid}/fd").iterdir())
+    except OSError:
+        return False
+
+
 def _temps(out: Path) -> list[Path]:
     return list(out.parent.glob(f".{out.name}.*"))
 
@@ -155,9 +163,10 @@ def test_dock_sim_with_workers_stops_cleanly(sig: int, tmp_path: Path) -> None:
 def test_label_stops_cleanly_on_sigterm(work: Path, tmp_path: Path) -> None:
     """One process, no pool: SIGTERM is an exception like Ctrl-C, so nothing is half-written."""
     out, err = tmp_path / "ds.parquet", tmp_path / "err.txt"
-    proc = _start(["label", str(work / "train_rec"), "--layout", str(work / "layout.yaml"), "--out", str(out)], err)
-    time.sleep(4.0)  # started up and reading the recording (it labels for about 20 s)
-    assert proc.poll() is None
+    rec = work / "train_rec"
+    proc = _start(["label", str(rec), "--layout", str(work / "layout.yaml"), "--out", str(out)], err)
+    _wait_for(lambda: _has_open(proc.pid, rec), proc)  # reading the recording (it labels for about 20 s)
+    time.sleep(1.0)
     _interrupt_and_check(proc, signal.SIGTERM, False, out, err)
 
 
