@@ -8,7 +8,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
-from monodock.core.interrupt import Terminated, install_signal_handlers
+from monodock.core.interrupt import Terminated, exit_on_signal, install_signal_handlers
 from monodock.errors import MonodockError
 
 __all__ = ["COMMANDS", "main", "parser"]
@@ -74,6 +74,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         # The console script: SIGTERM stops it like Ctrl-C (an exception, so that temp folders and worker pools
         # are cleaned up), one line, exit 143; not when called as a library (the caller owns the handlers).
         install_signal_handlers()
+        try:
+            return _run(words, name)
+        finally:
+            who = f"monodock {name}" if name in COMMANDS else "monodock"
+            exit_on_signal(f"{who}: stopped by {{signal}} while exiting")
+    return _run(words, name)
+
+
+def _run(words: list[str], name: str | None) -> int:
     try:
         args = parser([name] if name in COMMANDS else COMMANDS).parse_args(words)
     except KeyboardInterrupt as exc:

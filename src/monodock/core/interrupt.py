@@ -9,13 +9,15 @@ the parent, which gets the signal too, terminates them.
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-__all__ = ["GRACE_S", "Terminated", "install_signal_handlers", "sigint_blocked"]
+__all__ = ["GRACE_S", "Terminated", "exit_on_signal", "install_signal_handlers", "sigint_blocked"]
 
 # A second signal this soon after the first is ignored: the clean-up the first one started must finish.
 GRACE_S = 5.0
@@ -46,6 +48,21 @@ def install_signal_handlers() -> None:
     _first_signal = None
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
+
+
+def exit_on_signal(message: str) -> None:
+    """Once the command has finished (its outputs complete): SIGINT or SIGTERM print one line and exit at once,
+    130 or 143, instead of raising into the interpreter's shutdown (where the exception is only printed, with a
+    traceback, and the exit is slow or 0)."""
+
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
+        name = "SIGTERM" if signum == signal.SIGTERM else "SIGINT"
+        print(message.format(signal=name), file=sys.stderr, flush=True)
+        sys.stdout.flush()
+        os._exit(128 + signum)
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
 
 
 @contextmanager
