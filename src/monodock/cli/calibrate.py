@@ -114,8 +114,8 @@ def run_intrinsics(args: argparse.Namespace) -> int:
     cov = Path(args.coverage) if args.coverage else out.with_name(f"{out.stem}_coverage.png")
     if cov.resolve() == out.resolve():
         raise InputError(f"--coverage {cov} is the same file as --out")
-    check_writable(out, force=args.force)
-    check_writable(cov, force=args.force)
+    check_writable(out, force=args.force, inputs=args.images)
+    check_writable(cov, force=args.force, inputs=args.images)
     result = calibrate_intrinsics(
         _input_views(args, board),
         board,
@@ -186,8 +186,9 @@ def run_extrinsics(args: argparse.Namespace) -> int:
     outputs = [o for o in (args.out, args.tf, args.robot_out, args.overlay) if o]
     if len({os.path.abspath(o) for o in outputs}) < len(outputs):
         raise InputError("--out, --tf, --robot-out and --overlay must be different files")
+    inputs = (args.pairs, args.recording, args.target_views, args.target, args.robot, args.camera, args.layout)
     for o in outputs:
-        check_writable(o, force=args.force)
+        check_writable(o, force=args.force, inputs=(*inputs, args.image))
     if not (args.tolerance > 0 and math.isfinite(args.tolerance)):
         raise InputError(f"--tolerance must be a positive number of seconds, got {args.tolerance}")
     robot = RobotConfig.load(args.robot)

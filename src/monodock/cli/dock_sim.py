@@ -179,7 +179,8 @@ def add_parser(subparsers: Any) -> None:
 def _cmd_dock_sim(args: argparse.Namespace) -> int:
 
     if args.out:
-        check_writable(args.out, force=args.force)
+        inputs = (args.config, args.model, args.camera, args.layout, args.robot, args.cache)
+        check_writable(args.out, force=args.force, inputs=inputs)
     mission = load_docking_config(args.config) if args.config else DockingConfig()
     if args.max_retries is not None:
         if args.max_retries < 0:

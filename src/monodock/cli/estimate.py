@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import csv
 import io
+import os
 
 from tqdm import tqdm
 
@@ -61,9 +62,12 @@ def _estimate_all(args: argparse.Namespace, estimator: Estimator) -> list[FrameE
 def run(args: argparse.Namespace) -> int:
     """``monodock estimate``."""
     estimator = build_estimator(args)
-    check_writable(args.out, force=args.force)
+    inputs = (*args.inputs, args.model, args.camera, args.layout, args.robot)
+    check_writable(args.out, force=args.force, inputs=inputs)
     if args.bag:
-        check_writable(args.bag, force=args.force)
+        if os.path.abspath(args.bag) == os.path.abspath(args.out):
+            raise InputError(f"--bag {args.bag} is the same path as --out")
+        check_writable(args.bag, force=args.force, inputs=inputs)
     results = _estimate_all(args, estimator)
     text = estimates_csv(results)
     write_text_atomic(args.out, text, force=args.force)

@@ -69,6 +69,11 @@ def add_parser(subparsers: SubParsers) -> None:
     ev.set_defaults(func=run)
 
 
+def _inputs(args: argparse.Namespace) -> tuple[str | None, ...]:
+    """What ``evaluate`` reads: its --out must be none of these (nor a folder holding one)."""
+    return (args.recording, args.model, args.camera, args.robot, args.layout)
+
+
 def _robustness(args: argparse.Namespace) -> int:
     """``evaluate --robustness``: simulated test frames, one nuisance or calibration error at a time."""
     if args.recording is not None:
@@ -81,7 +86,7 @@ def _robustness(args: argparse.Namespace) -> int:
             raise InputError(f"{flag} must be at least {least}, got {value}")
     if args.jobs is not None and args.jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {args.jobs}")
-    check_writable(args.out, force=args.force)
+    check_writable(args.out, force=args.force, inputs=_inputs(args))
     bundle = load_bundle(args.model)
     camera, layout, robot = bundle_calibration(args, bundle)
     config = RobustnessConfig(
@@ -124,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
     ]
     if extra:
         raise InputError(f"{extra[0]} only applies with --robustness")
+    # Before the labelling, which takes minutes: the report folder must be free (or --force) and no input.
+    check_writable(args.out, force=args.force, inputs=_inputs(args))
     bundle = load_bundle(args.model)
     camera, layout, robot = bundle_calibration(args, bundle)
     if str(args.recording).endswith(".parquet"):

@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     """``monodock label``."""
     positive_seconds("--tolerance", args.tolerance)
     layout = DockLayout.load(args.layout)
-    check_writable(args.out, force=args.force)
+    check_writable(args.out, force=args.force, inputs=(args.recording, args.layout, args.camera, args.robot))
     ds = label(args, layout, None)
     if len(ds) == 0:
         raise MonodockError(f"{args.recording}: no images")

@@ -14,6 +14,7 @@ from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
 from monodock.core.images import printable
+from monodock.core.interrupt import Terminated, exit_on_signal, install_signal_handlers
 from monodock.core.quiet import command_session
 from monodock.errors import MonodockError
 
@@ -123,11 +124,37 @@ def _one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
+def _interrupted(exc: KeyboardInterrupt, command: str | None) -> int:
+    """One line for SIGINT (exit 130) or SIGTERM (exit 143), the shells' 128 + signal number."""
+    who = f"monodock {command}" if command else "monodock"
+    if isinstance(exc, Terminated):
+        print(f"{who}: terminated (SIGTERM)", file=sys.stderr)
+        return 143
+    print(f"{who}: interrupted", file=sys.stderr)
+    return 130
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI; user errors print one line on stderr and return a non-zero code."""
     words = list(sys.argv[1:] if argv is None else argv)
     name = _command(words)
-    args = parser([name] if name in COMMANDS else COMMANDS).parse_args(words)
+    if argv is None:
+        # The console script: SIGTERM stops it like Ctrl-C (an exception, so that temp folders and worker pools
+        # are cleaned up), one line, exit 143; not when called as a library (the caller owns the handlers).
+        install_signal_handlers()
+        try:
+            return _run(words, name)
+        finally:
+            who = f"monodock {name}" if name in COMMANDS else "monodock"
+            exit_on_signal(f"{who}: stopped by {{signal}} while exiting")
+    return _run(words, name)
+
+
+def _run(words: list[str], name: str | None) -> int:
+    try:
+        args = parser([name] if name in COMMANDS else COMMANDS).parse_args(words)
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc, name if name in COMMANDS else None)
     logger = logging.getLogger("monodock")
     warnings = _Warnings(args.command)
     logger.addHandler(warnings)
@@ -150,9 +177,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         where = f"{_shown(exc.filename)}: " if exc.filename else ""
         print(f"monodock {args.command}: error: {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("monodock: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
+        return _interrupted(exc, args.command)
     except Exception as exc:
         if args.debug:
             raise

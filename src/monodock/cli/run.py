@@ -91,9 +91,13 @@ def run(args: argparse.Namespace) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be at least 1, got {args.max_frames}")
     to_stdout = args.out == "-"
-    for path in (None if to_stdout else args.out, args.bag, args.overlay_video):
+    inputs = (args.source, args.model, args.camera, args.layout, args.robot)
+    if not to_stdout:
+        # Rows are streamed into --out, not swapped in: a FIFO or /dev/null is fine there.
+        check_writable(args.out, force=args.force, inputs=inputs, stream=True)
+    for path in (args.bag, args.overlay_video):
         if path:
-            check_writable(path, force=args.force)
+            check_writable(path, force=args.force, inputs=inputs)
     estimator = build_estimator(args)
     with contextlib.ExitStack() as stack:
         source = stack.enter_context(

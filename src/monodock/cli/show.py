@@ -28,7 +28,7 @@ def add_parser(subparsers: SubParsers) -> None:
 def run(args: argparse.Namespace) -> int:
     """``monodock show``."""
     camera, layout, robot = load_calibration(args)
-    check_writable(args.out, force=args.force)
+    check_writable(args.out, force=args.force, inputs=(args.image, args.camera, args.layout, args.robot))
     image = read_image(args.image)
     estimator = Estimator(camera, layout, robot, ("board",))
     result = estimator.estimate(Path(args.image).name, math.nan, image)

@@ -20,7 +20,7 @@ from monodock.cli.options import (
     load_calibration,
     range_option,
 )
-from monodock.core.atomic import atomic_directory
+from monodock.core.atomic import atomic_directory, check_writable
 from monodock.errors import MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.report.overlay import estimates_png
@@ -150,6 +150,10 @@ def nuisances(args: argparse.Namespace) -> Nuisances:
 def run(args: argparse.Namespace) -> int:
     """``monodock simulate``: frames to a folder, or a data-collection drive to a rosbag2 recording."""
     camera, layout, robot = load_calibration(args)
+    # Before any rendering: the outputs must be free (or --force), and none of them an input.
+    check_writable(args.out, force=args.force, inputs=(args.camera, args.layout, args.robot))
+    if args.format == "rosbag2" and args.preview:
+        check_writable(_preview_folder(args.out), force=args.force, inputs=(args.camera, args.layout, args.robot))
     dist = PoseDistribution(depth=tuple(args.depth), lateral=tuple(args.lateral), yaw_deg=tuple(args.yaw))
     for name, (lo, hi) in (("depth", args.depth), ("lateral", args.lateral), ("yaw", args.yaw)):
         if not lo <= hi:
@@ -184,6 +188,11 @@ def run(args: argparse.Namespace) -> int:
                 (tmp / name).write_bytes(png)
         print(f"preview overlays: {Path(args.out) / 'preview'}")
     return 0
+
+
+def _preview_folder(out: str) -> Path:
+    """Where ``--format rosbag2 --preview`` puts its overlays: beside the recording."""
+    return Path(str(out).rstrip("/") + "_preview")
 
 
 def _simulate_recording(args: argparse.Namespace, sim: Simulator, estimator: Estimator, dist: PoseDistribution) -> int:
@@ -233,8 +242,8 @@ def _simulate_recording(args: argparse.Namespace, sim: Simulator, estimator: Est
         f"{summary.bytes / 1e6:.0f} MB) to {args.out} in {dt:.1f} s"
     )
     if previews:
-        target = Path(str(args.out).rstrip("/") + "_preview")
-        with atomic_directory(target, force=True) as tmp:
+        target = _preview_folder(args.out)
+        with atomic_directory(target, force=args.force) as tmp:
             for name, png in previews:
                 (tmp / name).write_bytes(png)
         print(f"preview overlays: {target}")

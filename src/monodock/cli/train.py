@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         fusion_holdout=args.fusion_holdout,
         source=str(args.dataset),
     )
-    check_writable(args.out, force=args.force)
+    check_writable(args.out, force=args.force, inputs=(args.dataset,))
     ds = read_dataset(args.dataset)
 
     def report(folder: Path, result: TrainingResult) -> None:

@@ -11,11 +11,14 @@ from __future__ import annotations
 import multiprocessing as mp
 import multiprocessing.pool
 import os
+import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import cv2
+
+from monodock.core.interrupt import sigint_blocked
 
 S = TypeVar("S")
 T = TypeVar("T")
@@ -28,7 +31,9 @@ SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_N
 
 
 def _start_worker(initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
-
+    # The parent stops the workers (Pool.terminate) on Ctrl-C; a worker's own KeyboardInterrupt would only print
+    # a traceback. SIGINT is blocked from the worker's start already (sigint_blocked); this keeps it so.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(1)
     if initializer is not None:
         initializer(*initargs)
@@ -44,14 +49,16 @@ def worker_pool(
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
     os.environ.update(SINGLE_THREAD_ENV)
     try:
-        # The workers are started here, and take the environment as it is now.
-        pool = mp.get_context("spawn").Pool(jobs, initializer=_start_worker, initargs=(initializer, initargs))
+        # The workers are started here, and take the environment (and the blocked SIGINT) as it is now.
+        with sigint_blocked():
+            pool = mp.get_context("spawn").Pool(jobs, initializer=_start_worker, initargs=(initializer, initargs))
     finally:
         for k, v in saved.items():
             if v is None:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+    # Leaving the block, by an exception (Ctrl-C, SIGTERM, an error) or not, terminates the workers at once.
     with pool:
         yield pool
 

@@ -525,7 +525,7 @@ def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialR
             start = sample_start(case, sim, planner, rng, config)
             tasks.extend(_Task(case, trial, m, start, p, f, label) for label, m, p, f in config.variants)
     results = map_with_state(_run_trial, config, tasks, jobs=config.jobs, chunksize=1)
-    bar = tqdm(results, total=len(tasks), desc="docking runs", unit="run", disable=not progress)
+    bar = tqdm(results, total=len(tasks), desc="docking runs", unit="run", disable=None if progress else True)
     return list(bar)
 
 

@@ -20,7 +20,8 @@ import sys
 import time
 import warnings
 import zlib
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Generator, Mapping, Sequence
+from contextlib import closing
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -30,6 +31,7 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from monodock.core.interrupt import sigint_blocked
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.segments import SegmentTable
 
@@ -654,7 +656,7 @@ def _run(
     data: Sequence[tuple[NDArray[np.float64], TrainingSet]],
     n_workers: int,
     progress: bool,
-) -> Iterator[_Outcome]:
+) -> Generator[_Outcome, None, None]:
 
     def args(job: _Job) -> tuple[Any, ...]:
         t = tasks[job.task]
@@ -664,16 +666,31 @@ def _run(
         return job, X32[train], y[train], X32[t.test_rows], y[t.test_rows]
 
     order = sorted(jobs, key=lambda j: -j.cost)
-    with tqdm(total=len(order), desc="training", unit="fit", file=sys.stderr, disable=not progress) as bar:
+    with tqdm(
+        total=len(order), desc="training", unit="fit", file=sys.stderr, disable=None if progress else True
+    ) as bar:
         if n_workers == 1:
             for job in order:
                 yield _fit_one(*args(job))
                 bar.update()
             return
-        parallel = Parallel(n_jobs=n_workers, backend="loky", return_as="generator_unordered")
-        for out in parallel(delayed(_fit_one)(*args(job)) for job in order):
-            yield out
-            bar.update()
+        # max_nbytes=None: the fits' arrays are small and go pickled, not through temp memory-mapped folders, whose
+        # tracker would print a "leaked folder" warning after the parent when the workers are killed mid-fit.
+        parallel = Parallel(n_jobs=n_workers, backend="loky", return_as="generator_unordered", max_nbytes=None)
+        # The loky workers start here (and take the blocked SIGINT: a Ctrl-C is the parent's to handle).
+        with sigint_blocked():
+            outputs = parallel(delayed(_fit_one)(*args(job)) for job in order)
+        try:
+            for out in outputs:
+                yield out
+                bar.update()
+        finally:
+            # Stopped early (Ctrl-C, SIGTERM, an error here or in the caller): joblib kills the workers
+            # (executor shutdown with kill_workers) instead of waiting for their fits; its warning that
+            # results went unused says nothing to the user.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                outputs.close()
 
 
 def _sort_key(o: _Outcome, models: Sequence[str]) -> tuple[float, int, int]:
@@ -712,17 +729,19 @@ def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = 
     counts: dict[tuple[int, str], int] = {}
     chosen: dict[int, _Outcome] = {}
     fit_seconds = cpu_seconds = 0.0
-    for out in _run(jobs, tasks, data, n_workers, progress):
-        fit_seconds += out.fit_seconds
-        cpu_seconds += out.cpu_seconds
-        key = (out.task, out.model)
-        counts[key] = counts.get(key, 0) + 1
-        rank = _sort_key(out, config.models)
-        if key not in best or rank < _sort_key(best[key], config.models):
-            # Scores only: of all fitted estimators, just each task's chosen one is kept.
-            best[key] = replace(out, estimator=None)
-        if out.task not in chosen or rank < _sort_key(chosen[out.task], config.models):
-            chosen[out.task] = out
+    # closing: an exception in this loop stops the workers now, not when the generator is collected.
+    with closing(_run(jobs, tasks, data, n_workers, progress)) as outputs:
+        for out in outputs:
+            fit_seconds += out.fit_seconds
+            cpu_seconds += out.cpu_seconds
+            key = (out.task, out.model)
+            counts[key] = counts.get(key, 0) + 1
+            rank = _sort_key(out, config.models)
+            if key not in best or rank < _sort_key(best[key], config.models):
+                # Scores only: of all fitted estimators, just each task's chosen one is kept.
+                best[key] = replace(out, estimator=None)
+            if out.task not in chosen or rank < _sort_key(chosen[out.task], config.models):
+                chosen[out.task] = out
 
     params_of = {(j.task, j.model, j.trial): j.params for j in jobs}
     results: list[TaskResult] = []
