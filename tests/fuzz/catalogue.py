@@ -1605,12 +1605,14 @@ _output_case(
     ),
 )
 _output_case(
-    "simulate --out = the recording --format rosbag2 --force",
+    # A recording is not an input of simulate (replacing one with --force is what --force is for); the folder that
+    # holds its --camera is.
+    "simulate --format rosbag2 --out = the folder holding --camera --force",
     lambda w, f, fl: (
         [
             "simulate",
             "--out",
-            str(fl["recording"]),
+            str(f),
             "--force",
             "--frames",
             "1",
@@ -1620,8 +1622,10 @@ _output_case(
             "1",
             "--format",
             "rosbag2",
+            "--camera",
+            str(fl["camera"]),
         ],
-        fl["recording"],
+        f,
     ),
 )
 _output_case(
