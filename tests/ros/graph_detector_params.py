@@ -130,7 +130,9 @@ agreed = time.time()
 fx_off = list(sim.camera.K)
 fx_off[0] *= 1.03
 send(lambda: infos.publish(camera_info(k=fx_off)))
-send(lambda: infos.publish(camera_info(width=320, height=240)))
+# A camera of half the size (K scaled with it: one with the full-size K would be implausible, and refused as such).
+half = [v * 0.5 for v in sim.camera.K[:6]] + list(sim.camera.K[6:])
+send(lambda: infos.publish(camera_info(width=320, height=240, k=half)))
 g.spin_for(node, 0.5)
 
 
