@@ -197,7 +197,11 @@ def test_the_robot_stops_when_the_dock_node_is_killed(record: Path) -> None:
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--ros-args", "-p", "planner.standoff:=-1.0"], "ROS parameters: the stand-off of Point A must be positive"),
+        (["--ros-args", "-p", "planner.standoff:=-1.0"], "ROS parameters: planner.standoff: must be within 0 to 10000"),
+        (
+            ["--ros-args", "-p", "planner.standoff:=0.0"],
+            "ROS parameters: planner.standoff: the stand-off of Point A must",
+        ),
         (["--ros-args", "-p", "max_reseats:=two"], "ROS parameters: max_reseats"),
         (["--ros-args", "-p", "planner.no_such_key:=1.0"], "unknown parameter planner.no_such_key"),
         (["--method", "fused"], "needs a model bundle"),
