@@ -263,21 +263,28 @@ def flip_bytes(data: bytes, seed: int, count: int = 8, start: int = 0) -> bytes:
 
 
 def set_path(data: Any, path: tuple[Any, ...], value: Any) -> Any:
-    """``data`` with the item at ``path`` (keys and indices) replaced; a missing sentinel deletes it."""
+    """``data`` with the item at ``path`` (keys and indices) replaced; a missing sentinel deletes it. A path that an
+    earlier edit of the same example removed (a deleted key, a shortened list, a container now a scalar) is left
+    as it is."""
     if not path:
         return value
+    if not isinstance(data, dict | list):  # an earlier edit replaced the container by a scalar
+        return data
     head, rest = path[0], path[1:]
     if isinstance(data, dict):
         out = dict(data)
-        if not rest and head not in data:
-            if value is not DELETE:
+        if head not in data:
+            if not rest and value is not DELETE:
                 out[head] = value
+            # a path under a key an earlier edit deleted: nothing to change
         elif rest or value is not DELETE:
             out[head] = set_path(data[head], rest, value)
         else:
             del out[head]
         return out
     out_list = list(data)
+    if not -len(out_list) <= head < len(out_list):  # an earlier edit of the same example shortened the list
+        return out_list
     if not rest and value is DELETE:
         del out_list[head]
     else:

@@ -541,7 +541,8 @@ def camera_info_edits(draw: st.DrawFn) -> dict[str, Any]:
     big = st.floats(allow_nan=True, allow_infinity=True, width=64)
     out: dict[str, Any] = {}
     for i in draw(st.lists(st.sampled_from([0, 2, 4, 5]), max_size=2)):
-        K[i] = draw(st.one_of(big, near(float(K[i]))))
+        # Around the valid value, even when an earlier draw already changed K[i] (to NaN, say).
+        K[i] = draw(st.one_of(big, near(float(CameraModel.default().K[i]))))
     for i in draw(st.lists(st.integers(0, 4), max_size=2)):
         D[i] = draw(st.one_of(big, st.floats(-2, 2)))
     out["k"], out["d"] = K, D
@@ -554,7 +555,8 @@ def camera_info_edits(draw: st.DrawFn) -> dict[str, Any]:
 
 def _info_plausible(info: dict[str, Any]) -> bool:
     K, D = info["k"], info["d"]
-    model = info.get("distortion_model", "plumb_bob")
+    # An empty distortion_model is what many drivers publish; ROS tools, and monodock, read it as plumb_bob.
+    model = info.get("distortion_model") or "plumb_bob"
     data = {
         "image_width": info.get("width", 640),
         "image_height": 480,
