@@ -322,6 +322,7 @@ _ROS_KEYS = (
 )
 
 
+@functools.lru_cache(maxsize=16)  # a camera_info topic repeats the same camera with every image: check it once
 def _lens_problem(camera: CameraModel) -> str | None:
     """Why the lens cannot be used over this image, or None.
 
