@@ -242,3 +242,20 @@ def test_a_refusal_stays_one_line_when_the_file_also_has_an_unknown_key(
     assert code == 0, err
     assert err.count("unknown key 'vendor_note' is ignored") == 1, err
     assert rows[0]["valid"] == "true"
+
+
+def test_every_shipped_file_is_plausible(caplog: pytest.LogCaptureFixture) -> None:
+    """The set-ups the project ships (another layout, a 1280x720 wide lens, a pitched mount) and the example
+    docking config pass the validation layer as they are, without a warning: the ranges fit real hardware."""
+    from monodock.dock.config import load_docking_config
+
+    root = Path(__file__).resolve().parents[2]
+    setups = sorted((root / "bench" / "setups").iterdir())
+    assert setups, "no shipped set-up to check"
+    with caplog.at_level("WARNING", logger="monodock"):
+        for folder in setups:
+            CameraModel.load(folder / "camera.yaml")
+            DockLayout.load(folder / "layout.yaml")
+            RobotConfig.load(folder / "robot.yaml")
+        load_docking_config(root / "docs" / "docking.yaml")
+    assert caplog.records == []
