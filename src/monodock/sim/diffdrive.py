@@ -23,6 +23,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -473,6 +474,10 @@ def _lerp(a: Pose2D, b: Pose2D, f: float) -> Pose2D:
     return Pose2D(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), wrap_angle(a.theta + f * wrap_angle(b.theta - a.theta)))
 
 
+# cv2.remap with dst= and None maps: its overloads in OpenCV's stubs change between releases (5.0 rejected the
+# call, 5.1 accepts it); seen through a plain callable, the type check does not depend on which release is installed.
+_remap: Callable[..., Any] = cv2.remap
+
 _BLUR_MIN_PX = 0.2  # a streak shorter than this is invisible under the lens blur and the noise: skip the warps
 _BLUR_MAX_SAMPLES = 8
 _BLUR_SPACING_PX = 1.5
@@ -570,7 +575,7 @@ class _MotionBlur:
                 total += radiance
                 continue
             cv2.scaleAdd(dense[u > 0], 2.0 * abs(u), self.identity, dst=where)
-            cv2.remap(radiance, where, None, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE)  # type: ignore[call-overload]
+            _remap(radiance, where, None, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE)
             total += warped
         total *= np.float32(1.0 / k)
         return apply_nuisances(total, sim.nuisances, rng)
