@@ -70,8 +70,9 @@ def parser(commands: Iterable[str] = COMMANDS) -> argparse.ArgumentParser:
 class _Warnings(logging.Handler):
     """monodock's warnings as ``monodock CMD: warning: ...`` lines on stderr.
 
-    Warnings about the input files (an unknown key, logger ``monodock.config``) are held until the command ends
-    and shown only if it did not refuse its input, so that a refusal stays one line.
+    Warnings about the input files (an unknown key, logger ``monodock.config``; a recording cut short,
+    ``monodock.input``) are held until the command ends and shown only if it did not refuse its input, so that a
+    refusal stays one line.
     """
 
     def __init__(self, command: str) -> None:
@@ -81,7 +82,7 @@ class _Warnings(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         line = f"monodock {self.command}: warning: {record.getMessage()}"
-        if record.name == "monodock.config":
+        if record.name in ("monodock.config", "monodock.input"):
             if line not in self.held:
                 self.held.append(line)
         else:
