@@ -15,10 +15,9 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from monodock.core.config import MAX_FILE_BYTES, Fields, load_yaml, write_text_atomic
+from monodock.core.config import MAX_FILE_BYTES, Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.errors import ConfigError
 
 __all__ = ["CameraModel"]
@@ -215,7 +214,7 @@ class CameraModel:
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
         """Write the camera as ROS camera_info YAML, atomically."""
-        text = yaml.safe_dump(self.to_ros_dict(), sort_keys=False, default_flow_style=None)
+        text = yaml_text(self.to_ros_dict(), flow=None)
         write_text_atomic(Path(path), text, force=force)
 
     @classmethod
