@@ -398,6 +398,11 @@ def _read_opencv_storage(path: Path) -> CameraModel:
     if not fs.isOpened():
         raise ConfigError(f"{path}: cannot be read as an OpenCV FileStorage file")
     try:
+        # OpenCV keeps the first of a key named twice without a word; monodock's YAML loader refuses it (config.py)
+        keys = list(fs.root().keys()) if fs.root().isMap() else []
+        twice = next((k for i, k in enumerate(keys) if k in keys[:i]), None)
+        if twice is not None:
+            raise ConfigError(f"{path}: key '{twice[:80]}' appears twice; each key may appear once")
 
         def node(*names: str) -> Any:
             for n in names:

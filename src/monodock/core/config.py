@@ -203,7 +203,9 @@ def load_yaml(path: str | os.PathLike[str], what: str, *, max_bytes: int = MAX_F
 def parse_json(text: str | bytes, source: str) -> Any:
     """JSON text as Python values, with the limits of ``check_structure``; ConfigError naming ``source``."""
     try:
-        data = json.loads(text, parse_constant=_refuse_constant)
+        data = json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_json_object)
+    except _DuplicateJsonKey as exc:
+        raise ConfigError(f"{source}: {exc}") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{source}: not valid JSON ({_first_line(exc)})") from None
     except (ValueError, OverflowError) as exc:  # NaN/Infinity, or an integer of more digits than Python converts
@@ -228,6 +230,19 @@ def json_text(data: Any, *, indent: int | None = 2) -> str:
         return value
 
     return json.dumps(finite(data), indent=indent, default=str, allow_nan=False)
+
+
+class _DuplicateJsonKey(ValueError):
+    """A JSON object names a key twice (json keeps the last without a word)."""
+
+
+def _json_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateJsonKey(f"key '{key[:80]}' appears twice in one object; each key may appear once")
+        out[key] = value
+    return out
 
 
 def _refuse_constant(name: str) -> Any:
