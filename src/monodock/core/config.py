@@ -204,7 +204,7 @@ def parse_json(text: str | bytes, source: str) -> Any:
     """JSON text as Python values, with the limits of ``check_structure``; ConfigError naming ``source``."""
     try:
         data = json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_json_object)
-    except _DuplicateJsonKey as exc:
+    except _DuplicateJsonKeyError as exc:
         raise ConfigError(f"{source}: {exc}") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{source}: not valid JSON ({_first_line(exc)})") from None
@@ -232,7 +232,7 @@ def json_text(data: Any, *, indent: int | None = 2) -> str:
     return json.dumps(finite(data), indent=indent, default=str, allow_nan=False)
 
 
-class _DuplicateJsonKey(ValueError):
+class _DuplicateJsonKeyError(ValueError):
     """A JSON object names a key twice (json keeps the last without a word)."""
 
 
@@ -240,7 +240,7 @@ def _json_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, value in pairs:
         if key in out:
-            raise _DuplicateJsonKey(f"key '{key[:80]}' appears twice in one object; each key may appear once")
+            raise _DuplicateJsonKeyError(f"key '{key[:80]}' appears twice in one object; each key may appear once")
         out[key] = value
     return out
 
