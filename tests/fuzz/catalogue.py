@@ -874,8 +874,9 @@ for _cmd in ("evaluate", "train"):
         ("metadata schema other", _meta(("schema",), "other/1"), None, None, True),
         ("metadata unknown key", _meta((UNKNOWN_MARK,), 1), None, None, False),
         ("a string column (issue)", _column("m2_tl_u", lambda n: pa.array(["x"] * n)), None, None, True),
-        # Rows without a usable label or feature may be left out (then the report must say so, finitely).
-        ("label column NaN", _column("label_x_m", lambda n: pa.array([math.nan] * n)), None, None, _cmd == "train"),
+        # Rows without a usable label or feature may be left out (then the report must say so, finitely); with no
+        # row left to evaluate against (the world's dataset has no truth), evaluate refuses too (issue 24).
+        ("label column NaN", _column("label_x_m", lambda n: pa.array([math.nan] * n)), None, None, True),
         ("label column 1e308", _column("label_x_m", lambda n: pa.array([1e308] * n)), None, None, True),
         ("feature column inf", _column("m2_tl_u", lambda n: pa.array([math.inf] * n)), None, None, _cmd == "train"),
         ("no rows (issue)", lambda t, m: (t.slice(0, 0), m), None, None, True),
