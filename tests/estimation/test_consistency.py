@@ -129,3 +129,25 @@ def test_a_camera_beside_the_bundle_that_is_not_its_own_is_one_warning_naming_bo
     assert f"{bundle.camera().fx * 1.3:.1f}" in said[0]
     assert f"{bundle.camera().fx:.1f}" in said[0]
     assert str(other) in said[0]
+
+
+@pytest.mark.slow
+def test_estimate_on_rendered_frames_warns_once_with_a_wrong_focal_length_and_never_with_the_true_one(
+    work: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """End to end: 80 frames rendered with the true camera (every nuisance), ``estimate --model --method board``
+    with the true camera (no warning) and with one 30 % long beside the bundle (its warning and the scale's)."""
+    from monodock.cli.main import main
+
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--frames", "80", "--supersample", "1", "--depth", "0.4", "1.3"]) == 0
+    wrong = tmp_path / "camera_13.yaml"
+    _scaled_camera(CameraModel.load(sim / "camera.yaml"), 1.3).save(wrong)
+    common = ["estimate", str(sim / "images"), "--model", str(work / "bundle"), "--method", "board"]
+    capfd.readouterr()
+    assert main([*common, "--camera", str(sim / "camera.yaml"), "--out", str(tmp_path / "true.csv")]) == 0
+    assert "warning" not in capfd.readouterr().err
+    assert main([*common, "--camera", str(wrong), "--out", str(tmp_path / "wrong.csv")]) == 0
+    said = [line for line in capfd.readouterr().err.splitlines() if ": warning: " in line]
+    assert len(said) == 2, said  # the camera beside the bundle, and the scale over the frames
+    assert 1.2 < _ratio(said[1]) < 1.35
