@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -88,3 +89,25 @@ def test_camera_mismatch_names_what_disagrees_beyond_one_percent(monkeypatch: py
     assert mismatch(used, lens(k1=-0.25)).startswith("its distortion moves the image's edge by up to")
     undistorted = CameraModel.from_intrinsics(640, 480, 615.0, 613.0, 322.4, 237.1)
     assert "distortion" in mismatch(undistorted, used)
+
+
+@pytest.mark.parametrize("node", ["detector", "dock"])
+def test_a_params_file_that_names_a_key_twice_is_one_line(node: str, tmp_path: Path) -> None:
+    """rcl's parser keeps the last of a key named twice without a word; the nodes read a params file with monodock's
+    YAML loader first (issue 24), before rclpy starts anything (a subprocess: the real rclpy is imported)."""
+    params = tmp_path / "params.yaml"
+    params.write_text("monodock_detector:\n  ros__parameters:\n    method: board\n    method: pnp\n")
+    main = "detector_main" if node == "detector" else "dock_main"
+    script = f"import sys; from monodock.cli.ros_nodes import {main}; sys.exit({main}(sys.argv[1:]))"
+    done = subprocess.run(
+        [sys.executable, "-c", script, "--ros-args", "--params-file", str(params)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    prog = "monodock-ros" if node == "detector" else "monodock-dock-ros"
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"{prog}: error: {params}: key 'method' appears twice (lines 3 and 4); each key may appear once"
+    ]

@@ -27,12 +27,12 @@ from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from monodock.calibrate.target import DiamondTarget, TargetView
 from monodock.core import transforms
 from monodock.core.atomic import write_text_atomic
+from monodock.core.config import yaml_text
 from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.pnp import estimate_board
@@ -721,7 +721,7 @@ def result_yaml(result: ExtrinsicsResult) -> str:
     head = (
         "# monodock calibrate extrinsics: the LiDAR (laser frame) in base_link; paste laser_mount into the robot file\n"
     )
-    return head + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=1000)
+    return head + yaml_text(data, flow=None, width=1000)
 
 
 def write_result_yaml(path: str | os.PathLike[str], result: ExtrinsicsResult, *, force: bool = False) -> None:

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.config import Fields, load_yaml
+from monodock.core.images import encode_png
 from monodock.core.scan import LaserScan
 from monodock.errors import ConfigError, InputError
 from monodock.io.frames import read_image
@@ -158,7 +159,7 @@ def write_target_views(folder: str | os.PathLike[str], views: Sequence[TargetVie
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
     for k, v in enumerate(views):
-        cv2.imwrite(str(out / f"{k:04d}.png"), v.image)
+        (out / f"{k:04d}.png").write_bytes(encode_png(v.image))
     s0 = views[0].scan
     np.savez(
         out / "scans.npz",

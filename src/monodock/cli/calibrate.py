@@ -37,7 +37,7 @@ from monodock.calibrate.intrinsics import (
 from monodock.calibrate.target import DiamondTarget, read_target_views
 from monodock.cli.options import SubParsers, float_in
 from monodock.core import transforms
-from monodock.core.atomic import check_writable, write_bytes_atomic, write_text_atomic
+from monodock.core.atomic import check_writable, resolved, write_bytes_atomic, write_text_atomic
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.projection import project_to_image, scan_in_base
@@ -112,7 +112,7 @@ def run_intrinsics(args: argparse.Namespace) -> int:
         raise InputError(f"--max-views and --min-views must be 1-1000, got {args.max_views} and {args.min_views}")
     out = Path(args.out)
     cov = Path(args.coverage) if args.coverage else out.with_name(f"{out.stem}_coverage.png")
-    if cov.resolve() == out.resolve():
+    if resolved(cov) == resolved(out):
         raise InputError(f"--coverage {cov} is the same file as --out")
     check_writable(out, force=args.force, inputs=args.images)
     check_writable(cov, force=args.force, inputs=args.images)

@@ -15,7 +15,7 @@ from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.regression import RegressionEstimator
-from monodock.evaluation.heldout import evaluate_heldout
+from monodock.evaluation.heldout import evaluate_heldout, reference_poses
 from monodock.evaluation.robustness import RobustnessConfig, run_robustness
 from monodock.learning.dataset import read_dataset
 from monodock.report.evaluation import write_evaluation_report
@@ -137,8 +137,11 @@ def run(args: argparse.Namespace) -> int:
         ds = read_dataset(args.recording)
     else:
         ds = label(args, layout, camera if args.camera else None)
-    if not (ds["label_valid"].any() or np.isfinite(ds["truth_x_m"]).any()):
-        raise InputError(f"{args.recording}: no row has a LiDAR label or the truth: nothing to evaluate against")
+    # A row counts only with a whole, finite reference pose: an all-NaN dataset would give empty tables and exit 0.
+    if not any(np.isfinite(ref).all(axis=1).any() for ref in reference_poses(ds).values()):
+        raise InputError(
+            f"{args.recording}: no row has a finite LiDAR label or the truth (x, y, yaw): nothing to evaluate against"
+        )
     regression = RegressionEstimator(bundle, ds.camera(), robot)
     fused = None
     if bundle.has_fusion_tables:

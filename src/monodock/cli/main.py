@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
 from monodock.core.images import printable
-from monodock.core.interrupt import Terminated, exit_on_signal, install_signal_handlers
+from monodock.core.interrupt import Terminated, exit_on_signal, install_signal_handlers, received
 from monodock.core.quiet import command_session
 from monodock.errors import MonodockError
 
@@ -70,8 +70,9 @@ def parser(commands: Iterable[str] = COMMANDS) -> argparse.ArgumentParser:
 class _Warnings(logging.Handler):
     """monodock's warnings as ``monodock CMD: warning: ...`` lines on stderr.
 
-    Warnings about the input files (an unknown key, logger ``monodock.config``) are held until the command ends
-    and shown only if it did not refuse its input, so that a refusal stays one line.
+    Warnings about the input files (an unknown key, logger ``monodock.config``; a recording cut short,
+    ``monodock.input``) are held until the command ends and shown only if it did not refuse its input, so that a
+    refusal stays one line.
     """
 
     def __init__(self, command: str) -> None:
@@ -81,7 +82,7 @@ class _Warnings(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         line = f"monodock {self.command}: warning: {record.getMessage()}"
-        if record.name == "monodock.config":
+        if record.name in ("monodock.config", "monodock.input"):
             if line not in self.held:
                 self.held.append(line)
         else:
@@ -169,27 +170,38 @@ def _run(words: list[str], name: str | None) -> int:
             code = int(args.func(args))
         warnings.show_held()
         return code
-    except MonodockError as exc:
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
+        return _interrupted(exc, args.command)
+    except Exception:
+        # A signal came, and a library turned its KeyboardInterrupt into an error of its own: interrupted.
+        signalled = received()
+        if signalled is not None:
+            return _interrupted(signalled, args.command)
+        return _failed(args)
+    finally:
+        logger.removeHandler(warnings)
+        logger.propagate = True
+
+
+def _failed(args: argparse.Namespace) -> int:
+    """The one line of the exception being handled: exit 2 for bad input (a MonodockError, an OSError on a file
+    the user named), 1 for an internal error (a traceback with --debug)."""
+    exc = sys.exc_info()[1]
+    if isinstance(exc, MonodockError):
         print(f"monodock {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    except OSError as exc:
+    if isinstance(exc, OSError):
         # A file the user named could not be read or written (permissions, disk full, a folder in the way).
         where = f"{_shown(exc.filename)}: " if exc.filename else ""
         print(f"monodock {args.command}: error: {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (Terminated)
-        return _interrupted(exc, args.command)
-    except Exception as exc:
-        if args.debug:
-            raise
-        print(
-            f"monodock {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} (rerun with --debug)",
-            file=sys.stderr,
-        )
-        return 1
-    finally:
-        logger.removeHandler(warnings)
-        logger.propagate = True
+    if args.debug:
+        raise  # noqa: PLE0704 - called from an except block: the exception being handled
+    print(
+        f"monodock {args.command}: internal error: {type(exc).__name__}: {_one_line(exc)} (rerun with --debug)",
+        file=sys.stderr,
+    )
+    return 1
 
 
 if __name__ == "__main__":

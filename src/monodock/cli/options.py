@@ -224,6 +224,7 @@ def build_estimator(args: argparse.Namespace) -> Estimator:
         layout=getattr(args, "layout", None),
         robot=getattr(args, "robot", None),
         refinement=getattr(args, "refinement", "subpix"),
+        check_scale=True,
     )
 
 

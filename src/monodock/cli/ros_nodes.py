@@ -14,9 +14,10 @@ from typing import NoReturn
 from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]  # noqa: TID253
 
 from monodock.cli.options import add_estimator_options
-from monodock.errors import InputError
+from monodock.errors import MonodockError
 from monodock.ros.detector import DetectorOptions, non_ros_arguments, run_detector
 from monodock.ros.dock_node import DockOptions, run_dock
+from monodock.ros.parameters import check_params_files
 
 __all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser"]
 
@@ -116,7 +117,8 @@ def detector_main(argv: Sequence[str] | None = None) -> int:
     raw = _argv("monodock-ros", argv)
     try:
         flags = non_ros_arguments(raw)[1:]
-    except InputError as exc:
+        check_params_files(raw)
+    except MonodockError as exc:
         print(f"monodock-ros: error: {exc}", file=sys.stderr)
         return 2
     return run_detector(detector_options(flags), raw)
@@ -125,4 +127,9 @@ def detector_main(argv: Sequence[str] | None = None) -> int:
 def dock_main(argv: Sequence[str] | None = None) -> int:
     """``monodock-dock-ros``: run the docking node until shut down; 2 on bad options."""
     raw = _argv("monodock-dock-ros", argv)
+    try:
+        check_params_files(raw)
+    except MonodockError as exc:
+        print(f"monodock-dock-ros: error: {exc}", file=sys.stderr)
+        return 2
     return run_dock(dock_options(remove_ros_args(raw)[1:]), raw)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 from pathlib import Path
 from typing import IO
@@ -13,10 +14,10 @@ from numpy.typing import NDArray
 
 from monodock.cli.options import SubParsers, add_estimator_options, build_estimator, int_in
 from monodock.core.atomic import check_writable
-from monodock.errors import InputError
+from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator, FrameEstimates
-from monodock.io.frames import open_frames
-from monodock.io.live import Draw, run_live
+from monodock.io.frames import FrameSource, open_frames
+from monodock.io.live import Draw, LiveStats, run_live
 from monodock.io.nav2 import PoseStampedBagWriter
 from monodock.report.overlay import draw_overlay
 
@@ -54,6 +55,12 @@ def add_parser(subparsers: SubParsers) -> None:
     )
     r.add_argument("--max-frames", type=int_in(1, 10**12), metavar="N", help="stop after N frames, 1-10^12")
     r.add_argument("--image-topic", help="a recording's image topic, when it has several")
+    r.add_argument(
+        "--skip-bad",
+        action="store_true",
+        help="an unreadable image file gives an invalid row, not an error (a camera's, video's or recording's "
+        "bad frame always does)",
+    )
     r.add_argument("--force", action="store_true", help="overwrite existing outputs")
     r.set_defaults(func=run)
 
@@ -99,12 +106,37 @@ def run(args: argparse.Namespace) -> int:
         if path:
             check_writable(path, force=args.force, inputs=inputs)
     estimator = build_estimator(args)
+    created = not to_stdout and not os.path.lexists(args.out)
+    try:
+        stats, source, bag = _run(args, estimator, to_stdout=to_stdout)
+    except MonodockError:
+        # A refusal (an unreadable image file) leaves no half-written --out behind; rows streamed into a file the
+        # user already had (a FIFO, a file replaced with --force) stay.
+        if created:
+            Path(args.out).unlink(missing_ok=True)
+        raise
+    where = "" if to_stdout else f" -> {args.out}"
+    if bag is not None:
+        where += f"; {bag.written} poses -> {args.bag}"
+        if bag.written_with_covariance:
+            where += f" ({bag.written_with_covariance} with covariance)"
+    summary = f"{estimator.method} on {source.name}: {stats.summary()}{where}"
+    print(summary, file=sys.stderr if to_stdout else sys.stdout)
+    return 0
+
+
+def _run(
+    args: argparse.Namespace, estimator: Estimator, *, to_stdout: bool
+) -> tuple[LiveStats, FrameSource, PoseStampedBagWriter | None]:
     with contextlib.ExitStack() as stack:
         source = stack.enter_context(
             open_frames(
                 args.source, skip_bad=True, image_topic=args.image_topic, size=estimator.camera.size, on_warning=_say
             )
         )
+        # Image files are read like estimate reads them: an unreadable one is refused unless --skip-bad; a live
+        # source's (camera, stream, video, recording) bad frame is a row with the reason.
+        source.skip_bad = args.skip_bad or source.kind != "files"
         bag = stack.enter_context(PoseStampedBagWriter(args.bag, force=args.force)) if args.bag else None
         if to_stdout:
             sink: IO[str] = sys.stdout
@@ -128,11 +160,4 @@ def run(args: argparse.Namespace) -> int:
             max_frames=args.max_frames,
             on_message=_say,
         )
-    where = "" if to_stdout else f" -> {args.out}"
-    if bag is not None:
-        where += f"; {bag.written} poses -> {args.bag}"
-        if bag.written_with_covariance:
-            where += f" ({bag.written_with_covariance} with covariance)"
-    summary = f"{estimator.method} on {source.name}: {stats.summary()}{where}"
-    print(summary, file=sys.stderr if to_stdout else sys.stdout)
-    return 0
+    return stats, source, bag

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from monodock.errors import InputError
 
-__all__ = ["atomic_directory", "check_writable", "write_bytes_atomic", "write_text_atomic"]
+__all__ = ["atomic_directory", "check_writable", "resolved", "write_bytes_atomic", "write_text_atomic"]
 
 
 def _umask() -> int:
@@ -39,9 +39,15 @@ def _kind(mode: int) -> str | None:
     return None if stat.S_ISREG(mode) or stat.S_ISDIR(mode) else "not a regular file or folder"
 
 
+def resolved(path: str | os.PathLike[str]) -> Path:
+    """The absolute path with every symbolic link followed, as far as they go: a loop of links (``a -> a``) is
+    left where it loops instead of raising (``Path.resolve`` raises RuntimeError on one before Python 3.13)."""
+    return Path(os.path.realpath(path))
+
+
 def _input_conflict(p: Path, inputs: Iterable[str | os.PathLike[str] | None]) -> str | None:
     """Why writing ``p`` would destroy one of ``inputs`` (the same file, or a folder holding it), or None."""
-    out = p.resolve()
+    out = resolved(p)
     for item in inputs:
         if item is None or str(item) in ("", "-"):
             continue
@@ -51,7 +57,7 @@ def _input_conflict(p: Path, inputs: Iterable[str | os.PathLike[str] | None]) ->
                 return f"it is the input {q}"
         except OSError:
             pass
-        inp = q.resolve()
+        inp = resolved(q)
         if inp == out:
             return f"it is the input {q}"
         if out in inp.parents:

@@ -15,10 +15,9 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 
-from monodock.core.config import MAX_FILE_BYTES, Fields, load_yaml, write_text_atomic
+from monodock.core.config import MAX_FILE_BYTES, Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.errors import ConfigError
 
 __all__ = ["CameraModel"]
@@ -215,7 +214,7 @@ class CameraModel:
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
         """Write the camera as ROS camera_info YAML, atomically."""
-        text = yaml.safe_dump(self.to_ros_dict(), sort_keys=False, default_flow_style=None)
+        text = yaml_text(self.to_ros_dict(), flow=None)
         write_text_atomic(Path(path), text, force=force)
 
     @classmethod
@@ -399,6 +398,11 @@ def _read_opencv_storage(path: Path) -> CameraModel:
     if not fs.isOpened():
         raise ConfigError(f"{path}: cannot be read as an OpenCV FileStorage file")
     try:
+        # OpenCV keeps the first of a key named twice without a word; monodock's YAML loader refuses it (config.py)
+        keys = list(fs.root().keys()) if fs.root().isMap() else []
+        twice = next((k for i, k in enumerate(keys) if k in keys[:i]), None)
+        if twice is not None:
+            raise ConfigError(f"{path}: key '{twice[:80]}' appears twice; each key may appear once")
 
         def node(*names: str) -> Any:
             for n in names:

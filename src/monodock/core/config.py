@@ -11,6 +11,7 @@ import json
 import logging
 import math
 import os
+import re
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,9 @@ __all__ = [
     "load_json",
     "load_yaml",
     "parse_json",
+    "parse_yaml",
     "write_text_atomic",
+    "yaml_text",
 ]
 
 # Warnings about the files read (an unknown key): the CLI shows them once the command has not refused its input.
@@ -85,27 +88,124 @@ def check_structure(data: Any, source: str, *, max_values: int = MAX_VALUES, max
                     raise ConfigError(f"{source}: a key is a {type(bad).__name__}, not a name")
 
 
+# --- YAML: the core schema of YAML 1.2, duplicate keys refused ------------------------------------------------
+#
+# PyYAML resolves plain scalars by YAML 1.1's rules: a float needs a dot (``6e-4`` and ``1e308`` are strings, and a
+# distortion coefficient written so was refused), ``yes``/``no``/``on``/``off`` are booleans, ``012`` is octal and
+# ``1:30`` sexagesimal. Every other reader of these files (yaml-cpp in ROS, OpenCV 5, ruamel) follows YAML 1.2,
+# whose core schema is below. A mapping that names a key twice keeps PyYAML's last value without a word (a
+# doubled marker_size moved yaw by 16 degrees): refused, naming the key and its line.
+
+_CORE_TAGS = {f"tag:yaml.org,2002:{t}" for t in ("bool", "int", "float", "null", "timestamp", "value")}
+_CORE_RESOLVERS = (
+    ("tag:yaml.org,2002:null", r"^(?:~|null|Null|NULL|)$", ["~", "n", "N", ""]),
+    ("tag:yaml.org,2002:bool", r"^(?:true|True|TRUE|false|False|FALSE)$", list("tTfF")),
+    ("tag:yaml.org,2002:int", r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$", list("-+0123456789")),
+    (
+        "tag:yaml.org,2002:float",
+        r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$",
+        list("-+.0123456789"),
+    ),
+)
+
+
+class _DuplicateKey(yaml.MarkedYAMLError):
+    """A mapping names a key twice (raised while the YAML is built, told as one line by ``parse_yaml``)."""
+
+
+def _core_resolvers(base: dict[Any, list[tuple[str, re.Pattern[str]]]]) -> dict[Any, list[tuple[str, Any]]]:
+    """PyYAML's implicit resolvers without YAML 1.1's bool/int/float/null/timestamp (merge ``<<`` stays)."""
+    return {first: [(tag, rx) for tag, rx in rules if tag not in _CORE_TAGS] for first, rules in base.items()}
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2's core schema for plain scalars and duplicate keys refused."""
+
+    yaml_implicit_resolvers = _core_resolvers(yaml.SafeLoader.yaml_implicit_resolvers)
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, yaml.Node] = {}
+        for key_node, _ in node.value:
+            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+                continue  # a merge (<<) may override; a non-scalar key is refused by check_structure
+            key = self.construct_object(key_node)
+            try:
+                first = seen.setdefault(key, key_node)
+            except TypeError:
+                continue
+            if first is not key_node:
+                line, again = first.start_mark.line + 1, key_node.start_mark.line + 1
+                problem = f"key '{str(key)[:80]}' appears twice (lines {line} and {again}); each key may appear once"
+                raise _DuplicateKey(None, None, problem, key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
+
+
+def _yaml_int(loader: _Loader, node: yaml.ScalarNode) -> int:
+    text = str(loader.construct_scalar(node))
+    return int(text, 0) if text.startswith(("0o", "0x")) else int(text, 10)  # YAML 1.2: 012 is twelve
+
+
+def _yaml_float(loader: _Loader, node: yaml.ScalarNode) -> float:
+    text = str(loader.construct_scalar(node)).lower()
+    if text.endswith(".inf"):
+        return -math.inf if text.startswith("-") else math.inf
+    return math.nan if text == ".nan" else float(text)
+
+
+for _tag, _pattern, _first in _CORE_RESOLVERS:
+    _Loader.add_implicit_resolver(_tag, re.compile(_pattern), _first)
+_Loader.add_constructor("tag:yaml.org,2002:int", _yaml_int)
+_Loader.add_constructor("tag:yaml.org,2002:float", _yaml_float)
+
+
+class _Dumper(yaml.SafeDumper):
+    """SafeDumper that quotes a string either YAML 1.1 or 1.2 would read as something else (``6e-4``, ``yes``,
+    ``0o17``), so that what monodock writes reads back the same here and in every other reader."""
+
+
+_Dumper.yaml_implicit_resolvers = {
+    first: [*yaml.SafeDumper.yaml_implicit_resolvers.get(first, []), *_Loader.yaml_implicit_resolvers.get(first, [])]
+    for first in {*yaml.SafeDumper.yaml_implicit_resolvers, *_Loader.yaml_implicit_resolvers}
+}
+
+
+def yaml_text(data: Any, *, flow: bool | None = False, sort_keys: bool = False, width: int = 80) -> str:
+    """YAML text of ``data`` that ``load_yaml`` (YAML 1.2) and YAML 1.1 readers both read back as it was."""
+    return yaml.dump(data, Dumper=_Dumper, sort_keys=sort_keys, default_flow_style=flow, width=width)
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """YAML text as Python values (YAML 1.2 numbers, duplicate keys refused), with the limits of
+    ``check_structure``; ConfigError naming ``source``."""
+    try:
+        data = yaml.load(text, Loader=_Loader)  # a SafeLoader
+    except _DuplicateKey as exc:
+        raise ConfigError(f"{source}: {exc.problem}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: not valid YAML ({_first_line(exc)})") from None
+    except (ValueError, OverflowError) as exc:  # an integer of more digits than Python converts
+        raise ConfigError(f"{source}: a value cannot be read ({_first_line(exc)})") from None
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deep to read") from None
+    check_structure(data, source)
+    return data
+
+
 def load_yaml(path: str | os.PathLike[str], what: str, *, max_bytes: int = MAX_FILE_BYTES) -> dict[str, Any]:
     """Read a YAML mapping, or raise ConfigError naming the file and the problem."""
     p, text = _read_text(path, what, max_bytes)
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: not valid YAML ({_first_line(exc)})") from None
-    except (ValueError, OverflowError) as exc:  # an integer of more digits than Python converts
-        raise ConfigError(f"{p}: a value cannot be read ({_first_line(exc)})") from None
-    except RecursionError:
-        raise ConfigError(f"{p}: nested too deep to read") from None
+    data = parse_yaml(text, str(p))
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a YAML mapping at the top level")
-    check_structure(data, str(p))
     return data
 
 
 def parse_json(text: str | bytes, source: str) -> Any:
     """JSON text as Python values, with the limits of ``check_structure``; ConfigError naming ``source``."""
     try:
-        data = json.loads(text, parse_constant=_refuse_constant)
+        data = json.loads(text, parse_constant=_refuse_constant, object_pairs_hook=_json_object)
+    except _DuplicateJsonKeyError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{source}: not valid JSON ({_first_line(exc)})") from None
     except (ValueError, OverflowError) as exc:  # NaN/Infinity, or an integer of more digits than Python converts
@@ -130,6 +230,19 @@ def json_text(data: Any, *, indent: int | None = 2) -> str:
         return value
 
     return json.dumps(finite(data), indent=indent, default=str, allow_nan=False)
+
+
+class _DuplicateJsonKeyError(ValueError):
+    """A JSON object names a key twice (json keeps the last without a word)."""
+
+
+def _json_object(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _DuplicateJsonKeyError(f"key '{key[:80]}' appears twice in one object; each key may appear once")
+        out[key] = value
+    return out
 
 
 def _refuse_constant(name: str) -> Any:

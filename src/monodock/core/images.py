@@ -17,7 +17,16 @@ from numpy.typing import NDArray
 
 from monodock.core.quiet import library_output
 
-__all__ = ["MAX_IMAGE_PIXELS", "MAX_IMAGE_SIDE", "ImageError", "decode", "header_size", "printable", "to_uint8"]
+__all__ = [
+    "MAX_IMAGE_PIXELS",
+    "MAX_IMAGE_SIDE",
+    "ImageError",
+    "decode",
+    "encode_png",
+    "header_size",
+    "printable",
+    "to_uint8",
+]
 
 # The largest image decoded: a side of 16384 px and 100 megapixels (an 8K frame is 33). A header that claims more
 # is refused before any pixel is allocated.
@@ -168,3 +177,13 @@ def decode(data: NDArray[np.uint8] | bytes) -> NDArray[np.uint8]:
         # (flipped bytes gave board poses 0.75 m off). Seen only in a command session, where fd 2 is captured.
         raise ImageError("damaged JPEG data: the decoder filled in what it could not read")
     return to_uint8(img)
+
+
+def encode_png(image: NDArray[Any]) -> bytes:
+    """PNG bytes of an image, made in memory: the caller writes them with Python, so that a full disk is an
+    ``OSError`` (ENOSPC) naming nothing of libpng ("libpng error: Write Error" on stderr, then only False from
+    ``cv2.imwrite``)."""
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise ImageError(f"cannot encode a {image.dtype} image of shape {image.shape} as PNG")
+    return bytes(buf.tobytes())

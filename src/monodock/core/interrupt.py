@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-__all__ = ["GRACE_S", "Terminated", "exit_on_signal", "install_signal_handlers", "sigint_blocked"]
+__all__ = ["GRACE_S", "Terminated", "exit_on_signal", "install_signal_handlers", "received", "sigint_blocked"]
 
 # A second signal this soon after the first is ignored: the clean-up the first one started must finish.
 GRACE_S = 5.0
@@ -28,14 +28,16 @@ class Terminated(KeyboardInterrupt):
 
 
 _first_signal: float | None = None
+_received: int | None = None
 
 
 def _on_signal(signum: int, _frame: FrameType | None) -> None:
-    global _first_signal  # noqa: PLW0603 - one process, one pair of handlers
+    global _first_signal, _received  # noqa: PLW0603 - one process, one pair of handlers
     now = time.monotonic()
     if _first_signal is not None and now - _first_signal < GRACE_S:
         return
     _first_signal = now
+    _received = _received or signum
     if signum == signal.SIGTERM:
         raise Terminated
     raise KeyboardInterrupt
@@ -44,10 +46,22 @@ def _on_signal(signum: int, _frame: FrameType | None) -> None:
 def install_signal_handlers() -> None:
     """SIGINT raises KeyboardInterrupt, SIGTERM raises Terminated, in the main thread (installed even where the
     shell left SIGINT ignored); a repeat within GRACE_S of the first is ignored so that the clean-up completes."""
-    global _first_signal  # noqa: PLW0603
-    _first_signal = None
+    global _first_signal, _received  # noqa: PLW0603
+    _first_signal = _received = None
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
+
+
+def received() -> KeyboardInterrupt | None:
+    """The interrupt of the first SIGINT or SIGTERM since ``install_signal_handlers``, or None.
+
+    A library that runs Python code under its own C++ may catch the KeyboardInterrupt raised there and raise its
+    own error instead (ONNX Runtime's "model cannot be loaded" while ``train`` moves its bundle into place): the
+    CLI asks this to tell the user the command was interrupted, not that the input was bad.
+    """
+    if _received is None:
+        return None
+    return Terminated() if _received == signal.SIGTERM else KeyboardInterrupt()
 
 
 def exit_on_signal(message: str) -> None:

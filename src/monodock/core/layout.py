@@ -14,10 +14,9 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
-from monodock.core.config import Fields, load_yaml, write_text_atomic
+from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.errors import ConfigError
 
 __all__ = ["ROLES", "DockLayout", "MarkerSpec"]
@@ -138,7 +137,7 @@ class DockLayout:
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
         """Write the layout YAML atomically."""
-        write_text_atomic(Path(path), yaml.safe_dump(self.to_dict(), sort_keys=False), force=force)
+        write_text_atomic(Path(path), yaml_text(self.to_dict()), force=force)
 
     # --- lookups --------------------------------------------------------------------------------
 

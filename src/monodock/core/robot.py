@@ -9,11 +9,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from monodock.core import transforms
-from monodock.core.config import Fields, load_yaml, write_text_atomic
+from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.errors import ConfigError
 
 __all__ = ["Mount", "RobotConfig"]
@@ -153,5 +152,5 @@ class RobotConfig:
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
         """Write the robot YAML atomically."""
-        text = yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None)
+        text = yaml_text(self.to_dict(), flow=None)
         write_text_atomic(Path(path), text, force=force)

@@ -16,9 +16,7 @@ import os
 from pathlib import Path
 from typing import Any, TypeVar
 
-import yaml
-
-from monodock.core.config import Fields, load_yaml, write_text_atomic
+from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.dock.controller import DockingConfig
 from monodock.errors import ConfigError
 
@@ -105,5 +103,5 @@ def docking_config_to_dict(config: DockingConfig) -> dict[str, Any]:
 
 def save_docking_config(config: DockingConfig, path: str | os.PathLike[str], *, force: bool = False) -> None:
     """Write the config as YAML, atomically (refused over an existing file without ``force``)."""
-    text = yaml.safe_dump(docking_config_to_dict(config), sort_keys=False, default_flow_style=False)
+    text = yaml_text(docking_config_to_dict(config))
     write_text_atomic(Path(path), text, force=force)

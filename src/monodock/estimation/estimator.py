@@ -14,6 +14,7 @@ from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
+from monodock.estimation.consistency import ScaleCheck
 from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
 from monodock.perception.detect import Detection, MarkerDetector, as_gray
@@ -43,7 +44,8 @@ class Estimator:
 
     ``extra`` adds methods that need more than the calibration, e.g.
     ``{"regression": RegressionEstimator(...).estimate}``; ``fused`` the fused method, which also needs the
-    image (for its refined corners) and reuses the regression's answer when both are asked for.
+    image (for its refined corners) and reuses the regression's answer when both are asked for. ``check`` watches
+    the geometric poses' scale against the regression's over the first frames (``consistency.ScaleCheck``).
     """
 
     def __init__(
@@ -56,8 +58,10 @@ class Estimator:
         refinement: str = "subpix",
         extra: Mapping[str, Callable[[Detection], PoseEstimate]] | None = None,
         fused: FusedEstimator | None = None,
+        check: ScaleCheck | None = None,
     ) -> None:
         self.extra = dict(extra or {})
+        self.check = check
         self.fused = fused
         available: dict[str, object] = {**METHODS, **self.extra}
         if fused is not None:
@@ -92,6 +96,8 @@ class Estimator:
                 ests[m] = self.extra[m](det)
             else:
                 ests[m] = METHODS[m](det, self.camera, self.layout, self.robot)
+        if self.check is not None and not self.check.done:
+            self.check.add(det, ests)
         return FrameEstimates(name, stamp, det, ests)
 
     @property

@@ -8,6 +8,7 @@ calibration files.
 
 from __future__ import annotations
 
+import logging
 import os
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.bundle import Bundle, load_bundle
+from monodock.estimation.consistency import GEOMETRIC, ScaleCheck, camera_disagreement
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.fused import FusedEstimator
 from monodock.estimation.regression import RegressionEstimator
@@ -26,6 +28,9 @@ METHOD_NAMES = ("regression", "pnp", "board", "fused")
 REFINEMENTS = ("none", "subpix", "contour")
 
 PathLike = str | os.PathLike[str]
+
+# Warnings about the files given (held by the command line until the command has not refused its input).
+_log = logging.getLogger("monodock.input")
 
 
 def _camera(value: CameraModel | PathLike) -> CameraModel:
@@ -66,11 +71,20 @@ def bundle_calibration(
     layout: DockLayout | PathLike | None = None,
     robot: RobotConfig | PathLike | None = None,
 ) -> tuple[CameraModel, DockLayout, RobotConfig]:
-    """The bundle's camera, layout and mounts; a camera or robot given overrides the bundle's, a layout must match."""
+    """The bundle's camera, layout and mounts; a camera or robot given overrides the bundle's (with a warning when
+    it is not the bundle's camera), a layout must match."""
     dock = _bundle_layout(bundle, layout)
     cam = _camera(camera) if camera is not None else bundle.camera()
+    if camera is not None:
+        said = camera_disagreement(bundle.camera(), cam, str(bundle.path), _source(camera))
+        if said is not None:
+            _log.warning(said)
     mounts = _robot(robot) if robot is not None else bundle.robot()
     return cam, dock, mounts
+
+
+def _source(camera: CameraModel | PathLike) -> str:
+    return "given" if isinstance(camera, CameraModel) else str(camera)
 
 
 def make_estimator(
@@ -81,6 +95,7 @@ def make_estimator(
     layout: DockLayout | PathLike | None = None,
     robot: RobotConfig | PathLike | None = None,
     refinement: str = "subpix",
+    check_scale: bool = False,
 ) -> Estimator:
     """The Estimator for ``method`` (its ``method`` attribute), from a bundle or the calibration.
 
@@ -91,6 +106,9 @@ def make_estimator(
         camera, layout, robot: objects or their files; with a bundle, camera and robot override the bundle's and
             layout must match it; without one, all three are needed.
         refinement: OpenCV's ArUco corner refinement ("none", "subpix", "contour").
+        check_scale: with a bundle and a geometric method, watch the method's depths against the regression's
+            (with the bundle's own camera) over the first frames and warn once when a calibration scales them
+            (``consistency.ScaleCheck``); costs one regression per frame while it watches.
 
     Raises:
         InputError: an unknown method or refinement, a method that needs a bundle without one, missing
@@ -114,10 +132,20 @@ def make_estimator(
     loaded = bundle if isinstance(bundle, Bundle) else load_bundle(Path(bundle))
     cam, dock, mounts = bundle_calibration(loaded, camera=camera, layout=layout, robot=robot)
     chosen = method or "regression"
+    check = None
+    if check_scale and chosen in GEOMETRIC and loaded.camera().size == cam.size:
+        check = ScaleCheck(
+            RegressionEstimator(loaded, loaded.camera(), mounts).estimate,
+            cam,
+            dock,
+            mounts,
+            given_camera=_source(camera) if camera is not None else "",
+            bundle_camera=loaded.camera(),
+        )
     if chosen == "regression":
         regression = RegressionEstimator(loaded, cam, mounts)
         return Estimator(cam, dock, mounts, (chosen,), refinement=refinement, extra={chosen: regression.estimate})
     if chosen == "fused":
         fused = FusedEstimator(cam, dock, mounts, loaded.fusion_tables(), RegressionEstimator(loaded, cam, mounts))
-        return Estimator(cam, dock, mounts, (chosen,), refinement=refinement, fused=fused)
-    return Estimator(cam, dock, mounts, (chosen,), refinement=refinement)
+        return Estimator(cam, dock, mounts, (chosen,), refinement=refinement, fused=fused, check=check)
+    return Estimator(cam, dock, mounts, (chosen,), refinement=refinement, check=check)

@@ -42,7 +42,9 @@ VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v")
 # How long a camera or stream may go without a frame before the source stops.
 STALL_TIMEOUT_S = 2.0
 
-_log = logging.getLogger("monodock")
+# What the recording reader says about an input (a bag cut short): the CLI holds it until the command has not
+# refused its input, so that a refusal stays one line.
+_log = logging.getLogger("monodock.input")
 
 
 def read_image(path: str | Path) -> NDArray[np.uint8]:

@@ -16,6 +16,7 @@ without an error; its QoS profiles are stored as Humble's rosbag2 (version 8, in
 
 from __future__ import annotations
 
+import contextlib
 import os
 from contextlib import ExitStack
 from pathlib import Path
@@ -134,7 +135,17 @@ class BagWriter:
         if stack is None or tmp is None:
             return
         try:
-            writer.close()
+            if exc is None:
+                try:
+                    writer.close()
+                except BaseException:
+                    # A full disk while the index and footer are written: the storage's file is closed all the same
+                    # (rosbags' close leaves it open to the garbage collector).
+                    with contextlib.suppress(Exception):
+                        writer.abort()
+                    raise
+            else:
+                writer.abort()  # an error in the with block: no index, no metadata; the folder is removed below
             if exc is None:
                 bag = tmp / self.path.name
                 # The temporary folder is private (0700); give the recording the mode rosbags gave its folder

@@ -7,12 +7,28 @@ back, so a node's parameters and a config file share one schema.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import itertools
+from collections.abc import Mapping, Sequence
 from typing import Any
 
+from monodock.core.config import load_yaml
 from monodock.errors import ConfigError
 
-__all__ = ["declare", "flatten", "unflatten"]
+__all__ = ["check_params_files", "declare", "flatten", "unflatten"]
+
+
+def check_params_files(argv: Sequence[str]) -> None:
+    """Every ``--params-file FILE`` among the ROS arguments read first with monodock's YAML loader, so that a key
+    named twice (which rcl's parser takes the last of without a word), a file that is not YAML or a missing one
+    is one ConfigError naming the file and the key.
+
+    Raises:
+        ConfigError: as ``core.config.load_yaml``.
+    """
+    words = list(argv)
+    for flag, value in itertools.pairwise(words):
+        if flag == "--params-file":
+            load_yaml(value, "ROS parameters")
 
 
 def declare(node: Any, name: str, default: Any, description: str, *, read_only: bool = False) -> Any:

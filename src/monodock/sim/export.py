@@ -18,11 +18,11 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
 from monodock.core.atomic import atomic_directory
+from monodock.core.images import encode_png
 from monodock.core.layout import ROLE_NUMBER, ROLES
 from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
@@ -149,8 +149,7 @@ def write_frame_folder(
         writer = csv.writer(gt, lineterminator="\n")
         writer.writerow(GROUND_TRUTH_COLUMNS)
         for rec in render_frames(sim, poses, seed=seed, jobs=jobs, progress=progress):
-            if not cv2.imwrite(str(tmp / "images" / rec.name), rec.frame.image):
-                raise OSError(f"cannot write {tmp / 'images' / rec.name}")
+            (tmp / "images" / rec.name).write_bytes(encode_png(rec.frame.image))
             first_scan = first_scan or rec.frame.scan
             ranges.append(rec.frame.scan.ranges)
             writer.writerow(_gt_row(rec, sim))
