@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import os
+import pickle
 import sys
 import time
 from collections import deque
@@ -176,7 +177,7 @@ def _call(fn: Callable[[S, T], R], state: S, task: T) -> R:
 def cluster_map(fn: Callable[[S, T], R], state: S, tasks: list[T]) -> Iterator[R]:
     """``fn(state, task)`` for every task on the open session's cluster; results in order, as they are ready.
 
-    ``state`` is sent once to every worker (scatter, broadcast); a window of twice the cluster's threads is in
+    ``state`` is sent once to every worker; a window of twice the cluster's threads is in
     flight at a time, so that memory stays flat however many tasks. A worker that dies is replaced and its task
     run again by Dask (up to the scheduler's ``allowed-failures``, then a one-line error); leaving early (Ctrl-C,
     an error) cancels whatever was submitted.
@@ -186,11 +187,15 @@ def cluster_map(fn: Callable[[S, T], R], state: S, tasks: list[T]) -> Iterator[R
     client = _client
     if client is None:
         raise RuntimeError("cluster_map needs an open cluster_session")
-    shared = client.scatter(state, broadcast=True, hash=False)
+    name = f"monodock-{getattr(fn, '__name__', 'task')}-{time.monotonic_ns()}"
+    # The state goes to the scheduler once, pickled, as a task that unpickles it: each worker gets it once (from the
+    # scheduler's worker or a peer) and keeps it for all its tasks. Unlike scattered data (client.scatter), a task
+    # can be run again, so a worker that dies holding the state loses nothing.
+    blob = pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+    shared = client.submit(pickle.loads, blob, key=f"{name}-state", pure=False)
     window = max(4, 2 * sum(client.nthreads().values()))
     todo = iter(enumerate(tasks))
     pending: deque[Any] = deque()
-    name = f"monodock-{getattr(fn, '__name__', 'task')}-{time.monotonic_ns()}"
 
     def submit() -> None:
         for i, task in todo:
@@ -204,10 +209,10 @@ def cluster_map(fn: Callable[[S, T], R], state: S, tasks: list[T]) -> Iterator[R
             future = pending[0]
             try:
                 result = future.result()
-            except KilledWorker as exc:
+            except KilledWorker:
                 raise MonodockError(
-                    f"a Dask worker died running task {future.key.rsplit('-', 1)[-1]} of {len(tasks)} each time it "
-                    f"was tried ({exc}); see the workers' logs (out of memory?)"
+                    f"a Dask worker died running task {future.key.rsplit('-', 1)[-1]} of {len(tasks)}, each time it "
+                    "was tried; see the workers' logs (out of memory?)"
                 ) from None
             except CancelledError:
                 raise MonodockError("lost the Dask scheduler mid-sweep (it stopped, or the network did)") from None
