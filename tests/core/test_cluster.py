@@ -211,7 +211,7 @@ def test_a_cluster_that_cannot_be_had_is_one_line_and_exit_2(
 ) -> None:
     t0 = time.monotonic()
     assert main(["dock-sim", "--cases", "1", "--trials", "1", "--method", "board", *option]) == 2
-    assert time.monotonic() - t0 < 20  # the connection's timeout is 5 s
+    assert time.monotonic() - t0 < 30  # the connection's timeout is 5 s (the rest: loading Dask on a loaded machine)
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert err.startswith(f"monodock dock-sim: error: {message}"), err
