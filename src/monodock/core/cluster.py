@@ -103,15 +103,20 @@ def _connect(address: str, workers: int | None) -> tuple[Any, Any]:
     if address == "auto":
         # SIGINT ignored while the workers start, so that they ignore it all their life: a Ctrl-C reaches only this
         # process, which cancels the work and closes the cluster (core.interrupt.sigint_blocked).
-        with sigint_blocked():
-            cluster = distributed.LocalCluster(
-                n_workers=workers or _cores(),
-                threads_per_worker=1,
-                processes=True,
-                host="127.0.0.1",
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-            )
+        # The workers' own log (a task's error, which the command reports itself) stays off the user's terminal.
+        try:
+            with sigint_blocked():
+                cluster = distributed.LocalCluster(
+                    n_workers=workers or _cores(),
+                    threads_per_worker=1,
+                    processes=True,
+                    host="127.0.0.1",
+                    dashboard_address=None,
+                    silence_logs=logging.CRITICAL,
+                )
+        except (OSError, TimeoutError, RuntimeError) as exc:
+            why = " ".join(str(exc).split()) or type(exc).__name__
+            raise MonodockError(f"--cluster auto: the local Dask cluster did not start ({why})") from None
         try:
             return distributed.Client(cluster, timeout=CONNECT_TIMEOUT_S * 2), cluster
         except BaseException:
