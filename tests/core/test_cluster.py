@@ -94,7 +94,7 @@ def scheduler(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
                     f"w{i}",
                 )
             with distributed.Client(address, timeout=60) as client:
-                client.wait_for_workers(2, timeout=90)
+                client.wait_for_workers(2, timeout=240)
             yield address
         finally:
             _stop(procs)
@@ -105,7 +105,7 @@ def _wait_for_two_workers(address: str) -> None:
     import distributed
 
     with distributed.Client(address, timeout=30) as client:
-        client.wait_for_workers(2, timeout=90)
+        client.wait_for_workers(2, timeout=240)
 
 
 def test_sweep_on_the_cluster_is_the_local_sweep_and_uses_both_workers(scheduler: str) -> None:
