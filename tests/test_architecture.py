@@ -15,7 +15,7 @@ import textwrap
 # What the robot must never load: the simulator, training, evaluation, reports, the command line, and the
 # heavy libraries only they need.
 FORBIDDEN_MONODOCK = ("monodock.sim", "monodock.learning", "monodock.evaluation", "monodock.report")
-FORBIDDEN_THIRD_PARTY = ("matplotlib", "sklearn", "skl2onnx", "pyarrow", "joblib")
+FORBIDDEN_THIRD_PARTY = ("matplotlib", "sklearn", "skl2onnx", "pyarrow", "joblib", "dask", "distributed")
 ROBOT_SIDE = (
     "monodock.core",
     "monodock.perception",

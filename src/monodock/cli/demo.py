@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monodock.cli.options import SubParsers, add_jobs, add_seed, int_in, jobs
+from monodock.cli.options import SubParsers, add_cluster, add_jobs, add_seed, int_in, jobs
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.projection import project_to_image, scan_in_base
@@ -337,6 +337,7 @@ def add_parser(subparsers: SubParsers) -> None:
     )
     add_seed(d)
     add_jobs(d)
+    add_cluster(d)
     d.add_argument("--force", action="store_true", help="replace an existing report folder")
     d.set_defaults(func=run)
 

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from monodock.cli.options import add_jobs, add_seed, comma_list, float_in, int_in
+from monodock.cli.options import add_cluster, add_jobs, add_seed, comma_list, float_in, int_in
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -86,6 +86,7 @@ def add_parser(subparsers: Any) -> None:
     d.add_argument("--force", action="store_true", help="replace an existing --out folder")
     add_seed(d)
     add_jobs(d)
+    add_cluster(d)
     d.add_argument(
         "--config",
         help="docking config YAML: the mission's gains, speeds, tolerances, time-outs and retries (docs/docking.md)",

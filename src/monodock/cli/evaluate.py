@@ -9,7 +9,16 @@ from pathlib import Path
 import numpy as np
 
 from monodock.cli.label import label
-from monodock.cli.options import SubParsers, add_jobs, add_seed, add_topics, bundle_calibration, int_in, jobs
+from monodock.cli.options import (
+    SubParsers,
+    add_cluster,
+    add_jobs,
+    add_seed,
+    add_topics,
+    bundle_calibration,
+    int_in,
+    jobs,
+)
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
@@ -65,6 +74,7 @@ def add_parser(subparsers: SubParsers) -> None:
         help=f"S, 1-{MAX_SUPERSAMPLE}: test frames' pixels where three surfaces meet get SxS samples (default 16)",
     )
     add_jobs(g)
+    add_cluster(g)
     add_topics(ev)
     ev.set_defaults(func=run)
 
@@ -124,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
             ("--seed", args.seed),
             ("--supersample", args.supersample),
             ("--jobs", args.jobs),
+            ("--cluster", args.cluster),
         )
         if v is not None
     ]

@@ -13,6 +13,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
+from monodock.core.cluster import cluster_session
 from monodock.core.images import printable
 from monodock.core.interrupt import Terminated, exit_on_signal, install_signal_handlers, received
 from monodock.core.quiet import command_session
@@ -166,7 +167,9 @@ def _run(words: list[str], name: str | None) -> int:
         if isinstance(stream, io.TextIOWrapper):
             stream.reconfigure(errors="monodock-names")
     try:
-        with command_session(debug=args.debug):
+        # --cluster (the commands with parallel stages): those stages run on Dask for the whole command.
+        cluster = getattr(args, "cluster", None)
+        with command_session(debug=args.debug), cluster_session(cluster, workers=getattr(args, "jobs", None)):
             code = int(args.func(args))
         warnings.show_held()
         return code

@@ -27,6 +27,7 @@ __all__ = [
     "SEED_MAX",
     "SubParsers",
     "add_calibration",
+    "add_cluster",
     "add_estimator_options",
     "add_jobs",
     "add_seed",
@@ -163,6 +164,16 @@ def add_seed(p: argparse.ArgumentParser | argparse._ArgumentGroup, what: str = "
 def add_jobs(p: argparse.ArgumentParser | argparse._ArgumentGroup, default: str = "cores, at most 4") -> None:
     """``--jobs``: worker processes, 1-MAX_JOBS."""
     p.add_argument("--jobs", type=int_in(1, MAX_JOBS), help=f"worker processes, 1-{MAX_JOBS} (default: {default})")
+
+
+def add_cluster(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--cluster``: the parallel stages on a Dask cluster (core.cluster), else on the local cores."""
+    p.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="run the parallel work on a Dask cluster: tcp://HOST:PORT of a running scheduler, or 'auto' for one on "
+        "this machine (--jobs workers, default all cores); needs pip install 'monodock[cluster]' (docs/cluster.md)",
+    )
 
 
 def jobs(value: int | None) -> int:

@@ -12,6 +12,7 @@ import numpy as np
 from monodock.cli.options import (
     SubParsers,
     add_calibration,
+    add_cluster,
     add_jobs,
     add_seed,
     float_in,
@@ -87,6 +88,7 @@ def add_parser(subparsers: SubParsers) -> None:
         "--lidar-rate", type=float_in(1.0, 100.0), default=10.0, help="LiDAR scan rate, Hz, 1-100 (default 10)"
     )
     add_jobs(s)
+    add_cluster(s)
     s.add_argument("--force", action="store_true", help="replace an existing output folder")
     add_calibration(s, required=False)
     add_nuisances(s)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from monodock.cli.options import SubParsers, add_jobs, add_seed, float_in, int_in, jobs
+from monodock.cli.options import SubParsers, add_cluster, add_jobs, add_seed, float_in, int_in, jobs
 from monodock.core.atomic import check_writable
 from monodock.errors import MonodockError
 from monodock.learning.dataset import read_dataset
@@ -43,6 +43,7 @@ def add_parser(subparsers: SubParsers) -> None:
     )
     add_seed(tr)
     add_jobs(tr, "all cores")
+    add_cluster(tr)
     tr.add_argument("--force", action="store_true", help="replace an existing bundle")
     tr.set_defaults(func=run)
 

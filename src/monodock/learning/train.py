@@ -26,11 +26,12 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from joblib import Parallel, delayed
+from joblib import Parallel, delayed, parallel_config
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
+from monodock.core.cluster import active_client
 from monodock.core.interrupt import sigint_blocked
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.segments import SegmentTable
@@ -669,14 +670,18 @@ def _run(
     with tqdm(
         total=len(order), desc="training", unit="fit", file=sys.stderr, disable=None if progress else True
     ) as bar:
-        if n_workers == 1:
+        client = active_client()
+        if n_workers == 1 and client is None:
             for job in order:
                 yield _fit_one(*args(job))
                 bar.update()
             return
+        # --cluster (core.cluster): every fit a task of the Dask cluster, through joblib's dask backend.
+        where = parallel_config("loky", n_jobs=n_workers) if client is None else parallel_config("dask", client=client)
         # max_nbytes=None: the fits' arrays are small and go pickled, not through temp memory-mapped folders, whose
         # tracker would print a "leaked folder" warning after the parent when the workers are killed mid-fit.
-        parallel = Parallel(n_jobs=n_workers, backend="loky", return_as="generator_unordered", max_nbytes=None)
+        with where:
+            parallel = Parallel(return_as="generator_unordered", max_nbytes=None)
         # The loky workers start here (and take the blocked SIGINT: a Ctrl-C is the parent's to handle).
         with sigint_blocked():
             outputs = parallel(delayed(_fit_one)(*args(job)) for job in order)
