@@ -39,7 +39,7 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.corner_noise import CornerNoise
-from monodock.estimation.planar import board_fit, planar_candidates, solve_planar
+from monodock.estimation.planar import board_fit, board_fit_stacked, planar_candidates, planar_model, solve_planar
 from monodock.estimation.pnp import PoseEstimate
 from monodock.perception.detect import Detection
 from monodock.perception.features import choose_marker_set, side_lengths
@@ -321,6 +321,32 @@ def _trace_solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:  # pr
     return float(np.trace(np.linalg.solve(a, b)))
 
 
+@kernel
+def _corner_sigma(
+    c: NDArray[np.float64], law: tuple[float, float, float, float], factor: NDArray[np.float64]
+) -> NDArray[np.float64] | None:  # pragma: no cover - compiled
+    """``CornerNoise.sigma_of_sides`` of markers' corners stacked (4M, 2), compiled, each marker's times its
+    ``factor`` (M,); None where a corner is not finite. ``law``: the CornerNoise's (c, floor_px,
+    small_side_px, small_sigma_px). The same arithmetic in the same order (tests/estimation/test_fused.py)."""
+    cc, floor, small_side, small_sigma = law
+    small = 1.0 / small_side if small_side > 0 else np.inf
+    m = c.shape[0] // 4
+    sides = np.empty(4)
+    out = np.empty(4 * m)
+    for i in range(m):
+        for k in range(4):
+            p, q = 4 * i + k, 4 * i + (k + 1) % 4
+            if not (np.isfinite(c[p, 0]) and np.isfinite(c[p, 1])):
+                return None
+            sides[k] = math.hypot(c[q, 0] - c[p, 0], c[q, 1] - c[p, 1])
+        for k in range(4):
+            before, after = sides[k - 1], sides[k]  # corner k's edges: sides k - 1 and k
+            inverse = 0.5 * (1.0 / max(before, 1e-9) + 1.0 / max(after, 1e-9))
+            sd = max(cc * math.sqrt(inverse), floor)
+            out[4 * i + k] = (max(sd, small_sigma) if inverse > small else sd) * factor[i]
+    return out
+
+
 # An unrefined marker keeps OpenCV's corners: inset by ~0.2-0.4 px, so they count as this much noisier.
 UNREFINED_SIGMA_FACTOR = 3.0
 
@@ -364,6 +390,9 @@ class FusedEstimator:
         self.regression = regression
         self.geometry_robot = tables.geometry_robot(robot)
         self.corner_noise = CornerNoise.edge_fit(tables.corner_sigma)  # the bias-free corners' noise
+        self._model = planar_model(camera, layout, self.geometry_robot)
+        n = self.corner_noise
+        self._noise_law = (float(n.c), float(n.floor_px), float(n.small_side_px), float(n.small_sigma_px))
 
     def estimate(
         self, detection: Detection, refined: Detection | None = None, reg: PoseEstimate | None = None
@@ -479,13 +508,26 @@ class FusedEstimator:
         return roles, corners, sig, sides
 
     def _board_fit(self, detection: Detection, refined: Detection | None) -> PlanarFit | None:
-        """The planar fit of two or more markers from the board's IPPE solution, if it is clean (converged, its
-        residuals within 3x the corner noise); None for a lone marker (its yaw sign needs the regression)."""
+        """The planar fit of two or more markers (``planar.board_fit``), if it is clean (converged, its residuals
+        within 3x the corner noise); None for a lone marker (its yaw sign needs the regression).
 
-        roles, corners, sig, _ = self._corners(detection, refined)
+        Every frame with two or more markers ends here: the corners are stacked once, their sides measured in
+        one compiled call, and the fit gets them as arrays (``planar.board_fit_stacked``).
+        """
+        source = refined if refined is not None else detection
+        roles = source.roles_seen
         if len(roles) < 2:
             return None
-        fit = board_fit(corners, self.camera, self.layout, self.geometry_robot, corner_sigma=sig)
+        obs = source.observations
+        stacked = np.concatenate([obs[r].corners for r in roles], dtype=np.float64)
+        unrefined = source.unrefined if refined is not None else roles
+        factor = np.array([UNREFINED_SIGMA_FACTOR if r in unrefined else 1.0 for r in roles])
+        sig = _corner_sigma(stacked, self._noise_law, factor) if stacked.shape == (4 * len(roles), 2) else None
+        if sig is None:  # not four finite corners each: the checked path says what is wrong
+            _, corners, sig, _ = self._corners(detection, refined)
+            fit = board_fit(corners, self.camera, self.layout, self.geometry_robot, corner_sigma=sig)
+        else:
+            fit = board_fit_stacked(self._model, roles, stacked, sig)
         return fit if fit is not None and fit.converged and math.isfinite(fit.cost) and fit.noise_scale < 3.0 else None
 
     def _regression_helps(self, roles: Sequence[str], g: NDArray[np.float64], g_cov: NDArray[np.float64]) -> bool:
@@ -505,10 +547,14 @@ class FusedEstimator:
         self, pose: NDArray[np.float64], covariance: NDArray[np.float64], roles: Sequence[str]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """A planar fit with the learned calibration correction, and its covariance scaled as training found."""
-        g = self.tables.correction.apply(pose)
-        cj = self.tables.correction.jacobian()
+        correction = self.tables.correction
+        g = correction.apply(pose)
         band = band_index(g[0] - self.robot.camera_mount.x)
-        return g, psd_floor(cj @ covariance @ cj.T * self.tables.geometry_factor(marker_set_key(roles), band))
+        factor = self.tables.geometry_factor(marker_set_key(roles), band)
+        if correction.identity:  # its Jacobian is the identity
+            return g, psd_floor(covariance * factor)
+        cj = correction.jacobian()
+        return g, psd_floor(cj @ covariance @ cj.T * factor)
 
     def combine(
         self, detection: Detection, refined: Detection | None, reg: PoseEstimate | None, fit: PlanarFit | None = None
