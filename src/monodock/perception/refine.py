@@ -42,7 +42,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from functools import lru_cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -52,7 +52,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.compiled import kernel
 from monodock.core.lens import distort, lens_of
 from monodock.errors import InputError
-from monodock.perception.detect import Detection
+from monodock.perception.detect import Detection, MarkerObservation
 
 __all__ = ["refine_detection", "refine_marker"]
 
@@ -76,7 +76,6 @@ MIN_INNER = 3  # ... on at least this many white cells along its border, else it
 # Sample offsets across the edge in [-1, 1] of the reach, denser near the middle where the edge lies.
 _U = np.linspace(-1.0, 1.0, SAMPLES)
 _GRID = (_U * (0.55 + 0.45 * _U * _U)).astype(np.float32)
-_UNDISTORT = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
 # Logistic approximation of the standard normal CDF (error < 1.4e-4): Phi(z) ~ 1 / (1 + exp(-(C1 z + C3 z^3))).
 _C1 = np.float32(1.5976)
 _C3X3 = np.float32(3 * 0.070566)
@@ -133,7 +132,9 @@ def refine_detection(
     refined = set()
     for i, role in enumerate(roles):
         if ok[i]:
-            observations[role] = replace(observations[role], corners=out[i])
+            o = observations[role]
+            # Not dataclasses.replace: this runs per marker and frame, and replace costs several microseconds.
+            observations[role] = MarkerObservation(o.role, o.marker_id, out[i])
             refined.add(role)
     unrefined = tuple(r for r in detection.observations if r not in refined)
     return replace(detection, observations=observations, unrefined=unrefined)
@@ -165,11 +166,8 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     m = n_sides // 4
     height, width = gray.shape
     lens = lens_of(camera)
-    # Only where the anchors go depends on these, not where the edges are found: 20 iterations are plenty.
-    xn = np.asarray(
-        cv2.undistortPoints(corners[:, None, :], camera.matrix, camera.dist, criteria=_UNDISTORT), np.float64
-    ).reshape(-1, 2)
-    side = _Sides(*_profile_geometry(corners, xn, lens, modules, width, height))
+    side = _Sides(*_profile_geometry(corners, lens, modules, width, height))
+    xn = side.xn
     prof = np.asarray(
         cv2.remap(gray, side.mapx, side.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), np.uint8
     )
@@ -179,11 +177,13 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     # the edge's shift that comes with it is the same on the mirrored inner edge, which measures it (_bloom).
     args: tuple[Any, Any, Any, Any] = (side.t, prof, side.inside[None], side.reach[None])
     inner = None
-    if prof.max() == 255 or prof.min() == 0:
+    if _clipped(prof):
         inner = _inner_profiles(gray, lens, xn, side.clockwise, modules, side.reach, prof, side.inside)
         if inner is not None:
             args = _with_inner(args, inner)
     e, s, contrast, rms = _fit_edges(*args)
+    if inner is None:  # the usual frame: the rest in one compiled call
+        return _outer_corners(e, s, contrast, rms, side, lens, corners, 0.03 / lens[0])
     if inner is not None:
         fit = np.stack([e, s, contrast, rms])
         inner_fit = fit[:, :, n_sides:].reshape(4, -1)[:, : inner.mk.size]
@@ -203,8 +203,67 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     return _to_pixels(lens, qx, qy, corners, side.border, n_good)
 
 
-@dataclass(frozen=True)
-class _Sides:
+@kernel
+def _clipped(prof: NDArray[np.uint8]) -> bool:  # pragma: no cover - compiled
+    """Whether any sample is 255 or 0."""
+    for v in prof.ravel():
+        if v == 255 or v == 0:
+            return True
+    return False
+
+
+@kernel
+def _outer_corners(
+    e: F32, s: F32, contrast: F32, rms: F32, side: Any, lens: F64, corners: F64, floor: float
+) -> tuple[F64, NDArray[np.bool_]]:  # pragma: no cover - compiled
+    """``_side_lines``, ``_intersect`` and ``_to_pixels`` of a frame without clipped markers, in one call."""
+    alpha, beta, n_good, _, _ = _side_lines(
+        e, s, contrast, rms, side.inside, side.reach, side.frac, side.side_px, side.along, side.kappa, floor
+    )
+    qx, qy = _intersect(alpha, beta, side.xn, side.nnx, side.nny)
+    return _to_pixels(lens, qx, qy, corners, side.border, n_good)
+
+
+@kernel
+def _undistort(lens: F64, corners: F64) -> F64:  # pragma: no cover - compiled
+    """Undistorted normalised coordinates (N, 2) of pixels (N, 2): ``cv2.undistortPoints`` with 20 iterations and a
+    1e-10 px tolerance, its arithmetic in its order (it ignores the skew too). Only where the anchors go depends on
+    them, not where the edges are found: 20 iterations are plenty."""
+    fx, cx, fy, cy = lens[0], lens[2], lens[3], lens[4]
+    k1, k2, p1, p2, k3, k4, k5, k6 = lens[5], lens[6], lens[7], lens[8], lens[9], lens[10], lens[11], lens[12]
+    ifx, ify = 1.0 / fx, 1.0 / fy
+    out = np.empty((corners.shape[0], 2))
+    for i in range(corners.shape[0]):
+        u, v = corners[i, 0], corners[i, 1]
+        x = x0 = (u - cx) * ifx
+        y = y0 = (v - cy) * ify
+        error = np.inf
+        for _ in range(20):
+            if error < 1e-10:
+                break
+            r2 = x * x + y * y
+            icdist = (1 + ((k6 * r2 + k5) * r2 + k4) * r2) / (1 + ((k3 * r2 + k2) * r2 + k1) * r2)
+            if icdist < 0:
+                x, y = (u - cx) * ifx, (v - cy) * ify
+                break
+            delta_x = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+            delta_y = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+            x = (x0 - delta_x) * icdist
+            y = (y0 - delta_y) * icdist
+            r2 = x * x + y * y
+            r4 = r2 * r2
+            r6 = r4 * r2
+            a1, a2, a3 = 2 * x * y, r2 + 2 * x * x, r2 + 2 * y * y
+            cdist = 1 + k1 * r2 + k2 * r4 + k3 * r6
+            icdist2 = 1.0 / (1 + k4 * r2 + k5 * r4 + k6 * r6)
+            xd = x * cdist * icdist2 + p1 * a1 + p2 * a2
+            yd = y * cdist * icdist2 + p1 * a3 + p2 * a1
+            error = np.sqrt((xd * fx + cx - u) ** 2 + (yd * fy + cy - v) ** 2)
+        out[i, 0], out[i, 1] = x, y
+    return out
+
+
+class _Sides(NamedTuple):
     """Where ``_refine`` samples the markers' sides (``_profile_geometry``); S sides, J profiles, T samples.
 
     Per side (S,): ``side_px`` its length and ``border`` the border's width across it (px), ``reach`` the
@@ -213,7 +272,8 @@ class _Sides:
     ``along`` from the side's middle (normalised), ``kappa`` normalised distance across the side per pixel
     along the profile, ``inside`` whether it lies in the image. ``t`` (T, 1, S) the samples' offsets (px,
     inwards), ``mapx``, ``mapy`` (T, J S) their pixels, for ``cv2.remap``; ``clockwise`` (M,) whether each
-    marker's detected corners run clockwise on screen.
+    marker's detected corners run clockwise on screen; ``xn`` (4M, 2) the detected corners, undistorted and
+    normalised. A named tuple: the compiled calls take it whole.
     """
 
     side_px: F64
@@ -229,17 +289,19 @@ class _Sides:
     mapx: F32
     mapy: F32
     clockwise: NDArray[np.bool_]
+    xn: F64
 
 
 @kernel
 def _profile_geometry(
-    corners: F64, xn: F64, lens: F64, modules: int, width: int, height: int
+    corners: F64, lens: F64, modules: int, width: int, height: int
 ) -> tuple[Any, ...]:  # pragma: no cover - compiled
-    """The fields of ``_Sides``, in order, for the detected corners (4M, 2) and their normalised ``xn``.
+    """The fields of ``_Sides``, in order, for the detected corners (4M, 2).
 
     Anchors evenly along each side, straight in normalised coordinates, away from the corners; each profile
     runs along the pixel direction of the side's inward normal, found one pixel-ish further in.
     """
+    xn = _undistort(lens, corners)
     n = corners.shape[0]
     m = n // 4
     side_px, ux, uy, ulen = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
@@ -289,7 +351,7 @@ def _profile_geometry(
             inside[j, k] = (
                 min(x0, x1) >= 0 and max(x0, x1) <= width - 1 and min(y0, y1) >= 0 and max(y0, y1) <= height - 1
             )
-    return side_px, border, reach, nnx, nny, frac, along, kappa, inside, t, mapx, mapy, clockwise
+    return side_px, border, reach, nnx, nny, frac, along, kappa, inside, t, mapx, mapy, clockwise, xn
 
 
 @kernel
@@ -687,7 +749,7 @@ def _fit_edges(t: Any, intensity: Any, w: Any, lim: Any) -> tuple[F32, F32, F32,
                 lj = float(lim[jl, k])
                 e[j, k] = min(max(ej - move_e, -lj), lj)
                 s[j, k] = min(max(sj - move_s, 0.2), lj)
-        if step == 0 and abs(np.median(moved)) < CONVERGED_PX:
+        if abs(np.median(moved)) < CONVERGED_PX:
             break
     for j in range(n_j):
         for k in range(n_s):
