@@ -206,10 +206,7 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
 @kernel
 def _clipped(prof: NDArray[np.uint8]) -> bool:  # pragma: no cover - compiled
     """Whether any sample is 255 or 0."""
-    for v in prof.ravel():
-        if v == 255 or v == 0:
-            return True
-    return False
+    return any(v in {255, 0} for v in prof.ravel())
 
 
 @kernel
@@ -703,7 +700,7 @@ def _fit_edges(t: Any, intensity: Any, w: Any, lim: Any) -> tuple[F32, F32, F32,
             spread = m2 / mass - e0 * e0
             s0 = np.sqrt(spread) if spread > 0.0 else 0.0
             e[j, k], s[j, k] = e0, min(max(s0, 0.3), float(lim[jl, k]))
-    for step in range(MAX_STEPS):
+    for _step in range(MAX_STEPS):
         for j in range(n_j):
             for k in range(n_s):
                 jt, jw, jl = min(j, t.shape[1] - 1), min(j, w.shape[1] - 1), min(j, lim.shape[0] - 1)
