@@ -70,6 +70,7 @@ _CHI2_TOLERANCE = 1e-6
 # Default cap on the projections a fit evaluates, and the step (m, rad) below which it has converged in any case.
 _MAX_ITERATIONS = 20
 _TOLERANCE = 1e-9
+FIT_ITERATIONS, FIT_TOLERANCE = _MAX_ITERATIONS, _TOLERANCE  # the board fit's, for a caller's compiled copy of it
 # Two starts closer than this (metres and radians) are one.
 _SAME_START = 0.01
 # Two converged minima closer than this (metres and radians) are the same one.
@@ -158,6 +159,7 @@ class PlanarModel:
         self.robot = robot
         self._K = camera.matrix
         self._dist = camera.dist
+        self.lens = lens_of(camera)  # as the kernels read it
         self.base_T_optical = robot.base_T_optical()
         optical_T_base = transforms.invert(self.base_T_optical)
         self._A = np.ascontiguousarray(optical_T_base[:3, :3])
@@ -484,7 +486,7 @@ def _problem(
         float(white.scalar),
         rows,
         blocks,
-        lens_of(model.camera),
+        model.lens,
         prior is not None,
         info,
         mu,
@@ -911,18 +913,27 @@ def board_fit_stacked(
     """
     if len(roles) < 2:
         return None
-    return _board_fit(model, roles, corners, _Whitening(rows=np.repeat(1.0 / corner_sigma, 2)))
+    rows = np.repeat(1.0 / corner_sigma, 2)
+    parts = model.parts(roles)
+    # _problem's tuple, built here: this runs on every frame.
+    problem = (parts.Z, parts.T, corners, 1, 1.0, rows, _NO_BLOCKS, model.lens, False, _ZERO33, _ZERO3)
+    return _board_fit(model, roles, corners, _Whitening(rows=rows), problem)
 
 
 def _board_fit(
-    model: PlanarModel, roles: tuple[str, ...], img: NDArray[np.float64], white: _Whitening
+    model: PlanarModel,
+    roles: tuple[str, ...],
+    img: NDArray[np.float64],
+    white: _Whitening,
+    problem: tuple[Any, ...] | None = None,
 ) -> PlanarFit | None:
     """The fit of two or more markers from the floor-constrained linear start (``_floor_start``): the pose
     (x, y, yaw) that zeroes every corner's algebraic projection error, one 4x4 solve in compiled code, where
     IPPE's 6-DoF solution took longer than the fit itself. Where that start cannot be found or the fit from it
     does not converge, from the board's IPPE solution (``board_start``); None if there is none either."""
     parts = model.parts(roles)
-    problem = _problem(model, parts, img, white, None)
+    if problem is None:
+        problem = _problem(model, parts, img, white, None)
     started, *result = _board_lm(problem, _MAX_ITERATIONS, _TOLERANCE)
     if started and result[1] and result[-1]:
         return _planar_fit(roles, *result)
