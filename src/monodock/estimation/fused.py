@@ -41,7 +41,11 @@ from monodock.errors import InputError
 from monodock.estimation.corner_noise import CornerNoise
 from monodock.estimation.planar import (
     FIT_ITERATIONS as _FIT_ITERATIONS,
+)
+from monodock.estimation.planar import (
     FIT_TOLERANCE as _FIT_TOLERANCE,
+)
+from monodock.estimation.planar import (
     _board_lm,
     board_fit,
     board_fit_stacked,
