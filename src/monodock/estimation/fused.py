@@ -40,12 +40,8 @@ from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.corner_noise import CornerNoise
 from monodock.estimation.planar import (
-    FIT_ITERATIONS as _FIT_ITERATIONS,
-)
-from monodock.estimation.planar import (
-    FIT_TOLERANCE as _FIT_TOLERANCE,
-)
-from monodock.estimation.planar import (
+    FIT_ITERATIONS,
+    FIT_TOLERANCE,
     _board_lm,
     board_fit,
     board_fit_stacked,
@@ -381,7 +377,7 @@ def _board_answer(
     for i in range(sig.size):
         rows[2 * i] = rows[2 * i + 1] = 1.0 / sig[i]
     problem = (Z, T, corners, 1, 1.0, rows, np.zeros((0, 2, 2)), lens, False, np.zeros((3, 3)), np.zeros(3))
-    started, th, ok, cost, cov, _, scale, rms, _, converged = _board_lm(problem, _FIT_ITERATIONS, _FIT_TOLERANCE)
+    started, th, ok, cost, cov, _, scale, rms, _, converged = _board_lm(problem, FIT_ITERATIONS, FIT_TOLERANCE)
     if not (started and ok and converged):
         return _QUICK_UNDECIDED, nan3, np.full((3, 3), np.nan), np.nan
     if not (np.isfinite(cost) and scale < 3.0):
