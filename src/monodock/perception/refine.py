@@ -121,11 +121,12 @@ def refine_detection(
     if not quads:
         return replace(detection, unrefined=tuple(detection.observations))
     stack = np.concatenate(list(quads.values()), dtype=np.float64)
-    finite = np.asarray(np.isfinite(stack).reshape(-1, 8).all(axis=1))
-    roles = [r for r, f in zip(quads, finite.tolist(), strict=True) if f]
-    if not roles:
-        return replace(detection, unrefined=tuple(detection.observations))
-    if len(roles) < len(quads):
+    roles = list(quads)
+    if not np.isfinite(stack).all():  # rare: only the markers with finite corners are refined
+        finite = np.asarray(np.isfinite(stack).reshape(-1, 8).all(axis=1))
+        roles = [r for r, f in zip(quads, finite.tolist(), strict=True) if f]
+        if not roles:
+            return replace(detection, unrefined=tuple(detection.observations))
         stack = stack[np.repeat(finite, 4)]
     out, ok = _refine(img, stack, camera, modules)
     observations = dict(detection.observations)
