@@ -430,7 +430,8 @@ def _side_lines(
                 break
             for j in range(n_pts):
                 absr[j] = abs(across[j] - alpha[k] - beta[k] * along[j, k]) if good[j] else np.inf
-            sigma = max(1.4826 * np.sort(absr)[mid], floor)
+            absr.sort()  # in place: absr is refilled before it is read again
+            sigma = max(1.4826 * absr[mid], floor)
             for j in range(n_pts):
                 u = (across[j] - alpha[k] - beta[k] * along[j, k]) / (4.685 * sigma)
                 wt[j] = max(1.0 - u * u, 0.0) ** 2 if good[j] else 0.0
