@@ -331,3 +331,30 @@ def test_the_compiled_undistortion_inverts_the_lens(lens: str) -> None:
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
     opencv = cv2.undistortPoints(pixels[inside][:, None], camera.matrix, camera.dist, criteria=criteria).reshape(-1, 2)
     np.testing.assert_allclose(got, opencv, rtol=0.0, atol=1e-15)
+
+
+def test_the_compiled_sampling_is_bilinear_and_opencvs() -> None:
+    """The profiles' sampling (``_remap_linear``, compiled with the rest of a frame without clipped markers): on a
+    ramp image, every sample is the bilinear blend of its four pixels, rounded; and on random images and places
+    (beyond the border too: BORDER_REPLICATE) it is ``cv2.remap``'s answer to one level, all but a rare tie exactly."""
+    from monodock.perception.refine import _remap_linear
+
+    yy, xx = np.mgrid[0:480, 0:640]
+    ramp = (20.0 + 0.3 * xx + 0.1 * yy).astype(np.uint8)  # below 256; stored per pixel, so blend those values
+    rng = np.random.default_rng(9)
+    mapx = rng.uniform(0.0, 639.0, (14, 2000)).astype(np.float32)
+    mapy = rng.uniform(0.0, 479.0, (14, 2000)).astype(np.float32)
+    x0, y0 = np.floor(mapx).astype(int), np.floor(mapy).astype(int)
+    ax, ay = mapx - x0, mapy - y0
+    x1, y1 = np.minimum(x0 + 1, 639), np.minimum(y0 + 1, 479)
+    r = ramp.astype(np.float64)
+    blend = (r[y0, x0] * (1 - ax) + r[y0, x1] * ax) * (1 - ay) + (r[y1, x0] * (1 - ax) + r[y1, x1] * ax) * ay
+    got = _remap_linear(ramp, mapx, mapy)
+    assert np.all(np.abs(got - blend) <= 0.5 + 1e-3)
+    image = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+    mapx = rng.uniform(-3.0, 643.0, (14, 3000)).astype(np.float32)
+    mapy = rng.uniform(-3.0, 483.0, (14, 3000)).astype(np.float32)
+    opencv = cv2.remap(image, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    diff = np.abs(_remap_linear(image, mapx, mapy).astype(int) - opencv)
+    assert diff.max() <= 1
+    assert np.mean(diff > 0) < 1e-3

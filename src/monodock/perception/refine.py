@@ -31,7 +31,8 @@ behind something) keeps OpenCV's corners, and ``refine_detection`` lists its rol
 
 All the profiles of all the markers are sampled with one ``cv2.remap`` and fitted in one call of a compiled
 kernel (``monodock.core.compiled``): a frame with three markers costs about a twentieth of the marker detection
-itself (``bench/speed.py``), a little more when its markers are clipped (the inner profiles join the fit).
+in a loop and a tenth right after it (``bench/speed.py``), when its markers are clipped several times that (the
+inner profiles and ``_bloom`` are still numpy).
 
 The correction assumes that the white right outside the border (the marker's quiet zone) and the code's
 white cells are the same white, and it would read printer ink spread (a wider black border) as negative
@@ -167,6 +168,9 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
     m = n_sides // 4
     height, width = gray.shape
     lens = lens_of(camera)
+    plain, out, ok = _refine_unclipped(gray, corners, lens, modules, 0.03 / lens[0])
+    if plain:  # the usual frame: no clipped sample, everything in that one compiled call
+        return out, ok
     side = _Sides(*_profile_geometry(corners, lens, modules, width, height))
     xn = side.xn
     prof = np.asarray(
@@ -202,6 +206,47 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
             delta = _bloom(inner, inner_fit, contrast_out, qx.reshape(m, 4), qy.reshape(m, 4), modules)
         qx, qy = _intersect(alpha - np.repeat(delta, 4) * side.kappa.mean(axis=0), beta, xn, side.nnx, side.nny)
     return _to_pixels(lens, qx, qy, corners, side.border, n_good)
+
+
+@kernel
+def _refine_unclipped(
+    gray: NDArray[np.uint8], corners: F64, lens: F64, modules: int, floor: float
+) -> tuple[bool, F64, NDArray[np.bool_]]:  # pragma: no cover - compiled
+    """``_refine`` of a frame whose profiles hold no clipped sample, in one call: whether they held none and, if
+    so, the refined corners and which markers keep them (else empty arrays: ``_refine`` takes the clipped path)."""
+    height, width = gray.shape
+    n = corners.shape[0]
+    side_px, border, reach, nnx, nny, frac, along, kappa, inside, t, mapx, mapy, _, xn = _profile_geometry(
+        corners, lens, modules, width, height
+    )
+    prof = _remap_linear(gray, mapx, mapy).reshape(SAMPLES, PROFILES, n)
+    if _clipped(prof):
+        return False, np.empty((0, 4, 2)), np.empty(0, np.bool_)
+    e, s, contrast, rms = _fit_edges(t, prof, inside.reshape(1, PROFILES, n), reach.reshape(1, n))
+    alpha, beta, n_good, _, _ = _side_lines(e, s, contrast, rms, inside, reach, frac, side_px, along, kappa, floor)
+    qx, qy = _intersect(alpha, beta, xn, nnx, nny)
+    out, ok = _to_pixels(lens, qx, qy, corners, border, n_good)
+    return True, out, ok
+
+
+@kernel
+def _remap_linear(gray: NDArray[np.uint8], mapx: F32, mapy: F32) -> NDArray[np.uint8]:  # pragma: no cover - compiled
+    """``cv2.remap(gray, mapx, mapy, INTER_LINEAR, borderMode=BORDER_REPLICATE)``: bilinear in single precision,
+    rounded to the nearest level, as OpenCV 5.1 computes it (tests/perception/test_refine.py holds it to cv2)."""
+    h, w = gray.shape
+    out = np.empty(mapx.shape, np.uint8)
+    for i in range(mapx.shape[0]):
+        for j in range(mapx.shape[1]):
+            x, y = mapx[i, j], mapy[i, j]
+            x0, y0 = int(np.floor(x)), int(np.floor(y))
+            ax, ay = np.float32(x - np.float32(x0)), np.float32(y - np.float32(y0))
+            xa, xb = min(max(x0, 0), w - 1), min(max(x0 + 1, 0), w - 1)
+            ya, yb = min(max(y0, 0), h - 1), min(max(y0 + 1, 0), h - 1)
+            v0 = np.float32(gray[ya, xa]) + ax * (np.float32(gray[ya, xb]) - np.float32(gray[ya, xa]))
+            v1 = np.float32(gray[yb, xa]) + ax * (np.float32(gray[yb, xb]) - np.float32(gray[yb, xa]))
+            v = v0 + ay * (v1 - v0)
+            out[i, j] = np.uint8(min(max(np.rint(v), 0.0), 255.0))
+    return out
 
 
 @kernel
