@@ -234,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         "simulator frame / (detection + features)": med["render"] / med["detect_features"],
         "refined corners / detection": med["refine"] / med["detect"],
         "refined corners right after a detection / in a loop": med["refine_after"] / med["refine"],
-        "fused end to end / detection (target ≤ 1.3)": med["fused"] / med["detect"],
+        "fused end to end / detection (target ≤ 1.1)": med["fused"] / med["detect"],
     }
     env = environment()
     counts = np.bincount(markers_seen, minlength=4)

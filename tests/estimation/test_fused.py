@@ -186,3 +186,28 @@ def test_the_warm_up_runs_both_refiner_paths_on_valid_views() -> None:
         assert abs(pose.x - (robot.camera_mount.x + 1.0)) < 0.01
         assert abs(pose.y) < 0.01
         assert abs(pose.yaw) < 0.01
+
+
+def test_the_compiled_corner_sigmas_are_the_corner_noise_law() -> None:
+    """The board fit's per-corner sigmas (``_corner_sigma``, compiled): a square marker L px on a side gets c/sqrt(L),
+    an unrefined marker three times that; any quads get CornerNoise's sigmas (the one model, with its floor and
+    small-marker terms too); a non-finite corner gives None (the checked path then names it)."""
+    from monodock.estimation.corner_noise import CornerNoise
+    from monodock.estimation.fused import UNREFINED_SIGMA_FACTOR, _corner_sigma
+
+    square = np.array([[0.0, 0.0], [40.0, 0.0], [40.0, 40.0], [0.0, 40.0]])
+    law = CornerNoise.edge_fit(0.22)
+    got = _corner_sigma(np.concatenate([square, 2.0 * square]), (0.22, 0.0, 0.0, 0.0), np.array([1.0, 3.0]))
+    assert got is not None
+    np.testing.assert_allclose(got[:4], 0.22 / math.sqrt(40.0), rtol=1e-12)
+    np.testing.assert_allclose(got[4:], UNREFINED_SIGMA_FACTOR * 0.22 / math.sqrt(80.0), rtol=1e-12)
+    rng = np.random.default_rng(5)
+    for noise in (law, CornerNoise()):
+        quads = square[None] * rng.uniform(0.3, 3.0, (3, 1, 1)) + rng.normal(0.0, 3.0, (3, 4, 2))
+        terms = (noise.c, noise.floor_px, noise.small_side_px, noise.small_sigma_px)
+        np.testing.assert_allclose(
+            _corner_sigma(quads.reshape(-1, 2), terms, np.ones(3)), noise.sigma(quads.reshape(-1, 2)), rtol=1e-12
+        )
+    broken = square.copy()
+    broken[2, 1] = np.nan
+    assert _corner_sigma(broken, (0.22, 0.0, 0.0, 0.0), np.ones(1)) is None

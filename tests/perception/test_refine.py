@@ -306,3 +306,55 @@ def test_bad_input_is_one_clear_error() -> None:
     with pytest.raises(InputError, match="corners"):
         refine_marker(gray, np.full((4, 2), np.nan), camera)
     assert refine_marker(gray, corners, camera) is None  # a blank image has no edge to find
+
+
+@pytest.mark.parametrize("lens", ["default", "rational"])
+def test_the_compiled_undistortion_inverts_the_lens(lens: str) -> None:
+    """The anchors' undistortion (``_undistort``, OpenCV's iteration compiled): known normalised points through the
+    lens to pixels (``core.lens.distort``) come back to 1e-9, over the whole image of the default camera and of a
+    strong rational-polynomial lens; and it is what ``cv2.undistortPoints`` with the same criteria returns."""
+    from monodock.core.lens import distort, lens_of
+    from monodock.perception.refine import _undistort
+
+    if lens == "default":
+        camera = CameraModel.default()
+    else:
+        k = (400.0, 0.0, 320.0, 0.0, 400.0, 240.0, 0.0, 0.0, 1.0)
+        camera = CameraModel(640, 480, k, (-0.3, 0.1, 1e-3, -5e-4, -0.02, 0.05, 0.01, 0.002), "rational_polynomial")
+    rng = np.random.default_rng(3)
+    xy = rng.uniform([-0.7, -0.5], [0.7, 0.5], (400, 2))
+    u, v = distort(lens_of(camera), xy[:, 0], xy[:, 1])
+    pixels = np.stack([u, v], axis=1)
+    inside = (u > 0) & (u < camera.width) & (v > 0) & (v < camera.height)
+    got = _undistort(lens_of(camera), pixels[inside])
+    np.testing.assert_allclose(got, xy[inside], atol=1e-9)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-10)
+    opencv = cv2.undistortPoints(pixels[inside][:, None], camera.matrix, camera.dist, criteria=criteria).reshape(-1, 2)
+    np.testing.assert_allclose(got, opencv, rtol=0.0, atol=1e-15)
+
+
+def test_the_compiled_sampling_is_bilinear_and_opencvs() -> None:
+    """The profiles' sampling (``_remap_linear``, compiled with the rest of a frame without clipped markers): on a
+    ramp image, every sample is the bilinear blend of its four pixels, rounded; and on random images and places
+    (beyond the border too: BORDER_REPLICATE) it is ``cv2.remap``'s answer to one level, all but a rare tie exactly."""
+    from monodock.perception.refine import _remap_linear
+
+    yy, xx = np.mgrid[0:480, 0:640]
+    ramp = (20.0 + 0.3 * xx + 0.1 * yy).astype(np.uint8)  # below 256; stored per pixel, so blend those values
+    rng = np.random.default_rng(9)
+    mapx = rng.uniform(0.0, 639.0, (14, 2000)).astype(np.float32)
+    mapy = rng.uniform(0.0, 479.0, (14, 2000)).astype(np.float32)
+    x0, y0 = np.floor(mapx).astype(int), np.floor(mapy).astype(int)
+    ax, ay = mapx - x0, mapy - y0
+    x1, y1 = np.minimum(x0 + 1, 639), np.minimum(y0 + 1, 479)
+    r = ramp.astype(np.float64)
+    blend = (r[y0, x0] * (1 - ax) + r[y0, x1] * ax) * (1 - ay) + (r[y1, x0] * (1 - ax) + r[y1, x1] * ax) * ay
+    got = _remap_linear(ramp, mapx, mapy)
+    assert np.all(np.abs(got - blend) <= 0.5 + 1e-3)
+    image = rng.integers(0, 256, (480, 640), dtype=np.uint8)
+    mapx = rng.uniform(-3.0, 643.0, (14, 3000)).astype(np.float32)
+    mapy = rng.uniform(-3.0, 483.0, (14, 3000)).astype(np.float32)
+    opencv = cv2.remap(image, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    diff = np.abs(_remap_linear(image, mapx, mapy).astype(int) - opencv)
+    assert diff.max() <= 1
+    assert np.mean(diff > 0) < 1e-3

@@ -39,7 +39,16 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.corner_noise import CornerNoise
-from monodock.estimation.planar import board_fit, planar_candidates, solve_planar
+from monodock.estimation.planar import (
+    FIT_ITERATIONS,
+    FIT_TOLERANCE,
+    _board_lm,
+    board_fit,
+    board_fit_stacked,
+    planar_candidates,
+    planar_model,
+    solve_planar,
+)
 from monodock.estimation.pnp import PoseEstimate
 from monodock.perception.detect import Detection
 from monodock.perception.features import choose_marker_set, side_lengths
@@ -321,6 +330,71 @@ def _trace_solve(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:  # pr
     return float(np.trace(np.linalg.solve(a, b)))
 
 
+@kernel
+def _corner_sigma(
+    c: NDArray[np.float64], law: tuple[float, float, float, float], factor: NDArray[np.float64]
+) -> NDArray[np.float64] | None:  # pragma: no cover - compiled
+    """``CornerNoise.sigma_of_sides`` of markers' corners stacked (4M, 2), compiled, each marker's times its
+    ``factor`` (M,); None where a corner is not finite. ``law``: the CornerNoise's (c, floor_px,
+    small_side_px, small_sigma_px). The same arithmetic in the same order (tests/estimation/test_fused.py)."""
+    cc, floor, small_side, small_sigma = law
+    small = 1.0 / small_side if small_side > 0 else np.inf
+    m = c.shape[0] // 4
+    sides = np.empty(4)
+    out = np.empty(4 * m)
+    for i in range(m):
+        for k in range(4):
+            p, q = 4 * i + k, 4 * i + (k + 1) % 4
+            if not (np.isfinite(c[p, 0]) and np.isfinite(c[p, 1])):
+                return None
+            sides[k] = math.hypot(c[q, 0] - c[p, 0], c[q, 1] - c[p, 1])
+        for k in range(4):
+            before, after = sides[k - 1], sides[k]  # corner k's edges: sides k - 1 and k
+            inverse = 0.5 * (1.0 / max(before, 1e-9) + 1.0 / max(after, 1e-9))
+            sd = max(cc * math.sqrt(inverse), floor)
+            out[4 * i + k] = (max(sd, small_sigma) if inverse > small else sd) * factor[i]
+    return out
+
+
+_QUICK_CLEAN, _QUICK_NOT_CLEAN, _QUICK_UNDECIDED = 0, 1, 2
+_NOT_CLEAN = object()
+_BANDS = len(BAND_EDGES_M) - 2  # the last band's index
+
+
+@kernel
+def _board_answer(
+    corners: Any, factor: Any, law: Any, Z: Any, T: Any, lens: Any, correction: Any, scales: Any
+) -> tuple[int, Any, Any, float]:  # pragma: no cover - compiled
+    """``FusedEstimator._quick_board``: the corner sigmas (``_corner_sigma``), the board fit
+    (``planar.board_fit_stacked``), its clean check, the correction (``Correction.apply``, its Jacobian) and the
+    covariance scaled by its band's ``scales`` and floored (``psd_floor``). Returns a status (_QUICK_*), the
+    corrected (x, y, yaw), its covariance and the RMS residual (px)."""
+    nan3 = np.full(3, np.nan)
+    sig = _corner_sigma(corners, law, factor)
+    if sig is None:
+        return _QUICK_UNDECIDED, nan3, np.full((3, 3), np.nan), np.nan
+    rows = np.empty(2 * sig.size)
+    for i in range(sig.size):
+        rows[2 * i] = rows[2 * i + 1] = 1.0 / sig[i]
+    problem = (Z, T, corners, 1, 1.0, rows, np.zeros((0, 2, 2)), lens, False, np.zeros((3, 3)), np.zeros(3))
+    started, th, ok, cost, cov, _, scale, rms, _, converged = _board_lm(problem, FIT_ITERATIONS, FIT_TOLERANCE)
+    if not (started and ok and converged):
+        return _QUICK_UNDECIDED, nan3, np.full((3, 3), np.nan), np.nan
+    if not (np.isfinite(cost) and scale < 3.0):
+        return _QUICK_NOT_CLEAN, nan3, np.full((3, 3), np.nan), np.nan
+    (x_scale, x_offset, yaw_offset, pivot_x, pivot_y, mount_x), identity, cj = correction
+    g = np.array([th[0], th[1], (th[2] + math.pi) % (2.0 * math.pi) - math.pi])  # DockPose's wrap_angle
+    if not identity:
+        c, s = math.cos(yaw_offset), math.sin(yaw_offset)
+        dx, dy = g[0] - pivot_x, g[1] - pivot_y
+        g[0], g[1] = pivot_x + x_scale * (c * dx - s * dy) + x_offset, pivot_y + s * dx + c * dy
+        g[2] = (g[2] + yaw_offset + math.pi) % (2 * math.pi) - math.pi
+    band = min(max(int(math.floor((g[0] - mount_x - BAND_EDGES_M[0]) / 0.25)), 0), _BANDS)
+    f = scales[min(band, scales.size - 1)]
+    scaled = cov * f if identity else cj @ cov @ cj.T * f
+    return _QUICK_CLEAN, g, _floored(scaled, _FLOOR_OUTER), rms
+
+
 # An unrefined marker keeps OpenCV's corners: inset by ~0.2-0.4 px, so they count as this much noisier.
 UNREFINED_SIGMA_FACTOR = 3.0
 
@@ -364,6 +438,17 @@ class FusedEstimator:
         self.regression = regression
         self.geometry_robot = tables.geometry_robot(robot)
         self.corner_noise = CornerNoise.edge_fit(tables.corner_sigma)  # the bias-free corners' noise
+        self._model = planar_model(camera, layout, self.geometry_robot)
+        n = self.corner_noise
+        self._noise_law = (float(n.c), float(n.floor_px), float(n.small_side_px), float(n.small_sigma_px))
+        c = tables.correction
+        cj = c.jacobian()
+        self._correction = (
+            (c.x_scale, c.x_offset, c.yaw_offset, c.pivot_x, c.pivot_y, float(robot.camera_mount.x)),
+            c.identity,
+            cj,
+        )
+        self._fixed: dict[tuple[str, ...], tuple[Any, Any, Any]] = {}
 
     def estimate(
         self, detection: Detection, refined: Detection | None = None, reg: PoseEstimate | None = None
@@ -375,7 +460,12 @@ class FusedEstimator:
         answer when the caller has it already (the result is the same either way), else it runs when needed.
         The board fit is reused by the combination, not done again.
         """
-        fit = self._board_fit(detection, refined)
+        quick = self._quick_board(detection, refined)
+        if isinstance(quick, tuple):
+            g, g_cov, roles, rms = quick
+            if not self._regression_helps(roles, g, g_cov):
+                return self._answer(g, g_cov, roles, rms)
+        fit = self._board_fit(detection, refined) if quick is not _NOT_CLEAN else None
         if fit is not None:
             g, g_cov = self._corrected(pose_vector(fit.pose), fit.covariance, fit.roles)
             if not self._regression_helps(fit.roles, g, g_cov):
@@ -478,14 +568,56 @@ class FusedEstimator:
                 sig[4 * i : 4 * i + 4] *= UNREFINED_SIGMA_FACTOR
         return roles, corners, sig, sides
 
-    def _board_fit(self, detection: Detection, refined: Detection | None) -> PlanarFit | None:
-        """The planar fit of two or more markers from the board's IPPE solution, if it is clean (converged, its
-        residuals within 3x the corner noise); None for a lone marker (its yaw sign needs the regression)."""
-
-        roles, corners, sig, _ = self._corners(detection, refined)
+    def _quick_board(self, detection: Detection, refined: Detection | None) -> Any:
+        """``_board_fit`` and ``_corrected`` of two or more markers in one compiled call (``_board_answer``): the
+        corrected pose and covariance, the roles and the RMS; ``_NOT_CLEAN`` where that fit is not clean; None
+        where this cannot tell (fewer than two markers, corners not finite, the floor start failed): then
+        ``_board_fit`` decides. The same arithmetic as those two, in the same order: every frame with two or more
+        markers ends here, where a dozen Python calls after the detection cost as much as the fit."""
+        source = refined if refined is not None else detection
+        roles = source.roles_seen
         if len(roles) < 2:
             return None
-        fit = board_fit(corners, self.camera, self.layout, self.geometry_robot, corner_sigma=sig)
+        obs = source.observations
+        stacked = np.concatenate([obs[r].corners for r in roles], dtype=np.float64)
+        if stacked.shape != (4 * len(roles), 2):
+            return None
+        unrefined = source.unrefined if refined is not None else roles
+        factor = np.array([UNREFINED_SIGMA_FACTOR if r in unrefined else 1.0 for r in roles])
+        fixed = self._fixed.get(roles)
+        if fixed is None:
+            parts = self._model.parts(roles)
+            key = marker_set_key(roles)
+            scales = np.array([self.tables.geometry_factor(key, b) for b in range(len(BAND_EDGES_M) - 1)])
+            fixed = self._fixed[roles] = (parts.Z, parts.T, scales)
+        status, g, g_cov, rms = _board_answer(
+            stacked, factor, self._noise_law, fixed[0], fixed[1], self._model.lens, self._correction, fixed[2]
+        )
+        if status == _QUICK_CLEAN:
+            return g, g_cov, roles, rms
+        return _NOT_CLEAN if status == _QUICK_NOT_CLEAN else None
+
+    def _board_fit(self, detection: Detection, refined: Detection | None) -> PlanarFit | None:
+        """The planar fit of two or more markers (``planar.board_fit``), if it is clean (converged, its residuals
+        within 3x the corner noise); None for a lone marker (its yaw sign needs the regression).
+
+        Every frame with two or more markers ends here: the corners are stacked once, their sides measured in
+        one compiled call, and the fit gets them as arrays (``planar.board_fit_stacked``).
+        """
+        source = refined if refined is not None else detection
+        roles = source.roles_seen
+        if len(roles) < 2:
+            return None
+        obs = source.observations
+        stacked = np.concatenate([obs[r].corners for r in roles], dtype=np.float64)
+        unrefined = source.unrefined if refined is not None else roles
+        factor = np.array([UNREFINED_SIGMA_FACTOR if r in unrefined else 1.0 for r in roles])
+        sig = _corner_sigma(stacked, self._noise_law, factor) if stacked.shape == (4 * len(roles), 2) else None
+        if sig is None:  # not four finite corners each: the checked path says what is wrong
+            _, corners, sig, _ = self._corners(detection, refined)
+            fit = board_fit(corners, self.camera, self.layout, self.geometry_robot, corner_sigma=sig)
+        else:
+            fit = board_fit_stacked(self._model, roles, stacked, sig)
         return fit if fit is not None and fit.converged and math.isfinite(fit.cost) and fit.noise_scale < 3.0 else None
 
     def _regression_helps(self, roles: Sequence[str], g: NDArray[np.float64], g_cov: NDArray[np.float64]) -> bool:
@@ -505,10 +637,14 @@ class FusedEstimator:
         self, pose: NDArray[np.float64], covariance: NDArray[np.float64], roles: Sequence[str]
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """A planar fit with the learned calibration correction, and its covariance scaled as training found."""
-        g = self.tables.correction.apply(pose)
-        cj = self.tables.correction.jacobian()
+        correction = self.tables.correction
+        g = correction.apply(pose)
         band = band_index(g[0] - self.robot.camera_mount.x)
-        return g, psd_floor(cj @ covariance @ cj.T * self.tables.geometry_factor(marker_set_key(roles), band))
+        factor = self.tables.geometry_factor(marker_set_key(roles), band)
+        if correction.identity:  # its Jacobian is the identity
+            return g, psd_floor(covariance * factor)
+        cj = correction.jacobian()
+        return g, psd_floor(cj @ covariance @ cj.T * factor)
 
     def combine(
         self, detection: Detection, refined: Detection | None, reg: PoseEstimate | None, fit: PlanarFit | None = None

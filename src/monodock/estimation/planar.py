@@ -47,6 +47,7 @@ __all__ = [
     "PlanarModel",
     "PosePrior",
     "board_fit",
+    "board_fit_stacked",
     "board_start",
     "planar_candidates",
     "planar_model",
@@ -69,6 +70,7 @@ _CHI2_TOLERANCE = 1e-6
 # Default cap on the projections a fit evaluates, and the step (m, rad) below which it has converged in any case.
 _MAX_ITERATIONS = 20
 _TOLERANCE = 1e-9
+FIT_ITERATIONS, FIT_TOLERANCE = _MAX_ITERATIONS, _TOLERANCE  # the board fit's, for a caller's compiled copy of it
 # Two starts closer than this (metres and radians) are one.
 _SAME_START = 0.01
 # Two converged minima closer than this (metres and radians) are the same one.
@@ -157,6 +159,7 @@ class PlanarModel:
         self.robot = robot
         self._K = camera.matrix
         self._dist = camera.dist
+        self.lens = lens_of(camera)  # as the kernels read it
         self.base_T_optical = robot.base_T_optical()
         optical_T_base = transforms.invert(self.base_T_optical)
         self._A = np.ascontiguousarray(optical_T_base[:3, :3])
@@ -462,13 +465,20 @@ def _solve(
     tolerance: float,
 ) -> PlanarFit:
     """Levenberg–Marquardt (``_lm3``, compiled) from ``theta``."""
+    problem = _problem(model, parts, img, white, prior)
+    return _planar_fit(roles, *_lm3(problem, np.array(theta, dtype=np.float64), max_iterations, tolerance))
+
+
+def _problem(
+    model: PlanarModel, parts: _Parts, img: NDArray[np.float64], white: _Whitening, prior: PosePrior | None
+) -> tuple[Any, ...]:
+    """The fit's fixed inputs, as one tuple for the kernels (``_evaluate`` unpacks it)."""
     info = prior.information() if prior is not None else _ZERO33
     mu = _theta(prior.mean) if prior is not None else _ZERO3
     mode = 2 if white.blocks is not None else 1 if white.rows is not None else 0
     rows = white.rows if white.rows is not None else _NO_ROWS
     blocks = white.blocks if white.blocks is not None else _NO_BLOCKS
-    # The fit's fixed inputs, as one tuple for the kernels (``_evaluate`` unpacks it).
-    problem = (
+    return (
         parts.Z,
         parts.T,
         img.reshape(-1, 2),
@@ -476,16 +486,28 @@ def _solve(
         float(white.scalar),
         rows,
         blocks,
-        lens_of(model.camera),
+        model.lens,
         prior is not None,
         info,
         mu,
     )
-    th_, ok, cost, cov, cov_res, scale, rms, iterations, converged = _lm3(
-        problem, np.array(theta, dtype=np.float64), max_iterations, tolerance
-    )
-    th = th_.tolist()
-    pose = DockPose(th[0], th[1], wrap_angle(th[2]))
+
+
+def _planar_fit(
+    roles: tuple[str, ...],
+    th_: NDArray[np.float64],
+    ok: bool,
+    cost: float,
+    cov: NDArray[np.float64],
+    cov_res: NDArray[np.float64],
+    scale: float,
+    rms: float,
+    iterations: int,
+    converged: bool,
+) -> PlanarFit:
+    """The PlanarFit of ``_lm3``'s results."""
+    x, y, yaw = th_.tolist()
+    pose = DockPose(x, y, wrap_angle(yaw))
     if not ok:
         inf = np.full((3, 3), np.inf)
         return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles)
@@ -571,47 +593,51 @@ def _evaluate(
     Z, Tm, target, mode, scale, rows, blocks, lens, use_prior, info, mu = problem
     c, s = np.cos(th[2]), np.sin(th[2])
     x, y = th[0], th[1]
+    # Scalars, not small arrays: an allocation per corner and evaluation cost more than the arithmetic.
     for i in range(Tm.shape[0]):
-        P, D = np.empty(3), np.empty(3)
-        for d in range(3):
-            row = 3 * i + d
-            P[d] = Z[row, 0] * c + Z[row, 1] * s + Z[row, 2] + Z[row, 3] * x + Z[row, 4] * y
-            D[d] = Z[row, 1] * c - Z[row, 0] * s  # dP/dyaw
-        if P[2] <= _MIN_DEPTH:
+        r0, r1, r2 = 3 * i, 3 * i + 1, 3 * i + 2
+        p0 = Z[r0, 0] * c + Z[r0, 1] * s + Z[r0, 2] + Z[r0, 3] * x + Z[r0, 4] * y
+        p1 = Z[r1, 0] * c + Z[r1, 1] * s + Z[r1, 2] + Z[r1, 3] * x + Z[r1, 4] * y
+        p2 = Z[r2, 0] * c + Z[r2, 1] * s + Z[r2, 2] + Z[r2, 3] * x + Z[r2, 4] * y
+        # dP/dyaw
+        d0, d1, d2 = Z[r0, 1] * c - Z[r0, 0] * s, Z[r1, 1] * c - Z[r1, 0] * s, Z[r2, 1] * c - Z[r2, 0] * s
+        if p2 <= _MIN_DEPTH:
             return False, np.inf
-        u, v, j00, j01, j02, j10, j11, j12 = project(lens, P[0], P[1], P[2])
+        u, v, j00, j01, j02, j10, j11, j12 = project(lens, p0, p1, p2)
         for col in range(2):
             X[i, 0, col] = j00 * Tm[i, 0, col] + j01 * Tm[i, 1, col] + j02 * Tm[i, 2, col]
             X[i, 1, col] = j10 * Tm[i, 0, col] + j11 * Tm[i, 1, col] + j12 * Tm[i, 2, col]
-        X[i, 0, 2] = j00 * D[0] + j01 * D[1] + j02 * D[2]
-        X[i, 1, 2] = j10 * D[0] + j11 * D[1] + j12 * D[2]
+        X[i, 0, 2] = j00 * d0 + j01 * d1 + j02 * d2
+        X[i, 1, 2] = j10 * d0 + j11 * d1 + j12 * d2
         X[i, 0, 3] = u - target[i, 0]
         X[i, 1, 3] = v - target[i, 1]
     N[:] = 0.0
-    w0, w1 = np.empty(4), np.empty(4)
     for i in range(Tm.shape[0]):
+        if mode == 0:
+            a00, a01, a10, a11 = scale, 0.0, 0.0, scale
+        elif mode == 1:
+            a00, a01, a10, a11 = rows[2 * i], 0.0, 0.0, rows[2 * i + 1]
+        else:
+            a00, a01, a10, a11 = blocks[i, 0, 0], blocks[i, 0, 1], blocks[i, 1, 0], blocks[i, 1, 1]
         for a in range(4):
-            if mode == 0:
-                w0[a], w1[a] = scale * X[i, 0, a], scale * X[i, 1, a]
-            elif mode == 1:
-                w0[a], w1[a] = rows[2 * i] * X[i, 0, a], rows[2 * i + 1] * X[i, 1, a]
-            else:
-                w0[a] = blocks[i, 0, 0] * X[i, 0, a] + blocks[i, 0, 1] * X[i, 1, a]
-                w1[a] = blocks[i, 1, 0] * X[i, 0, a] + blocks[i, 1, 1] * X[i, 1, a]
-        for a in range(4):
-            for b in range(4):
-                N[a, b] += w0[a] * w0[b] + w1[a] * w1[b]
+            wa0 = a00 * X[i, 0, a] + a01 * X[i, 1, a]
+            wa1 = a10 * X[i, 0, a] + a11 * X[i, 1, a]
+            for b in range(a, 4):
+                N[a, b] += wa0 * (a00 * X[i, 0, b] + a01 * X[i, 1, b]) + wa1 * (a10 * X[i, 0, b] + a11 * X[i, 1, b])
+    for a in range(4):
+        for b in range(a):
+            N[a, b] = N[b, a]
     cost = N[3, 3]
     for k in range(3):
         g[k] = N[k, 3]
         for m in range(3):
             H[k, m] = N[k, m]
     if use_prior:
-        e = np.array([x - mu[0], y - mu[1], (th[2] - mu[2] + np.pi) % (2.0 * np.pi) - np.pi])
+        e0, e1, e2 = x - mu[0], y - mu[1], (th[2] - mu[2] + np.pi) % (2.0 * np.pi) - np.pi
         for k in range(3):
-            ie = info[k, 0] * e[0] + info[k, 1] * e[1] + info[k, 2] * e[2]
+            ie = info[k, 0] * e0 + info[k, 1] * e1 + info[k, 2] * e2
             g[k] += ie
-            cost += e[k] * ie
+            cost += (e0 if k == 0 else e1 if k == 1 else e2) * ie
             for m in range(3):
                 H[k, m] += info[k, m]
     return bool(np.isfinite(cost)), cost
@@ -865,16 +891,139 @@ def board_fit(
     *,
     corner_sigma: float | ArrayLike = DEFAULT_CORNER_SIGMA_PX,
 ) -> PlanarFit | None:
-    """``solve_planar`` from ``board_start`` (the same fit, with the corners checked and stacked once); None
-    where ``board_start`` is."""
+    """``solve_planar`` from a start for two or more markers (``board_fit_stacked``); None for fewer, or where
+    neither start can be found."""
     roles, img = _stack_corners(corners)
+    if len(roles) < 2:
+        return None
     model = planar_model(camera, layout, robot)
+    return _board_fit(model, roles, img, _whitening(corner_sigma, 4 * len(roles)))
+
+
+def board_fit_stacked(
+    model: PlanarModel, roles: tuple[str, ...], corners: NDArray[np.float64], corner_sigma: NDArray[np.float64]
+) -> PlanarFit | None:
+    """``board_fit`` for a caller that has checked and stacked its inputs already (the fused method, per frame).
+
+    Args:
+        model: ``planar_model`` of the set-up.
+        roles: the markers, in the layout's order.
+        corners: their corner pixels stacked, shape (4R, 2), finite.
+        corner_sigma: one positive finite sigma (px) per corner, shape (4R,).
+    """
+    if len(roles) < 2:
+        return None
+    rows = np.repeat(1.0 / corner_sigma, 2)
+    parts = model.parts(roles)
+    # _problem's tuple, built here: this runs on every frame.
+    problem = (parts.Z, parts.T, corners, 1, 1.0, rows, _NO_BLOCKS, model.lens, False, _ZERO33, _ZERO3)
+    return _board_fit(model, roles, corners, _Whitening(rows=rows), problem)
+
+
+def _board_fit(
+    model: PlanarModel,
+    roles: tuple[str, ...],
+    img: NDArray[np.float64],
+    white: _Whitening,
+    problem: tuple[Any, ...] | None = None,
+) -> PlanarFit | None:
+    """The fit of two or more markers from the floor-constrained linear start (``_floor_start``): the pose
+    (x, y, yaw) that zeroes every corner's algebraic projection error, one 4x4 solve in compiled code, where
+    IPPE's 6-DoF solution took longer than the fit itself. Where that start cannot be found or the fit from it
+    does not converge, from the board's IPPE solution (``board_start``); None if there is none either."""
+    parts = model.parts(roles)
+    if problem is None:
+        problem = _problem(model, parts, img, white, None)
+    started, *result = _board_lm(problem, _MAX_ITERATIONS, _TOLERANCE)
+    if started and result[1] and result[-1]:
+        return _planar_fit(roles, *result)
     th = _board_theta(model, roles, img)
     if th is None:
         return None
-    parts = model.parts(roles)
-    white = _whitening(corner_sigma, len(parts.obj))
     return _solve(model, roles, parts, img, white, th, None, _MAX_ITERATIONS, _TOLERANCE)
+
+
+@kernel
+def _board_lm(
+    problem: tuple[Any, ...], max_iterations: int, tolerance: float
+) -> tuple[bool, Any, bool, float, Any, Any, float, float, int, bool]:  # pragma: no cover - compiled
+    """``_lm3`` from ``_floor_start``; first whether that start exists (if not, the rest is meaningless)."""
+    Z, target, mode, scale, rows, lens = problem[0], problem[2], problem[3], problem[4], problem[5], problem[7]
+    started, theta = _floor_start(Z, target, mode, scale, rows, lens)
+    if not started:
+        nan3 = np.full((3, 3), np.nan)
+        return False, theta, False, np.inf, nan3, nan3, np.nan, np.inf, 0, False
+    th, ok, cost, cov, cov_res, scale, rms, iterations, converged = _lm3(problem, theta, max_iterations, tolerance)
+    return True, th, ok, cost, cov, cov_res, scale, rms, iterations, converged
+
+
+@kernel
+def _floor_start(
+    Z: Any, target: Any, mode: int, scale: float, rows: Any, lens: Any
+) -> tuple[bool, Any]:  # pragma: no cover - compiled
+    """A start for the planar fit, (x, y, yaw), from corner pixels ``target`` (N, 2), and whether it exists.
+
+    Each corner through the lens to undistorted normalised (u, v) (OpenCV's fixed-point iteration, 10 steps);
+    then, with P = c U + s V + W + x a0 + y a1 (``PlanarModel``), P_x - u P_z = 0 and P_y - v P_z = 0 are
+    linear in (c, s, x, y): least squares, each weighted as the whitening weighs its pixel (``rows`` with
+    ``mode`` 1, else ``scale``: 2x2 blocks weigh alike), yaw = atan2(s, c). The floor is built in (4 unknowns,
+    not 6), so it lands nearer the minimum than IPPE's start does.
+    """
+    fx, skew, cx, fy, cy = lens[0], lens[1], lens[2], lens[3], lens[4]
+    k1, k2, p1, p2, k3 = lens[5], lens[6], lens[7], lens[8], lens[9]
+    A = np.zeros((4, 4))
+    b = np.zeros(4)
+    row = np.empty(4)
+    for i in range(target.shape[0]):
+        y0 = (target[i, 1] - cy) / fy
+        x0 = (target[i, 0] - cx - skew * y0) / fx
+        x, y = x0, y0
+        for _ in range(10):
+            xx, yy, xy = x * x, y * y, x * y
+            r2 = xx + yy
+            icdist = 1.0 / (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)))
+            if lens[13] != 0.0:
+                icdist *= 1.0 + r2 * (lens[10] + r2 * (lens[11] + r2 * lens[12]))
+            if not icdist > 0.0:
+                x, y = x0, y0
+                break
+            x = (x0 - (2.0 * p1 * xy + p2 * (r2 + 2.0 * xx))) * icdist
+            y = (y0 - (p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy)) * icdist
+        for d in range(2):
+            m = x if d == 0 else y
+            w = rows[2 * i + d] if mode == 1 else scale
+            for k in range(4):
+                col = k if k < 2 else k + 1  # U, V, (W), a0, a1
+                row[k] = w * (Z[3 * i + d, col] - m * Z[3 * i + 2, col])
+            rhs = -w * (Z[3 * i + d, 2] - m * Z[3 * i + 2, 2])
+            for k in range(4):
+                b[k] += row[k] * rhs
+                for j in range(4):
+                    A[k, j] += row[k] * row[j]
+    theta = np.zeros(3)
+    # Gauss-Jordan with partial pivoting on the 4x4 normal equations (a LAPACK call costs more here).
+    for k in range(4):
+        p = k
+        for j in range(k + 1, 4):
+            if abs(A[j, k]) > abs(A[p, k]):
+                p = j
+        if not abs(A[p, k]) > 0.0:  # singular, or NaN
+            return False, theta
+        if p != k:
+            for j in range(4):
+                A[k, j], A[p, j] = A[p, j], A[k, j]
+            b[k], b[p] = b[p], b[k]
+        for j in range(4):
+            if j != k:
+                f = A[j, k] / A[k, k]
+                for m in range(k, 4):
+                    A[j, m] -= f * A[k, m]
+                b[j] -= f * b[k]
+    q0, q1, q2, q3 = b[0] / A[0, 0], b[1] / A[1, 1], b[2] / A[2, 2], b[3] / A[3, 3]
+    if not (np.isfinite(q0 + q1 + q2 + q3) and np.hypot(q0, q1) > 1e-3):
+        return False, theta
+    theta[0], theta[1], theta[2] = q2, q3, np.arctan2(q1, q0)
+    return True, theta
 
 
 def _board_theta(model: PlanarModel, roles: tuple[str, ...], img: NDArray[np.float64]) -> NDArray[np.float64] | None:
