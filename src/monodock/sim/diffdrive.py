@@ -14,6 +14,12 @@ rendered when the controller first asks for them, so states that do not look cos
 
 Fault hooks, for fault tables: ``drop_frames``, ``delay_frames``, ``jump_odometry``, ``slip_wheel``; with
 ``hide_markers`` (occlusion) and ``Obstacle(appear=...)`` (someone stepping behind the robot).
+
+With ``blank_undetectable``, a frame in which no dock marker can be detected (each has a corner beyond the
+image's border over the whole exposure: ArUco rejects a marker that touches the border) is not rendered: the
+camera's nuisances are applied to a blank image instead, which draws the same random numbers as a render, and
+``undetectable(stamp)`` says so, so that a caller that trusts the simulator may skip the detection it knows
+finds nothing (dock-sim does, in the blind zone at the face).
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ from monodock.sim.faults import DelayWindow, Obstacle, SlipWindow, cone_range, f
 from monodock.sim.nuisance import apply_nuisances
 from monodock.sim.render import render_radiance
 from monodock.sim.simulator import Simulator
+from monodock.sim.world import PAPER_WHITE
 
 __all__ = ["DiffDriveConfig", "Exposure", "Obstacle", "SimulatedRobot", "TruthSample"]
 
@@ -169,6 +176,8 @@ class SimulatedRobot:
         obstacles: cylinders around the robot (``monodock.sim.faults.Obstacle``); append to it at any time.
             They do not stop the robot: the rear sensor sees them and ``min_clearance`` / ``collided`` record
             how close it came (the charger face is not one of them).
+        blank_undetectable: deliver a blank frame (the sensor's noise on the charger face's white, no render)
+            when no dock marker can be detected in it (``undetectable``); off: every frame is rendered.
 
     Charging: the charger reports current once its spring contacts have pressed the robot's pads for
     ``charge_delay`` (0.3 s, the charger's current sense) without a break. They press when the front edge is
@@ -197,6 +206,7 @@ class SimulatedRobot:
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
     hide_markers: Callable[[float, Pose2D], bool] | None = None
     obstacles: list[Obstacle] = field(default_factory=list)
+    blank_undetectable: bool = False
 
     def __post_init__(self) -> None:
         c = self.config
@@ -223,7 +233,10 @@ class SimulatedRobot:
         self.pushed = 0.0  # how far the wheels drove on while the front edge pressed the face, metres
         self.truth: list[TruthSample] = [TruthSample(0.0, self.pose, self.odom)]
         self.frames_rendered = 0
+        self.frames_blank = 0  # frames delivered blank (blank_undetectable), not rendered
+        self._blank_stamps: deque[float] = deque(maxlen=64)
         self.render_seconds = 0.0  # wall time spent rendering, for the speed figures
+        self.render_cpu_seconds = 0.0  # CPU time of this process spent rendering (a loaded machine inflates wall)
         self.min_clearance = math.inf
         self.collided = False
         self._pressed_since: float | None = None  # when the contacts last closed
@@ -274,9 +287,38 @@ class SimulatedRobot:
             if e.stamp <= held:
                 break
             if not self._is_dropped(e) and self.arrival(e) <= self.t:
-                self._frame = CameraFrame(e.stamp, self.render(e.stamp, e.mid))
+                self._frame = CameraFrame(e.stamp, self._image(e))
                 break
         return self._frame
+
+    def undetectable(self, stamp: float) -> bool:
+        """Whether the frame exposed at ``stamp`` was delivered blank because no dock marker can be detected in it
+        (``blank_undetectable``): a detector would find none of the dock's markers there, by the truth."""
+        return stamp in self._blank_stamps
+
+    def _image(self, e: Exposure) -> NDArray[np.uint8]:
+        """The frame of an exposure: rendered, or blank when ``blank_undetectable`` and no marker can be seen."""
+        if not (self.blank_undetectable and self._markers_cut(e)):
+            return self.render(e.stamp, e.mid)
+        t0, c0 = time.perf_counter(), time.process_time()
+        cam = self.sim.camera
+        blank = np.full((cam.height, cam.width), PAPER_WHITE, dtype=np.float32)
+        image = apply_nuisances(blank, self.sim.nuisances, self.rng)  # the render's random draws, in its order
+        self.render_seconds += time.perf_counter() - t0
+        self.render_cpu_seconds += time.process_time() - c0
+        self.frames_blank += 1
+        self._blank_stamps.append(e.stamp)
+        return image
+
+    def _markers_cut(self, e: Exposure) -> bool:
+        """Whether every dock marker has a corner beyond the same border of the image, by ``_CUT_MARGIN_PX`` or
+        more, at both the start and the end of the exposure (so throughout it: the corner moves along a near
+        straight line in a few milliseconds), or not in the camera's field at all."""
+        start = {role: _beyond(quad, self.sim) for role, quad in self.sim.true_corners(self.dock_pose(e.start)).items()}
+        if not all(start.values()):
+            return False  # a marker whole in the image at the start: most frames end here, after one projection
+        end = self.sim.true_corners(self.dock_pose(e.end))
+        return all(start[role] & _beyond(end[role], self.sim) for role in ROLES)
 
     def deliver(self, frame: CameraFrame) -> None:
         """Hand over a frame rendered ahead (the real-time runner renders each exposure when it happens)."""
@@ -339,7 +381,7 @@ class SimulatedRobot:
         motion-blurred by the robot's motion during that exposure.
         """
         dock_pose = self.dock_pose(pose)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         exposure = next((e for e in reversed(self.exposure_log) if e.stamp == stamp and e.mid == pose), None)
         streak = self._blur.streak(exposure) if exposure is not None else None
         if streak is not None:
@@ -347,6 +389,7 @@ class SimulatedRobot:
         else:
             image = self.sim.render(dock_pose, rng=self.rng)
         self.render_seconds += time.perf_counter() - t0
+        self.render_cpu_seconds += time.process_time() - c0
         self.frames_rendered += 1
         if self.hide_markers is not None and self.hide_markers(stamp, pose):
             corners = self.sim.true_corners(dock_pose)
@@ -467,6 +510,29 @@ class SimulatedRobot:
         w = float((wheels[1] - wheels[0]) / self.config.track_width)
         mid = pose.theta + 0.5 * w * dt
         return Pose2D(pose.x + v * dt * math.cos(mid), pose.y + v * dt * math.sin(mid), wrap_angle(pose.theta + w * dt))
+
+
+_CUT_MARGIN_PX = 2.0  # beyond the lens blur's reach: the dark border of a cut marker runs into the image's edge
+
+
+def _beyond(corners: NDArray[np.float64], sim: Simulator) -> set[tuple[int, str]]:
+    """(corner, side) of the marker's corners that lie beyond a side of the image by ``_CUT_MARGIN_PX`` or more;
+    (corner, "field") for a corner outside the camera's field (NaN)."""
+    w, h, m = sim.camera.width - 0.5, sim.camera.height - 0.5, _CUT_MARGIN_PX
+    out: set[tuple[int, str]] = set()
+    for i, (x, y) in enumerate(corners):
+        if not (math.isfinite(x) and math.isfinite(y)):
+            out.add((i, "field"))
+            continue
+        if x <= -0.5 - m:
+            out.add((i, "left"))
+        if x >= w + m:
+            out.add((i, "right"))
+        if y <= -0.5 - m:
+            out.add((i, "top"))
+        if y >= h + m:
+            out.add((i, "bottom"))
+    return out
 
 
 def _lerp(a: Pose2D, b: Pose2D, f: float) -> Pose2D:
