@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core.compiled import inlined, kernel
 from monodock.core.layout import ROLES
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
@@ -575,8 +576,10 @@ class _MotionBlur:
         self.grid = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
         self.grid_shape = (gh, gw)
         self.rays: NDArray[np.float64] | None = None  # the grid's undistorted rays (z = 1); computed when needed
-        ix, iy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        self.identity = np.stack([ix, iy], axis=-1)  # the map that moves nothing, (h, w, 2)
+        # How cv2.resize (OpenCV 5.1, INTER_LINEAR) spreads the grid over the pixels, column by column and row
+        # by row: the two nodes and their weights (the columns' clamped at the borders, the rows' not).
+        self.columns = _resize_taps(w, gw, clamp_weights=True)
+        self.rows = _resize_taps(h, gh, clamp_weights=False)
 
     def _optical(self, pose: Pose2D) -> NDArray[np.float64]:
         """world_T_optical of the robot at ``pose`` in the dock frame."""
@@ -625,26 +628,106 @@ class _MotionBlur:
         radiance = render_radiance(
             sim.world, sim.camera, sim.world_T_optical(pose), supersample=sim.nuisances.supersample
         )
-        w, h = sim.camera.width, sim.camera.height
-        # Interpolate the shift, not the map: resize's clamped borders then keep the shift, not the pixel.
-        dense = [
-            cv2.resize(s.reshape(*self.grid_shape, 2).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-            for s in (streak.start, streak.end)
-        ]
+        return apply_nuisances(self.blur(radiance, streak), sim.nuisances, rng)
+
+    def blur(self, radiance: NDArray[np.float32], streak: _Streak) -> NDArray[np.float32]:
+        """The mean of the warps of ``radiance`` along ``streak``, float32.
+
+        Where the radiance is flat within a warp's reach every warp gives the pixel back, so only the pixels near
+        an edge (a few percent: the renderer's images are piecewise flat) are warped, by a compiled kernel that
+        does what cv2.resize, cv2.scaleAdd and cv2.remap (INTER_LINEAR, BORDER_REPLICATE) of OpenCV 5.1 do,
+        operation for operation in float32: the same image, bit for bit, as warping the whole image with them
+        (``tests/sim/test_diffdrive.py``), at a fraction of the cost.
+        """
         k = min(_BLUR_MAX_SAMPLES, max(2, math.ceil(streak.length / _BLUR_SPACING_PX)))
-        total = np.zeros_like(radiance, dtype=np.float32)
-        warped = np.empty_like(total)
-        where = np.empty_like(self.identity)
-        for i in range(k):
-            u = (i + 0.5) / k - 0.5  # -1/2 at the start, 0 mid, 1/2 at the end
-            if abs(u) < 1e-9:
-                total += radiance
-                continue
-            cv2.scaleAdd(dense[u > 0], 2.0 * abs(u), self.identity, dst=where)
-            _remap(radiance, where, None, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE)
-            total += warped
+        grids = np.stack([streak.start, streak.end]).reshape(2, *self.grid_shape, 2).astype(np.float32)
+        # Flat pixels: the sum of k copies of themselves times 1/k, as the warps' mean gives them.
+        total = radiance.copy()
+        for _ in range(k - 1):
+            total += radiance
         total *= np.float32(1.0 / k)
-        return apply_nuisances(total, sim.nuisances, rng)
+        # A pixel's warps read within `reach` px of it; it is flat for them when no two neighbours differ there.
+        reach = math.ceil(float(np.max(np.abs(grids)))) + 1
+        edges = np.zeros(radiance.shape, dtype=np.uint8)
+        edges[:, :-1] |= radiance[:, :-1] != radiance[:, 1:]
+        edges[:-1, :] |= radiance[:-1, :] != radiance[1:, :]
+        near = cv2.dilate(edges, np.ones((2 * reach + 2, 2 * reach + 2), np.uint8), anchor=(reach, reach))
+        _warp_mean(radiance, near, grids, *self.columns, *self.rows, k, total)
+        return total
+
+
+def _resize_taps(
+    size: int, nodes: int, *, clamp_weights: bool
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+    """For each of ``size`` pixels, the two grid nodes cv2.resize (INTER_LINEAR, OpenCV 5.1) mixes and their
+    float32 weights: the node index clamped at the borders, and the weight too (``clamp_weights``: its
+    horizontal pass) or not (its vertical pass)."""
+    f = ((np.arange(size) + 0.5) * (nodes / size) - 0.5).astype(np.float32)
+    i0 = np.floor(f).astype(np.int64)
+    a = (f - i0.astype(np.float32)).astype(np.float32)
+    if clamp_weights:
+        a = np.where((i0 < 0) | (i0 >= nodes - 1), np.float32(0.0), a).astype(np.float32)
+    lo, hi = np.clip(i0, 0, nodes - 1), np.clip(i0 + 1, 0, nodes - 1)
+    return lo, hi, (np.float32(1.0) - a).astype(np.float32), a
+
+
+@inlined
+def _fma(a: np.float32, b: np.float32, c: np.float32) -> np.float32:
+    """a * b + c rounded once to float32 (the product is exact in float64; the sum's double rounding is ~1e-9
+    likely): what OpenCV's fused multiply-adds give."""
+    return np.float32(np.float64(a) * np.float64(b) + np.float64(c))
+
+
+@kernel
+def _warp_mean(
+    radiance: NDArray[np.float32], near: NDArray[np.uint8], grids: NDArray[np.float32],
+    col0: NDArray[np.int64], col1: NDArray[np.int64], colw0: NDArray[np.float32], colw1: NDArray[np.float32],
+    row0: NDArray[np.int64], row1: NDArray[np.int64], roww0: NDArray[np.float32], roww1: NDArray[np.float32],
+    k: int, out: NDArray[np.float32],
+) -> None:  # fmt: skip
+    """``out`` where ``near`` is set: the mean of the k warps of ``radiance`` by the shifts ``grids`` ((start,
+    end), grid rows, grid columns, (x, y)) spread over the image as cv2.resize spreads them, each warp the
+    identity map plus 2|u| times a shift (cv2.scaleAdd) sampled bilinearly with the border replicated
+    (cv2.remap), in the order and the float32 operations OpenCV 5.1 uses."""
+    h, w = radiance.shape
+    inv_k = np.float32(1.0 / k)
+    alphas = np.empty(k, dtype=np.float32)
+    which = np.empty(k, dtype=np.int64)  # -1: the middle sample, the radiance itself; 0: towards start, 1: end
+    for i in range(k):
+        u = (i + 0.5) / k - 0.5
+        alphas[i] = np.float32(2.0 * abs(u))
+        which[i] = -1 if abs(u) < 1e-9 else (1 if u > 0 else 0)
+    # cv2.resize's horizontal pass: each grid row spread over the image's columns.
+    gs, gh = grids.shape[0], grids.shape[1]
+    across = np.empty((gs, gh, w, 2), dtype=np.float32)
+    for g in range(gs):
+        for r in range(gh):
+            for x in range(w):
+                for c in range(2):
+                    across[g, r, x, c] = grids[g, r, col0[x], c] * colw0[x] + grids[g, r, col1[x], c] * colw1[x]
+    for y in range(h):
+        r0, r1, rw0, rw1 = row0[y], row1[y], roww0[y], roww1[y]
+        for x in range(w):
+            if near[y, x] == 0:
+                continue
+            total = np.float32(0.0)
+            for i in range(k):
+                g = which[i]
+                if g < 0:
+                    total += radiance[y, x]
+                    continue
+                # Its vertical pass, then cv2.scaleAdd: the map's point.
+                mx = _fma(across[g, r0, x, 0] * rw0 + across[g, r1, x, 0] * rw1, alphas[i], np.float32(x))
+                my = _fma(across[g, r0, x, 1] * rw0 + across[g, r1, x, 1] * rw1, alphas[i], np.float32(y))
+                fx, fy = math.floor(mx), math.floor(my)
+                ax, ay = mx - np.float32(fx), my - np.float32(fy)
+                x0, x1 = min(max(fx, 0), w - 1), min(max(fx + 1, 0), w - 1)
+                y0, y1 = min(max(fy, 0), h - 1), min(max(fy + 1, 0), h - 1)
+                a, b, c, d = radiance[y0, x0], radiance[y0, x1], radiance[y1, x0], radiance[y1, x1]
+                upper = _fma(ax, b - a, a)
+                lower = _fma(ax, d - c, c)
+                total += _fma(ay, lower - upper, upper)
+            out[y, x] = total * inv_k
 
 
 @dataclass(frozen=True)
