@@ -57,7 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--case", type=int, default=1, choices=range(1, 9), help="the docking case, 1-8 (1)")
     p.add_argument("--method", default="board", choices=[m for m in ALL_METHODS if m not in BUNDLE_METHODS])
     p.add_argument("--seed", type=int, default=0, help="seed of the start and of every draw (0)")
-    p.add_argument("--one-core", action="store_true", help="pin to one CPU, OpenCV on one thread (default: as dock-sim)")
+    p.add_argument(
+        "--one-core", action="store_true", help="pin to one CPU, OpenCV on one thread (default: as dock-sim)"
+    )
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     args = p.parse_args(argv)
     if args.repeats < 1:

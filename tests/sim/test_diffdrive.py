@@ -310,12 +310,15 @@ def test_a_slipping_wheel_turns_the_robot_behind_the_odometrys_back() -> None:
 # --- the blur's warps and frames nothing can be detected in ---------------------------------------------------
 
 
-def _opencv_blur(sim: Simulator, radiance: np.ndarray, start: np.ndarray, end: np.ndarray, k: int) -> np.ndarray:
+def _opencv_blur(radiance: np.ndarray, start: np.ndarray, end: np.ndarray, k: int) -> np.ndarray:
     """The blur as OpenCV computes it over the whole image: the shifts spread by cv2.resize, each warp's map by
     cv2.scaleAdd, sampled by cv2.remap, the mean of the k warps."""
     h, w = radiance.shape
     gh, gw = -(-h // 32), -(-w // 32)
-    dense = [cv2.resize(s.reshape(gh, gw, 2).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR) for s in (start, end)]
+    dense = [
+        cv2.resize(s.reshape(gh, gw, 2).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        for s in (start, end)
+    ]
     ix, iy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     identity = np.stack([ix, iy], axis=-1)
     total = np.zeros_like(radiance)
@@ -335,7 +338,9 @@ def test_the_blur_warps_as_opencv_does_over_the_whole_image(omega: float, speed:
     """Only pixels near an edge are warped, by a compiled kernel: the image is OpenCV's whole-image warps' (bit for
     bit with OpenCV 5.1 on x86-64; a few float32 ulps allowed for another build), for short and long streaks."""
     noisy = Simulator(seed=1)
-    robot = SimulatedRobot(noisy, Pose2D(-0.9, 0.05, -0.2), DiffDriveConfig(exposure_time=0.03), np.random.default_rng(5))
+    robot = SimulatedRobot(
+        noisy, Pose2D(-0.9, 0.05, -0.2), DiffDriveConfig(exposure_time=0.03), np.random.default_rng(5)
+    )
     robot.send_velocity(speed, omega)
     robot.sleep(0.4)
     e = robot.exposure_log[-1]
@@ -343,7 +348,7 @@ def test_the_blur_warps_as_opencv_does_over_the_whole_image(omega: float, speed:
     assert streak is not None
     radiance = render_radiance(noisy.world, noisy.camera, noisy.world_T_optical(robot.dock_pose(e.mid)))
     k = min(8, max(2, math.ceil(streak.length / 1.5)))
-    expected = _opencv_blur(noisy, radiance, streak.start, streak.end, k)
+    expected = _opencv_blur(radiance, streak.start, streak.end, k)
     got = robot._blur.blur(radiance, streak)
     assert np.abs(got - expected).max() <= 1e-6
     assert np.mean(got == expected) > 0.999
@@ -377,7 +382,7 @@ def test_frames_with_every_marker_cut_by_the_border_are_blank_and_nothing_else_c
     assert 0 < len(blank) < len(delivered)
     assert blanking.frames_blank == len(blank)
     assert not any(b for _, _, b in rendered)
-    poses = {stamp: pose for stamp, pose in blanking.exposures}
+    poses = dict(blanking.exposures)
     detector = MarkerDetector(noisy.layout)
     for (stamp, image, is_blank), (_, render, _) in zip(delivered, rendered, strict=True):
         corners = noisy.true_corners(blanking.dock_pose(poses[stamp]))

@@ -29,7 +29,6 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import cv2
 import numpy as np
@@ -541,10 +540,6 @@ def _lerp(a: Pose2D, b: Pose2D, f: float) -> Pose2D:
     return Pose2D(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), wrap_angle(a.theta + f * wrap_angle(b.theta - a.theta)))
 
 
-# cv2.remap with dst= and None maps: its overloads in OpenCV's stubs change between releases (5.0 rejected the
-# call, 5.1 accepts it); seen through a plain callable, the type check does not depend on which release is installed.
-_remap: Callable[..., Any] = cv2.remap
-
 _BLUR_MIN_PX = 0.2  # a streak shorter than this is invisible under the lens blur and the noise: skip the warps
 _BLUR_MAX_SAMPLES = 8
 _BLUR_SPACING_PX = 1.5
@@ -651,7 +646,8 @@ class _MotionBlur:
         edges = np.zeros(radiance.shape, dtype=np.uint8)
         edges[:, :-1] |= radiance[:, :-1] != radiance[:, 1:]
         edges[:-1, :] |= radiance[:-1, :] != radiance[1:, :]
-        near = cv2.dilate(edges, np.ones((2 * reach + 2, 2 * reach + 2), np.uint8), anchor=(reach, reach))
+        box = np.ones((2 * reach + 2, 2 * reach + 2), np.uint8)
+        near = np.asarray(cv2.dilate(edges, box, anchor=(reach, reach)), dtype=np.uint8)
         _warp_mean(radiance, near, grids, *self.columns, *self.rows, k, total)
         return total
 
