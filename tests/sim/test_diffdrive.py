@@ -9,14 +9,17 @@ from __future__ import annotations
 import copy
 import math
 
+import cv2
 import numpy as np
 import pytest
 
 from monodock.core.camera import CameraModel
 from monodock.core.pose2d import Pose2D
+from monodock.perception.detect import MarkerDetector
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.diffdrive import DiffDriveConfig, Exposure, SimulatedRobot
 from monodock.sim.faults import Obstacle
+from monodock.sim.render import render_radiance
 
 SIM = Simulator(nuisances=Nuisances.clean(), seed=1)
 FRONT = SIM.robot.front_offset
@@ -302,3 +305,90 @@ def test_a_slipping_wheel_turns_the_robot_behind_the_odometrys_back() -> None:
     assert abs(robot.odometry().pose.theta) < 0.01
     with pytest.raises(ValueError, match="left"):
         robot.slip_wheel("front", 0.5, 0.0, 1.0)
+
+
+# --- the blur's warps and frames nothing can be detected in ---------------------------------------------------
+
+
+def _opencv_blur(radiance: np.ndarray, start: np.ndarray, end: np.ndarray, k: int) -> np.ndarray:
+    """The blur as OpenCV computes it over the whole image: the shifts spread by cv2.resize, each warp's map by
+    cv2.scaleAdd, sampled by cv2.remap, the mean of the k warps."""
+    h, w = radiance.shape
+    gh, gw = -(-h // 32), -(-w // 32)
+    dense = [
+        cv2.resize(s.reshape(gh, gw, 2).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+        for s in (start, end)
+    ]
+    ix, iy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    identity = np.stack([ix, iy], axis=-1)
+    total = np.zeros_like(radiance)
+    for i in range(k):
+        u = (i + 0.5) / k - 0.5
+        if abs(u) < 1e-9:
+            total += radiance
+            continue
+        where = cv2.scaleAdd(dense[u > 0], 2.0 * abs(u), identity)
+        total += cv2.remap(radiance, where, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    total *= np.float32(1.0 / k)
+    return total
+
+
+@pytest.mark.parametrize(("omega", "speed"), [(0.0, 0.05), (0.6, 0.0), (2.5, 0.1), (-6.0, 0.2)])
+def test_the_blur_warps_as_opencv_does_over_the_whole_image(omega: float, speed: float) -> None:
+    """Only pixels near an edge are warped, by a compiled kernel: the image is OpenCV's whole-image warps' (bit for
+    bit with OpenCV 5.1 on x86-64; a few float32 ulps allowed for another build), for short and long streaks."""
+    noisy = Simulator(seed=1)
+    robot = SimulatedRobot(
+        noisy, Pose2D(-0.9, 0.05, -0.2), DiffDriveConfig(exposure_time=0.03), np.random.default_rng(5)
+    )
+    robot.send_velocity(speed, omega)
+    robot.sleep(0.4)
+    e = robot.exposure_log[-1]
+    streak = robot._blur.streak(e)
+    assert streak is not None
+    radiance = render_radiance(noisy.world, noisy.camera, noisy.world_T_optical(robot.dock_pose(e.mid)))
+    k = min(8, max(2, math.ceil(streak.length / 1.5)))
+    expected = _opencv_blur(radiance, streak.start, streak.end, k)
+    got = robot._blur.blur(radiance, streak)
+    assert np.abs(got - expected).max() <= 1e-6
+    assert np.mean(got == expected) > 0.999
+    assert np.count_nonzero(expected != radiance) > 1000  # it did blur
+
+
+def test_frames_with_every_marker_cut_by_the_border_are_blank_and_nothing_else_changes() -> None:
+    """At the face the camera sees no marker whole: such a frame is delivered blank, says so, and draws the same
+    random numbers as its render; farther out every frame is the render. Two robots from the same seed, one
+    blanking, drive into the face alike."""
+    noisy = Simulator(seed=1)
+    start = Pose2D(-(FRONT + 0.12), 0.003, 0.01)
+
+    def drive(blank: bool) -> tuple[SimulatedRobot, list[tuple[float, np.ndarray, bool]]]:
+        robot = SimulatedRobot(noisy, start, DiffDriveConfig(), np.random.default_rng(3), blank_undetectable=blank)
+        robot.send_velocity(0.05, 0.0)
+        frames: list[tuple[float, np.ndarray, bool]] = []
+        while robot.t < 2.5:
+            robot.sleep(0.02)
+            f = robot.latest_frame()
+            if f is not None and (not frames or f.stamp != frames[-1][0]):
+                frames.append((f.stamp, f.image, robot.undetectable(f.stamp)))
+        return robot, frames
+
+    plain, rendered = drive(False)
+    blanking, delivered = drive(True)
+    assert [s for s, _, _ in rendered] == [s for s, _, _ in delivered]
+    assert plain.pose == blanking.pose
+    assert plain.rng.bit_generator.state == blanking.rng.bit_generator.state
+    blank = [i for i, (_, _, b) in enumerate(delivered) if b]
+    assert 0 < len(blank) < len(delivered)
+    assert blanking.frames_blank == len(blank)
+    assert not any(b for _, _, b in rendered)
+    poses = dict(blanking.exposures)
+    detector = MarkerDetector(noisy.layout)
+    for (stamp, image, is_blank), (_, render, _) in zip(delivered, rendered, strict=True):
+        corners = noisy.true_corners(blanking.dock_pose(poses[stamp]))
+        whole = [role for role, quad in corners.items() if noisy.in_view(quad)]
+        if is_blank:
+            assert not whole  # by the truth, no marker lies whole in the image
+            assert detector.detect(render).observations == {}  # and the detector finds none in the render
+        else:
+            assert np.array_equal(image, render)

@@ -14,6 +14,12 @@ rendered when the controller first asks for them, so states that do not look cos
 
 Fault hooks, for fault tables: ``drop_frames``, ``delay_frames``, ``jump_odometry``, ``slip_wheel``; with
 ``hide_markers`` (occlusion) and ``Obstacle(appear=...)`` (someone stepping behind the robot).
+
+With ``blank_undetectable``, a frame in which no dock marker can be detected (each has a corner beyond the
+image's border over the whole exposure: ArUco rejects a marker that touches the border) is not rendered: the
+camera's nuisances are applied to a blank image instead, which draws the same random numbers as a render, and
+``undetectable(stamp)`` says so, so that a caller that trusts the simulator may skip the detection it knows
+finds nothing (dock-sim does, in the blind zone at the face).
 """
 
 from __future__ import annotations
@@ -23,12 +29,12 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core.compiled import inlined, kernel
 from monodock.core.layout import ROLES
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
@@ -38,6 +44,7 @@ from monodock.sim.faults import DelayWindow, Obstacle, SlipWindow, cone_range, f
 from monodock.sim.nuisance import apply_nuisances
 from monodock.sim.render import render_radiance
 from monodock.sim.simulator import Simulator
+from monodock.sim.world import PAPER_WHITE
 
 __all__ = ["DiffDriveConfig", "Exposure", "Obstacle", "SimulatedRobot", "TruthSample"]
 
@@ -169,6 +176,8 @@ class SimulatedRobot:
         obstacles: cylinders around the robot (``monodock.sim.faults.Obstacle``); append to it at any time.
             They do not stop the robot: the rear sensor sees them and ``min_clearance`` / ``collided`` record
             how close it came (the charger face is not one of them).
+        blank_undetectable: deliver a blank frame (the sensor's noise on the charger face's white, no render)
+            when no dock marker can be detected in it (``undetectable``); off: every frame is rendered.
 
     Charging: the charger reports current once its spring contacts have pressed the robot's pads for
     ``charge_delay`` (0.3 s, the charger's current sense) without a break. They press when the front edge is
@@ -197,6 +206,7 @@ class SimulatedRobot:
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
     hide_markers: Callable[[float, Pose2D], bool] | None = None
     obstacles: list[Obstacle] = field(default_factory=list)
+    blank_undetectable: bool = False
 
     def __post_init__(self) -> None:
         c = self.config
@@ -223,7 +233,10 @@ class SimulatedRobot:
         self.pushed = 0.0  # how far the wheels drove on while the front edge pressed the face, metres
         self.truth: list[TruthSample] = [TruthSample(0.0, self.pose, self.odom)]
         self.frames_rendered = 0
+        self.frames_blank = 0  # frames delivered blank (blank_undetectable), not rendered
+        self._blank_stamps: deque[float] = deque(maxlen=64)
         self.render_seconds = 0.0  # wall time spent rendering, for the speed figures
+        self.render_cpu_seconds = 0.0  # CPU time of this process spent rendering (a loaded machine inflates wall)
         self.min_clearance = math.inf
         self.collided = False
         self._pressed_since: float | None = None  # when the contacts last closed
@@ -274,9 +287,38 @@ class SimulatedRobot:
             if e.stamp <= held:
                 break
             if not self._is_dropped(e) and self.arrival(e) <= self.t:
-                self._frame = CameraFrame(e.stamp, self.render(e.stamp, e.mid))
+                self._frame = CameraFrame(e.stamp, self._image(e))
                 break
         return self._frame
+
+    def undetectable(self, stamp: float) -> bool:
+        """Whether the frame exposed at ``stamp`` was delivered blank because no dock marker can be detected in it
+        (``blank_undetectable``): a detector would find none of the dock's markers there, by the truth."""
+        return stamp in self._blank_stamps
+
+    def _image(self, e: Exposure) -> NDArray[np.uint8]:
+        """The frame of an exposure: rendered, or blank when ``blank_undetectable`` and no marker can be seen."""
+        if not (self.blank_undetectable and self._markers_cut(e)):
+            return self.render(e.stamp, e.mid)
+        t0, c0 = time.perf_counter(), time.process_time()
+        cam = self.sim.camera
+        blank = np.full((cam.height, cam.width), PAPER_WHITE, dtype=np.float32)
+        image = apply_nuisances(blank, self.sim.nuisances, self.rng)  # the render's random draws, in its order
+        self.render_seconds += time.perf_counter() - t0
+        self.render_cpu_seconds += time.process_time() - c0
+        self.frames_blank += 1
+        self._blank_stamps.append(e.stamp)
+        return image
+
+    def _markers_cut(self, e: Exposure) -> bool:
+        """Whether every dock marker has a corner beyond the same border of the image, by ``_CUT_MARGIN_PX`` or
+        more, at both the start and the end of the exposure (so throughout it: the corner moves along a near
+        straight line in a few milliseconds), or not in the camera's field at all."""
+        start = {role: _beyond(quad, self.sim) for role, quad in self.sim.true_corners(self.dock_pose(e.start)).items()}
+        if not all(start.values()):
+            return False  # a marker whole in the image at the start: most frames end here, after one projection
+        end = self.sim.true_corners(self.dock_pose(e.end))
+        return all(start[role] & _beyond(end[role], self.sim) for role in ROLES)
 
     def deliver(self, frame: CameraFrame) -> None:
         """Hand over a frame rendered ahead (the real-time runner renders each exposure when it happens)."""
@@ -339,7 +381,7 @@ class SimulatedRobot:
         motion-blurred by the robot's motion during that exposure.
         """
         dock_pose = self.dock_pose(pose)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         exposure = next((e for e in reversed(self.exposure_log) if e.stamp == stamp and e.mid == pose), None)
         streak = self._blur.streak(exposure) if exposure is not None else None
         if streak is not None:
@@ -347,6 +389,7 @@ class SimulatedRobot:
         else:
             image = self.sim.render(dock_pose, rng=self.rng)
         self.render_seconds += time.perf_counter() - t0
+        self.render_cpu_seconds += time.process_time() - c0
         self.frames_rendered += 1
         if self.hide_markers is not None and self.hide_markers(stamp, pose):
             corners = self.sim.true_corners(dock_pose)
@@ -469,14 +512,33 @@ class SimulatedRobot:
         return Pose2D(pose.x + v * dt * math.cos(mid), pose.y + v * dt * math.sin(mid), wrap_angle(pose.theta + w * dt))
 
 
+_CUT_MARGIN_PX = 2.0  # beyond the lens blur's reach: the dark border of a cut marker runs into the image's edge
+
+
+def _beyond(corners: NDArray[np.float64], sim: Simulator) -> set[tuple[int, str]]:
+    """(corner, side) of the marker's corners that lie beyond a side of the image by ``_CUT_MARGIN_PX`` or more;
+    (corner, "field") for a corner outside the camera's field (NaN)."""
+    w, h, m = sim.camera.width - 0.5, sim.camera.height - 0.5, _CUT_MARGIN_PX
+    out: set[tuple[int, str]] = set()
+    for i, (x, y) in enumerate(corners):
+        if not (math.isfinite(x) and math.isfinite(y)):
+            out.add((i, "field"))
+            continue
+        if x <= -0.5 - m:
+            out.add((i, "left"))
+        if x >= w + m:
+            out.add((i, "right"))
+        if y <= -0.5 - m:
+            out.add((i, "top"))
+        if y >= h + m:
+            out.add((i, "bottom"))
+    return out
+
+
 def _lerp(a: Pose2D, b: Pose2D, f: float) -> Pose2D:
     """The pose a fraction ``f`` of the way from a to b (straight, heading the short way round)."""
     return Pose2D(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), wrap_angle(a.theta + f * wrap_angle(b.theta - a.theta)))
 
-
-# cv2.remap with dst= and None maps: its overloads in OpenCV's stubs change between releases (5.0 rejected the
-# call, 5.1 accepts it); seen through a plain callable, the type check does not depend on which release is installed.
-_remap: Callable[..., Any] = cv2.remap
 
 _BLUR_MIN_PX = 0.2  # a streak shorter than this is invisible under the lens blur and the noise: skip the warps
 _BLUR_MAX_SAMPLES = 8
@@ -509,8 +571,10 @@ class _MotionBlur:
         self.grid = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 2)
         self.grid_shape = (gh, gw)
         self.rays: NDArray[np.float64] | None = None  # the grid's undistorted rays (z = 1); computed when needed
-        ix, iy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        self.identity = np.stack([ix, iy], axis=-1)  # the map that moves nothing, (h, w, 2)
+        # How cv2.resize (OpenCV 5.1, INTER_LINEAR) spreads the grid over the pixels, column by column and row
+        # by row: the two nodes and their weights (the columns' clamped at the borders, the rows' not).
+        self.columns = _resize_taps(w, gw, clamp_weights=True)
+        self.rows = _resize_taps(h, gh, clamp_weights=False)
 
     def _optical(self, pose: Pose2D) -> NDArray[np.float64]:
         """world_T_optical of the robot at ``pose`` in the dock frame."""
@@ -559,26 +623,107 @@ class _MotionBlur:
         radiance = render_radiance(
             sim.world, sim.camera, sim.world_T_optical(pose), supersample=sim.nuisances.supersample
         )
-        w, h = sim.camera.width, sim.camera.height
-        # Interpolate the shift, not the map: resize's clamped borders then keep the shift, not the pixel.
-        dense = [
-            cv2.resize(s.reshape(*self.grid_shape, 2).astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
-            for s in (streak.start, streak.end)
-        ]
+        return apply_nuisances(self.blur(radiance, streak), sim.nuisances, rng)
+
+    def blur(self, radiance: NDArray[np.float32], streak: _Streak) -> NDArray[np.float32]:
+        """The mean of the warps of ``radiance`` along ``streak``, float32.
+
+        Where the radiance is flat within a warp's reach every warp gives the pixel back, so only the pixels near
+        an edge (a few percent: the renderer's images are piecewise flat) are warped, by a compiled kernel that
+        does what cv2.resize, cv2.scaleAdd and cv2.remap (INTER_LINEAR, BORDER_REPLICATE) of OpenCV 5.1 do,
+        operation for operation in float32: the same image, bit for bit, as warping the whole image with them
+        (``tests/sim/test_diffdrive.py``), at a fraction of the cost.
+        """
         k = min(_BLUR_MAX_SAMPLES, max(2, math.ceil(streak.length / _BLUR_SPACING_PX)))
-        total = np.zeros_like(radiance, dtype=np.float32)
-        warped = np.empty_like(total)
-        where = np.empty_like(self.identity)
-        for i in range(k):
-            u = (i + 0.5) / k - 0.5  # -1/2 at the start, 0 mid, 1/2 at the end
-            if abs(u) < 1e-9:
-                total += radiance
-                continue
-            cv2.scaleAdd(dense[u > 0], 2.0 * abs(u), self.identity, dst=where)
-            _remap(radiance, where, None, cv2.INTER_LINEAR, dst=warped, borderMode=cv2.BORDER_REPLICATE)
-            total += warped
+        grids = np.stack([streak.start, streak.end]).reshape(2, *self.grid_shape, 2).astype(np.float32)
+        # Flat pixels: the sum of k copies of themselves times 1/k, as the warps' mean gives them.
+        total = radiance.copy()
+        for _ in range(k - 1):
+            total += radiance
         total *= np.float32(1.0 / k)
-        return apply_nuisances(total, sim.nuisances, rng)
+        # A pixel's warps read within `reach` px of it; it is flat for them when no two neighbours differ there.
+        reach = math.ceil(float(np.max(np.abs(grids)))) + 1
+        edges = np.zeros(radiance.shape, dtype=np.uint8)
+        edges[:, :-1] |= radiance[:, :-1] != radiance[:, 1:]
+        edges[:-1, :] |= radiance[:-1, :] != radiance[1:, :]
+        box = np.ones((2 * reach + 2, 2 * reach + 2), np.uint8)
+        near = np.asarray(cv2.dilate(edges, box, anchor=(reach, reach)), dtype=np.uint8)
+        _warp_mean(radiance, near, grids, *self.columns, *self.rows, k, total)
+        return total
+
+
+def _resize_taps(
+    size: int, nodes: int, *, clamp_weights: bool
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
+    """For each of ``size`` pixels, the two grid nodes cv2.resize (INTER_LINEAR, OpenCV 5.1) mixes and their
+    float32 weights: the node index clamped at the borders, and the weight too (``clamp_weights``: its
+    horizontal pass) or not (its vertical pass)."""
+    f = ((np.arange(size) + 0.5) * (nodes / size) - 0.5).astype(np.float32)
+    i0 = np.floor(f).astype(np.int64)
+    a = (f - i0.astype(np.float32)).astype(np.float32)
+    if clamp_weights:
+        a = np.where((i0 < 0) | (i0 >= nodes - 1), np.float32(0.0), a).astype(np.float32)
+    lo, hi = np.clip(i0, 0, nodes - 1), np.clip(i0 + 1, 0, nodes - 1)
+    return lo, hi, (np.float32(1.0) - a).astype(np.float32), a
+
+
+@inlined
+def _fma(a: np.float32, b: np.float32, c: np.float32) -> np.float32:
+    """a * b + c rounded once to float32 (the product is exact in float64; the sum's double rounding is ~1e-9
+    likely): what OpenCV's fused multiply-adds give."""
+    return np.float32(np.float64(a) * np.float64(b) + np.float64(c))
+
+
+@kernel
+def _warp_mean(
+    radiance: NDArray[np.float32], near: NDArray[np.uint8], grids: NDArray[np.float32],
+    col0: NDArray[np.int64], col1: NDArray[np.int64], colw0: NDArray[np.float32], colw1: NDArray[np.float32],
+    row0: NDArray[np.int64], row1: NDArray[np.int64], roww0: NDArray[np.float32], roww1: NDArray[np.float32],
+    k: int, out: NDArray[np.float32],
+) -> None:  # fmt: skip
+    """``out`` where ``near`` is set: the mean of the k warps of ``radiance`` by the shifts ``grids`` ((start,
+    end), grid rows, grid columns, (x, y)) spread over the image as cv2.resize spreads them, each warp the
+    identity map plus 2|u| times a shift (cv2.scaleAdd) sampled bilinearly with the border replicated
+    (cv2.remap), in the order and the float32 operations OpenCV 5.1 uses."""
+    h, w = radiance.shape
+    inv_k = np.float32(1.0 / k)
+    alphas = np.empty(k, dtype=np.float32)
+    which = np.empty(k, dtype=np.int64)  # -1: the middle sample, the radiance itself; 0: towards start, 1: end
+    for i in range(k):
+        u = (i + 0.5) / k - 0.5
+        alphas[i] = np.float32(2.0 * abs(u))
+        which[i] = -1 if abs(u) < 1e-9 else (1 if u > 0 else 0)
+    # cv2.resize's horizontal pass: each grid row spread over the image's columns.
+    gs, gh = grids.shape[0], grids.shape[1]
+    across = np.empty((gs, gh, w, 2), dtype=np.float32)
+    for g in range(gs):
+        for r in range(gh):
+            for x in range(w):
+                for c in range(2):
+                    across[g, r, x, c] = grids[g, r, col0[x], c] * colw0[x] + grids[g, r, col1[x], c] * colw1[x]
+    for y in range(h):
+        r0, r1, rw0, rw1 = row0[y], row1[y], roww0[y], roww1[y]
+        for x in range(w):
+            if near[y, x] == 0:
+                continue
+            total = np.float32(0.0)
+            for i in range(k):
+                g = which[i]
+                if g < 0:
+                    total += radiance[y, x]
+                    continue
+                # Its vertical pass, then cv2.scaleAdd: the map's point.
+                mx = _fma(across[g, r0, x, 0] * rw0 + across[g, r1, x, 0] * rw1, alphas[i], np.float32(x))
+                my = _fma(across[g, r0, x, 1] * rw0 + across[g, r1, x, 1] * rw1, alphas[i], np.float32(y))
+                fx, fy = math.floor(mx), math.floor(my)
+                ax, ay = mx - np.float32(fx), my - np.float32(fy)
+                x0, x1 = min(max(fx, 0), w - 1), min(max(fx + 1, 0), w - 1)
+                y0, y1 = min(max(fy, 0), h - 1), min(max(fy + 1, 0), h - 1)
+                a, b, c, d = radiance[y0, x0], radiance[y0, x1], radiance[y1, x0], radiance[y1, x1]
+                upper = _fma(ax, b - a, a)
+                lower = _fma(ax, d - c, c)
+                total += _fma(ay, lower - upper, upper)
+            out[y, x] = total * inv_k
 
 
 @dataclass(frozen=True)
