@@ -796,8 +796,8 @@ def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = 
     outcomes: dict[int, _TaskOutcome] = {}
     # closing: an exception in this loop stops the workers now, not when the generator is collected.
     with closing(_run(batches, tasks, data, n_workers, progress)) as outputs:
-        for out in outputs:
-            outcomes[out.task] = out
+        for done in outputs:
+            outcomes[done.task] = done
     fit_seconds = sum(s.fit_seconds for o in outcomes.values() for s in o.scores)
     cpu_seconds = sum(s.cpu_seconds for o in outcomes.values() for s in o.scores)
 
