@@ -16,17 +16,26 @@ the depth. Then:
     one-row prediction, median over ``--calls`` calls: ONNX Runtime (1 thread, the bundle's session options)
     vs scikit-learn ``predict`` on the same float32 row, pinned to one CPU with one BLAS thread.
 
+With ``--cli DATASET.parquet`` it instead times ``monodock train DATASET.parquet`` end to end (a subprocess: imports,
+the selection, ONNX export, the fused tables, the report with its figures) beside the issue-24 target of 60 s for a
+3,000-row labelled drive (make one with ``monodock simulate --format rosbag2 --frames 3000 --seed 1`` and
+``monodock label``; it is simulated, not synthesised), and with ``--compare BUNDLE`` checks that the new bundle chose
+the same model type with the same parameters and test metrics (every candidate's too) in every segment.
+
 Run from the repo root:
 
     python bench/train_speed.py [--rows 20000] [--jobs 2] [--seed 0] [--out FILE.md]
+    python bench/train_speed.py --cli DATASET.parquet [--compare OLD_BUNDLE]   # monodock train's wall time vs 60 s
     python bench/train_speed.py --dataset DATASET.parquet [--set m1m2m3]   # the real features of a labelled drive
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -129,6 +138,63 @@ def _positive(text: str) -> int:
     return value
 
 
+TARGET_CLI_S = 60.0
+_COMPARED = ("model", "params", "mse", "r2", "n_train", "n_test", "n_own", "n_rows", "borrowed", "candidates", "sha256")
+
+
+def compare_bundles(old: Path, new: Path) -> list[str]:
+    """Every difference between two bundles' chosen models, parameters, metrics and ONNX checksums, per task."""
+    a, b = (json.loads((p / "bundle.json").read_text(encoding="utf-8"))["sets"] for p in (old, new))
+    if set(a) != set(b):
+        return [f"marker sets differ: {sorted(a)} vs {sorted(b)}"]
+    out = []
+    for name in a:
+        pairs = [(a[name]["depth"], b[name]["depth"]), *zip(a[name]["yaw"], b[name]["yaw"], strict=True)]
+        for ea, eb in pairs:
+            out += [
+                f"{name} {ea.get('segment', 'depth')} {k}: {ea.get(k)} vs {eb.get(k)}"
+                for k in _COMPARED
+                if ea.get(k) != eb.get(k)
+            ]
+    return out
+
+
+def cli_main(args: argparse.Namespace) -> int:
+    """Time ``monodock train`` on a labelled dataset end to end, beside the target; compare with an older bundle."""
+    with tempfile.TemporaryDirectory() as tmp:
+        bundle = Path(tmp) / "bundle"
+        cmd = [sys.executable, "-m", "monodock.cli.main", "train", args.cli, "--out", str(bundle)]
+        cmd += ["--trials", str(args.trials), "--seed", str(args.seed), "--jobs", str(args.jobs)]
+        t0 = time.perf_counter()
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+        wall = time.perf_counter() - t0
+        cpu = os.times().children_user + os.times().children_system
+        rows = json.loads((bundle / "bundle.json").read_text(encoding="utf-8"))["metadata"]["dataset_rows"]
+        diffs = compare_bundles(Path(args.compare), bundle) if args.compare else None
+    env = environment()
+    lines = [
+        f"### `monodock train` on {rows} rows of {args.cli}",
+        "",
+        f"`python bench/train_speed.py --cli {args.cli} --jobs {args.jobs} --trials {args.trials} --seed {args.seed}`"
+        f" — {env['date_utc']} UTC, {env['machine']}.",
+        "",
+        markdown_table(
+            ["stage", "value"],
+            [
+                [f"monodock train, wall (s; target ≤ {TARGET_CLI_S:g})", fmt(wall, 1)],
+                ["CPU of the command and its workers (s)", fmt(cpu, 1)],
+            ],
+        ),
+    ]
+    if diffs is not None:
+        lines += ["", f"Against {args.compare}: " + ("identical choices and metrics" if not diffs else "DIFFERENT:")]
+        lines += [f"- {d}" for d in diffs[:50]]
+    raw = {"benchmark": "train_speed_cli", "args": vars(args), "environment": env, "wall_seconds": wall}
+    raw |= {"cpu_seconds": cpu, "target_seconds": TARGET_CLI_S, "differences": diffs}
+    emit("\n".join(lines), raw, args.out)
+    return 0 if not diffs else 1
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n", maxsplit=1)[0])
     p.add_argument("--rows", type=_positive, default=20000, help="synthetic training rows (default 20000)")
@@ -139,8 +205,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
     p.add_argument("--dataset", help="time on this labelled dataset (monodock label) instead of synthetic rows")
     p.add_argument("--set", default="m1m2m3", help="with --dataset: the marker set to train (default m1m2m3)")
+    p.add_argument("--cli", metavar="DATASET", help="time `monodock train DATASET` end to end against the 60 s target")
+    p.add_argument("--compare", metavar="BUNDLE", help="with --cli: the same choices and metrics as this bundle?")
     args = p.parse_args(argv)
 
+    if args.cli:
+        return cli_main(args)
     if args.dataset:
         ts = training_sets(read_dataset(args.dataset), (args.set,))[0]
     else:

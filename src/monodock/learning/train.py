@@ -556,20 +556,29 @@ def _tasks(sets: Sequence[TrainingSet], config: TrainConfig) -> list[_Task]:
 
 
 @dataclass(frozen=True)
-class _Job:
-    """One hyperparameter draw of one model type on one task."""
+class _Draw:
+    """One hyperparameter draw of one model type."""
 
-    task: int
     model: str
     trial: int
     params: dict[str, Any]
     random_state: int
+
+
+@dataclass(frozen=True)
+class _Batch:
+    """Every draw of every model type on one task: the unit of work a worker gets."""
+
+    task: int
+    draws: tuple[_Draw, ...]
+    models: tuple[str, ...]
     cost: float
 
 
 @dataclass(frozen=True)
-class _Outcome:
-    task: int
+class _Score:
+    """How one draw did on its task's test split."""
+
     model: str
     trial: int
     mse: float
@@ -577,11 +586,20 @@ class _Outcome:
     fit_seconds: float
     cpu_seconds: float
     n_fit: int
+
+
+@dataclass(frozen=True)
+class _TaskOutcome:
+    """A task's draws' scores and its best draw's fitted estimator and test predictions."""
+
+    task: int
+    scores: tuple[_Score, ...]
+    best: _Score
     estimator: Any
     y_pred: NDArray[np.float64]
 
 
-# Rough relative cost per training row, to start the slow fits first (it only affects scheduling).
+# Rough relative cost per training row, to start the slow tasks first (it only affects scheduling).
 _COST = {
     "linear": 0.01,
     "ridge": 0.01,
@@ -593,54 +611,85 @@ _COST = {
 }
 
 
-def _jobs(tasks: Sequence[_Task], config: TrainConfig, n_features: Sequence[int]) -> list[_Job]:
+def _batches(tasks: Sequence[_Task], config: TrainConfig, n_features: Sequence[int]) -> list[_Batch]:
     from sklearn.model_selection import ParameterSampler
 
-    jobs: list[_Job] = []
+    batches: list[_Batch] = []
     for t_index, t in enumerate(tasks):
         if t.reason is not None:
             continue
+        draws: list[_Draw] = []
+        cost = 0.0
         for model in config.models:
             space = _SPACES[model]
             n_iter = config.trials if space else 1
             sampler = ParameterSampler(space, n_iter=n_iter, random_state=_seed(config.seed, t.key, model) % (2**31))
-            draws = list(sampler) if space else [{}]
+            raws = list(sampler) if space else [{}]
             n_fit = len(t.svr_rows) if model == "svr" else len(t.train_rows)
-            cost = _COST[model] * n_fit * (n_fit / 1000.0 if model == "svr" else 1.0)
-            for trial, raw in enumerate(draws):
+            cost += len(raws) * _COST[model] * n_fit * (n_fit / 1000.0 if model == "svr" else 1.0)
+            for trial, raw in enumerate(raws):
                 params = _resolve(
                     model, raw, y_std=t.y_std, n_features=n_features[t.set_index], leaf_budget=t.leaf_budget
                 )
-                jobs.append(_Job(t_index, model, trial, params, _seed(config.seed, t.key, model, trial), cost))
-    return jobs
+                draws.append(_Draw(model, trial, params, _seed(config.seed, t.key, model, trial)))
+        batches.append(_Batch(t_index, tuple(draws), tuple(config.models), cost))
+    return batches
 
 
-def _fit_one(
-    job: _Job,
+def _rank(s: _Score, models: Sequence[str]) -> tuple[float, int, int]:
+    """Lowest MSE first; ties go to the earlier model type and draw, so the order of the fits never matters."""
+    mse = s.mse if math.isfinite(s.mse) else math.inf
+    return mse, models.index(s.model), s.trial
+
+
+def _fit_task(
+    batch: _Batch,
     X_train: NDArray[np.float64],
     y_train: NDArray[np.float64],
+    X_svr: NDArray[np.float64],
+    y_svr: NDArray[np.float64],
     X_test: NDArray[np.float64],
     y_test: NDArray[np.float64],
-) -> _Outcome:
-    """Fit one draw and score it on the test split (runs in a worker process)."""
+) -> _TaskOutcome:
+    """Fit every draw of one task and score each on the test split (runs in a worker process).
+
+    Only the best draw's estimator comes back: the others would cost their pickling and the parent's memory.
+    """
+    import sklearn
     from sklearn.exceptions import ConvergenceWarning, UndefinedMetricWarning
     from sklearn.metrics import mean_squared_error, r2_score
 
+    scores: list[_Score] = []
+    best: tuple[_Score, Any, NDArray[np.float64]] | None = None
     # One BLAS thread: the workers already fill the cores, and a fixed thread count keeps results bit-identical.
-    with threadpool_limits(limits=1), warnings.catch_warnings():
+    # The parameters are checked by TrainConfig and the draws, the rows are finite (TrainingSet), and every
+    # prediction is checked below: scikit-learn's own checks of each fit (a third of a boosting fit's time on
+    # a 5 cm segment's rows) and of each score only repeat that.
+    with (
+        threadpool_limits(limits=1),
+        warnings.catch_warnings(),
+        sklearn.config_context(skip_parameter_validation=True, assume_finite=True),
+    ):
         warnings.simplefilter("ignore", ConvergenceWarning)
         warnings.simplefilter("ignore", UndefinedMetricWarning)
-        est = make_estimator(job.model, job.params, job.random_state)
-        t0, c0 = time.perf_counter(), time.process_time()
-        est.fit(X_train, y_train)
-        seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
-        pred = np.asarray(est.predict(X_test), dtype=np.float64)
-    if np.all(np.isfinite(pred)):
-        mse = float(mean_squared_error(y_test, pred))
-        r2 = float(r2_score(y_test, pred)) if len(y_test) >= 2 else math.nan
-    else:
-        mse, r2 = math.inf, math.nan
-    return _Outcome(job.task, job.model, job.trial, mse, r2, seconds, cpu, len(y_train), est, pred)
+        for draw in batch.draws:
+            X, y = (X_svr, y_svr) if draw.model == "svr" else (X_train, y_train)
+            est = make_estimator(draw.model, draw.params, draw.random_state)
+            t0, c0 = time.perf_counter(), time.process_time()
+            est.fit(X, y)
+            seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+            pred = np.asarray(est.predict(X_test), dtype=np.float64)
+            if np.all(np.isfinite(pred)):
+                mse = float(mean_squared_error(y_test, pred))
+                r2 = float(r2_score(y_test, pred)) if len(y_test) >= 2 else math.nan
+            else:
+                mse, r2 = math.inf, math.nan
+            score = _Score(draw.model, draw.trial, mse, r2, seconds, cpu, len(y))
+            scores.append(score)
+            if best is None or _rank(score, batch.models) < _rank(best[0], batch.models):
+                best = (score, est, pred)
+    assert best is not None  # a batch has at least one draw
+    return _TaskOutcome(batch.task, tuple(scores), best[0], best[1], best[2])
 
 
 def _worker_count(jobs: int) -> int:
@@ -652,43 +701,50 @@ def _worker_count(jobs: int) -> int:
 
 
 def _run(
-    jobs: Sequence[_Job],
+    batches: Sequence[_Batch],
     tasks: Sequence[_Task],
     data: Sequence[tuple[NDArray[np.float64], TrainingSet]],
     n_workers: int,
     progress: bool,
-) -> Generator[_Outcome, None, None]:
+) -> Generator[_TaskOutcome, None, None]:
 
-    def args(job: _Job) -> tuple[Any, ...]:
-        t = tasks[job.task]
+    def args(batch: _Batch) -> tuple[Any, ...]:
+        t = tasks[batch.task]
         X32, s = data[t.set_index]
         y = s.depth if t.target == "depth" else s.yaw_deg
-        train = t.svr_rows if job.model == "svr" else t.train_rows
-        return job, X32[train], y[train], X32[t.test_rows], y[t.test_rows]
+        X_train, y_train = X32[t.train_rows], y[t.train_rows]
+        # The same arrays when SVR sees every training row: pickled once.
+        X_svr, y_svr = (X_train, y_train) if t.svr_rows is t.train_rows else (X32[t.svr_rows], y[t.svr_rows])
+        return batch, X_train, y_train, X_svr, y_svr, X32[t.test_rows], y[t.test_rows]
 
-    order = sorted(jobs, key=lambda j: -j.cost)
+    order = sorted(batches, key=lambda b: -b.cost)
     with tqdm(
-        total=len(order), desc="training", unit="fit", file=sys.stderr, disable=None if progress else True
+        total=sum(len(b.draws) for b in order),
+        desc="training",
+        unit="fit",
+        file=sys.stderr,
+        disable=None if progress else True,
     ) as bar:
         client = active_client()
         if n_workers == 1 and client is None:
-            for job in order:
-                yield _fit_one(*args(job))
-                bar.update()
+            for batch in order:
+                yield _fit_task(*args(batch))
+                bar.update(len(batch.draws))
             return
-        # --cluster (core.cluster): every fit a task of the Dask cluster, through joblib's dask backend.
+        # --cluster (core.cluster): every task a task of the Dask cluster, through joblib's dask backend.
         where = parallel_config("loky", n_jobs=n_workers) if client is None else parallel_config("dask", client=client)
-        # max_nbytes=None: the fits' arrays are small and go pickled, not through temp memory-mapped folders, whose
-        # tracker would print a "leaked folder" warning after the parent when the workers are killed mid-fit.
+        # One task per call, its rows sent with it (a few hundred kB at most). max_nbytes=None: they go pickled,
+        # not through temp memory-mapped folders, whose tracker would print a "leaked folder" warning after the
+        # parent when the workers are killed mid-fit. batch_size=1: the tasks are few, long and sorted by cost.
         with where:
-            parallel = Parallel(return_as="generator_unordered", max_nbytes=None)
+            parallel = Parallel(return_as="generator_unordered", max_nbytes=None, batch_size=1)
         # The loky workers start here (and take the blocked SIGINT: a Ctrl-C is the parent's to handle).
         with sigint_blocked():
-            outputs = parallel(delayed(_fit_one)(*args(job)) for job in order)
+            outputs = parallel(delayed(_fit_task)(*args(batch)) for batch in order)
         try:
             for out in outputs:
                 yield out
-                bar.update()
+                bar.update(len(out.scores))
         finally:
             # Stopped early (Ctrl-C, SIGTERM, an error here or in the caller): joblib kills the workers
             # (executor shutdown with kill_workers) instead of waiting for their fits; its warning that
@@ -698,10 +754,19 @@ def _run(
                 outputs.close()
 
 
-def _sort_key(o: _Outcome, models: Sequence[str]) -> tuple[float, int, int]:
-    """Lowest MSE first; ties go to the earlier model type and draw, so arrival order never matters."""
-    mse = o.mse if math.isfinite(o.mse) else math.inf
-    return mse, models.index(o.model), o.trial
+def _model_scores(out: _TaskOutcome | None, draws: _Batch | None, models: Sequence[str]) -> dict[str, ModelScore]:
+    """Every tried model type's best draw on one task, in the configuration's order."""
+    if out is None or draws is None:
+        return {}
+    params = {(d.model, d.trial): d.params for d in draws.draws}
+    scores: dict[str, ModelScore] = {}
+    for model in models:
+        tried = [s for s in out.scores if s.model == model]
+        if not tried:
+            continue
+        b = min(tried, key=lambda s: _rank(s, models))
+        scores[model] = ModelScore(model, params[(model, b.trial)], b.mse, b.r2, b.fit_seconds, b.n_fit, len(tried))
+    return scores
 
 
 def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = True) -> TrainingResult:
@@ -727,50 +792,28 @@ def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = 
     tasks = _tasks(sets, config)
     # float32 values (held as float64): what the ONNX models will see, so trees split on the same numbers.
     data = [(s.X.astype(np.float32).astype(np.float64), s) for s in sets]
-    jobs = _jobs(tasks, config, [len(s.feature_names) for s in sets])
-    n_workers = min(_worker_count(config.jobs), max(1, len(jobs)))
+    batches = _batches(tasks, config, [len(s.feature_names) for s in sets])
+    n_fits = sum(len(b.draws) for b in batches)
+    n_workers = min(_worker_count(config.jobs), max(1, len(batches)))
 
-    best: dict[tuple[int, str], _Outcome] = {}
-    counts: dict[tuple[int, str], int] = {}
-    chosen: dict[int, _Outcome] = {}
-    fit_seconds = cpu_seconds = 0.0
+    outcomes: dict[int, _TaskOutcome] = {}
     # closing: an exception in this loop stops the workers now, not when the generator is collected.
-    with closing(_run(jobs, tasks, data, n_workers, progress)) as outputs:
-        for out in outputs:
-            fit_seconds += out.fit_seconds
-            cpu_seconds += out.cpu_seconds
-            key = (out.task, out.model)
-            counts[key] = counts.get(key, 0) + 1
-            rank = _sort_key(out, config.models)
-            if key not in best or rank < _sort_key(best[key], config.models):
-                # Scores only: of all fitted estimators, just each task's chosen one is kept.
-                best[key] = replace(out, estimator=None)
-            if out.task not in chosen or rank < _sort_key(chosen[out.task], config.models):
-                chosen[out.task] = out
+    with closing(_run(batches, tasks, data, n_workers, progress)) as outputs:
+        for done in outputs:
+            outcomes[done.task] = done
+    fit_seconds = sum(s.fit_seconds for o in outcomes.values() for s in o.scores)
+    cpu_seconds = sum(s.cpu_seconds for o in outcomes.values() for s in o.scores)
 
-    params_of = {(j.task, j.model, j.trial): j.params for j in jobs}
+    batch_of = {b.task: b for b in batches}
     results: list[TaskResult] = []
     for t_index, t in enumerate(tasks):
         s = sets[t.set_index]
         y = s.depth if t.target == "depth" else s.yaw_deg
-        scores: dict[str, ModelScore] = {}
-        for model in config.models:
-            o = best.get((t_index, model))
-            if o is None:
-                continue
-            scores[model] = ModelScore(
-                model,
-                params_of[(t_index, model, o.trial)],
-                o.mse,
-                o.r2,
-                o.fit_seconds,
-                o.n_fit,
-                counts[(t_index, model)],
-            )
-        c = chosen.get(t_index)
+        out = outcomes.get(t_index)
         reason = t.reason
-        if c is not None and not math.isfinite(c.mse):
-            reason, c = "every model failed (non-finite predictions)", None
+        if out is not None and not math.isfinite(out.best.mse):
+            reason = "every model failed (non-finite predictions)"
+        chosen = out if out is not None and reason is None else None
         results.append(
             TaskResult(
                 set_name=t.set_name,
@@ -782,12 +825,12 @@ def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = 
                 n_rows=len(t.rows),
                 n_train=len(t.train_rows),
                 n_test=len(t.test_rows),
-                scores=scores,
-                chosen=None if c is None else c.model,
-                estimator=None if c is None else c.estimator,
+                scores=_model_scores(out, batch_of.get(t_index), config.models),
+                chosen=None if chosen is None else chosen.best.model,
+                estimator=None if chosen is None else chosen.estimator,
                 test_rows=t.test_rows,
                 y_test=y[t.test_rows].astype(np.float64),
-                y_pred=np.zeros(0) if c is None else c.y_pred,
+                y_pred=np.zeros(0) if chosen is None else chosen.y_pred,
                 reason=reason,
             )
         )
@@ -798,5 +841,5 @@ def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = 
         block = results[i * per_set : (i + 1) * per_set]
         set_results.append(SetResult(s.name, tuple(s.feature_names), len(s.depth), block[0], tuple(block[1:])))
     return TrainingResult(
-        config, tuple(set_results), time.perf_counter() - t0, len(jobs), fit_seconds, cpu_seconds, n_workers
+        config, tuple(set_results), time.perf_counter() - t0, n_fits, fit_seconds, cpu_seconds, n_workers
     )
