@@ -198,7 +198,7 @@ def _held_out_drive(tmp: Path, work: Path, config: DemoConfig, trained: _Trained
             )
 
     write_recording(work / "test_drive", sim, stops, seed=seed, jobs=config.jobs, on_frame=on_frame)
-    dataset, _, _ = label_recording(work / "test_drive", sim.layout)
+    dataset, _, _ = label_recording(work / "test_drive", sim.layout, jobs=config.jobs)
     write_dataset(tmp / "test.parquet", dataset)
     return _HeldOut(sim, seed, dataset, regression, fused, views[0] if views else None, tuple(overlays))
 
