@@ -218,7 +218,7 @@ def _docking(tmp: Path, config: DemoConfig) -> DockingRun:
     )
     (tmp / "docking").mkdir()
     results = tuple(run_dock_sim(dock_config))
-    write_dock_files(tmp / "docking", results, dock_config)
+    write_dock_files(tmp / "docking", results, dock_config, jobs=config.jobs)
     return DockingRun(dock_config, results, summarize(results, dock_config))
 
 
