@@ -11,6 +11,8 @@ later run.
 Run from the repo root:
 
     python bench/demo_speed.py [--jobs 2] [--cold] [--keep DIR] [--out FILE.md]
+
+(``--train-stops``, ``--test-stops`` and ``--trials`` pass other sizes to the demo; the target is for its defaults.)
 """
 
 from __future__ import annotations
@@ -41,6 +43,9 @@ def run_demo(out: Path, args: argparse.Namespace, env: dict[str, str]) -> tuple[
     cmd = [sys.executable, "-m", "monodock.cli.main", "demo", "--out", str(out), "--seed", str(args.seed)]
     if args.jobs:
         cmd += ["--jobs", str(args.jobs)]
+    for flag in ("train_stops", "test_stops", "trials"):
+        if getattr(args, flag):
+            cmd += [f"--{flag.replace('_', '-')}", str(getattr(args, flag))]
     stages: list[tuple[str, float]] = []
     cpu0, t0 = _children_cpu(), time.perf_counter()
     with subprocess.Popen(cmd, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env) as proc:
@@ -62,6 +67,9 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n", maxsplit=1)[0])
     p.add_argument("--jobs", type=int, default=0, help="the demo's --jobs (default: its own, the cores up to 4)")
     p.add_argument("--seed", type=int, default=0, help="the demo's --seed (default 0)")
+    p.add_argument("--train-stops", type=int, help="the demo's --train-stops (default: its own, 3000)")
+    p.add_argument("--test-stops", type=int, help="the demo's --test-stops (default: its own, 500)")
+    p.add_argument("--trials", type=int, help="the demo's --trials (default: its own, 4)")
     p.add_argument("--cold", action="store_true", help="an empty numba cache: count the kernels' compilation")
     p.add_argument("--keep", help="write the demo's report here instead of a temporary folder")
     p.add_argument("--out", help="also write the markdown here, and the raw numbers as JSON beside it")
@@ -83,7 +91,7 @@ def main() -> int:
     env_facts = environment()
     report = "\n".join(
         [
-            f"`python bench/demo_speed.py{' --cold' if args.cold else ''}` — {env_facts['date_utc']} UTC, "
+            f"`python bench/{' '.join(['demo_speed.py', *sys.argv[1:]])}` — {env_facts['date_utc']} UTC, "
             f"{os.cpu_count()} cores, numba cache {'empty (cold)' if args.cold else 'warm'}",
             "",
             markdown_table(["stage", "wall s", "% of total"], rows),
