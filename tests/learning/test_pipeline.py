@@ -17,7 +17,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
-from monodock.learning.dataset import dataset_columns, read_dataset, write_dataset
+from monodock.learning.dataset import dataset_columns, label_recording, read_dataset, write_dataset
 from monodock.recording import open_recording
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
@@ -48,6 +48,25 @@ def test_label_writes_every_image_with_counts_and_truth(work: Path) -> None:
     # Every invalid row says why.
     assert all(r for r in ds["label_reason"][~valid])
     assert ds.metadata["counts"]["images"] == 240
+
+
+def test_labelling_in_worker_processes_gives_the_same_dataset(tmp_path: Path) -> None:
+    """Images labelled in chunks by two workers: the same rows, labels and counts as one process, in the same
+    order, with unpaired images among them (lost scans), and labels that agree with the recording's truth."""
+    sim = Simulator(nuisances=FAST, seed=4)
+    _record(tmp_path / "rec", sim, 30, 4, scan_loss=0.5)
+    one, run_one, _ = label_recording(tmp_path / "rec", sim.layout, progress=False)
+    two, run_two, _ = label_recording(tmp_path / "rec", sim.layout, progress=False, jobs=2)
+    assert run_two.to_dict() == run_one.to_dict()
+    assert run_one.images == 30
+    assert 0 < run_one.unpaired < 30
+    assert run_one.labelled > 5
+    assert two.metadata == one.metadata
+    for name in dataset_columns():
+        np.testing.assert_array_equal(two[name], one[name], err_msg=name)
+    valid = two["label_valid"]
+    assert np.mean(np.abs(two["label_x_m"] - two["truth_x_m"])[valid]) < 0.015
+    assert list(two["frame"]) == sorted(two["frame"])
 
 
 def test_dataset_round_trip_and_refusals(work: Path, tmp_path: Path) -> None:

@@ -47,7 +47,7 @@ from monodock.sim import Nuisances, SimFrame, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
 from monodock.sim.recording import write_recording
 
-__all__ = ["DemoConfig", "DemoResult", "demo_settings", "run_demo"]
+__all__ = ["STAGES", "DemoConfig", "DemoResult", "demo_settings", "run_demo"]
 
 # The methods of the first screen's camera frame, and of the closed-loop docking.
 FRAME_METHODS = ("regression", "pnp", "board", "fused")
@@ -74,10 +74,12 @@ class DemoConfig:
 
 @dataclass(frozen=True)
 class DemoResult:
-    """What ``run_demo`` returns: the evaluation's summary (as written to summary.json) and the wall time."""
+    """What ``run_demo`` returns: the evaluation's summary (as written to summary.json), the wall time, and
+    each stage's wall time in seconds (STAGES' names, in order)."""
 
     summary: HeldoutSummary
     seconds: float
+    stages: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -108,12 +110,17 @@ def _log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
+# The stages as their times are logged ("stage NAME done in S s", read by bench/demo_speed.py).
+STAGES = ("drive, labels, training", "held-out drive", "docking", "evaluation", "report")
+
+
 @contextlib.contextmanager
-def _took(stage: str) -> Iterator[None]:
-    """Log how long a stage took (where a demo's minutes go)."""
+def _took(stage: str, times: list[tuple[str, float]]) -> Iterator[None]:
+    """Log how long a stage took (where a demo's minutes go), and add it to ``times``."""
     started = time.perf_counter()
     yield
-    _log(f"{stage} done in {time.perf_counter() - started:.0f} s")
+    times.append((stage, time.perf_counter() - started))
+    _log(f"stage {stage} done in {times[-1][1]:.1f} s")
 
 
 def _lidar_overlay(frame: SimFrame, sim: Simulator, estimates: FrameEstimates) -> bytes:
@@ -198,7 +205,7 @@ def _held_out_drive(tmp: Path, work: Path, config: DemoConfig, trained: _Trained
             )
 
     write_recording(work / "test_drive", sim, stops, seed=seed, jobs=config.jobs, on_frame=on_frame)
-    dataset, _, _ = label_recording(work / "test_drive", sim.layout)
+    dataset, _, _ = label_recording(work / "test_drive", sim.layout, jobs=config.jobs)
     write_dataset(tmp / "test.parquet", dataset)
     return _HeldOut(sim, seed, dataset, regression, fused, views[0] if views else None, tuple(overlays))
 
@@ -211,7 +218,7 @@ def _docking(tmp: Path, config: DemoConfig) -> DockingRun:
     )
     (tmp / "docking").mkdir()
     results = tuple(run_dock_sim(dock_config))
-    write_dock_files(tmp / "docking", results, dock_config)
+    write_dock_files(tmp / "docking", results, dock_config, jobs=config.jobs)
     return DockingRun(dock_config, results, summarize(results, dock_config))
 
 
@@ -295,21 +302,23 @@ def _report(
 def run_demo(out: str | Path, config: DemoConfig, *, force: bool = False) -> DemoResult:
     """Run the demo into ``out`` (atomically): train, a held-out drive, docking, the study, the report."""
     t0 = time.perf_counter()
+    times: list[tuple[str, float]] = []
+    train, heldout, dock, evaluation, report = STAGES
     with atomic_directory(out, force=force) as tmp:
         work = tmp / "recordings"
         work.mkdir()
-        with _took("[1-3/6]"):
+        with _took(train, times):
             trained = _simulate_and_train(tmp, work, config)
-        with _took("[4/6]"):
+        with _took(heldout, times):
             held = _held_out_drive(tmp, work, config, trained)
-        with _took("[5/6]"):
+        with _took(dock, times):
             docking = _docking(tmp, config)
-        with _took("[6/6]"):
+        with _took(evaluation, times):
             result = _study(work, config, trained, held)
-        with _took("report"):
+        with _took(report, times):
             summary = _report(tmp, config, trained, held, docking, result)
         shutil.rmtree(work)
-    return DemoResult(summary, time.perf_counter() - t0)
+    return DemoResult(summary, time.perf_counter() - t0, tuple(times))
 
 
 # --- the command ---------------------------------------------------------------------------------------

@@ -12,7 +12,8 @@ import multiprocessing as mp
 import multiprocessing.pool
 import os
 import signal
-from collections.abc import Callable, Iterator
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
@@ -25,7 +26,7 @@ S = TypeVar("S")
 T = TypeVar("T")
 R = TypeVar("R")
 
-__all__ = ["SINGLE_THREAD_ENV", "map_with_state", "worker_pool"]
+__all__ = ["SINGLE_THREAD_ENV", "map_stream", "map_with_state", "worker_pool"]
 
 # Read by OpenBLAS, OpenMP and MKL when the worker imports numpy: it must be set before that import.
 SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -93,3 +94,23 @@ def map_with_state(fn: Callable[[S, T], R], state: S, tasks: list[T], *, jobs: i
         return
     with worker_pool(jobs, _set_state, (state,)) as pool:
         yield from pool.imap(_call_with_state, [(fn, t) for t in tasks], chunksize=chunksize)
+
+
+def map_stream(fn: Callable[[S, T], R], state: S, tasks: Iterable[T], *, jobs: int, window: int = 0) -> Iterator[R]:
+    """``map_with_state`` over a stream of big tasks (e.g. images read from a recording): in order, and only
+    ``window`` tasks (default 4 per worker) read ahead and in flight, so memory does not grow with the stream.
+
+    (``Pool.imap`` would read the whole stream ahead into its queue.)
+    """
+    if jobs <= 1:
+        yield from (fn(state, t) for t in tasks)
+        return
+    window = window or 4 * jobs
+    with worker_pool(jobs, _set_state, (state,)) as pool:
+        pending: deque[multiprocessing.pool.AsyncResult[R]] = deque()
+        for t in tasks:
+            pending.append(pool.apply_async(_call_with_state, ((fn, t),)))
+            if len(pending) >= window:
+                yield pending.popleft().get()
+        while pending:
+            yield pending.popleft().get()

@@ -46,6 +46,7 @@ __all__ = [
     "Reference",
     "RowInput",
     "band_rows",
+    "dataset_rows",
     "errors",
     "estimate_dataset",
     "evaluate_heldout",
@@ -130,17 +131,25 @@ def geometric_methods(camera: CameraModel, layout: DockLayout, robot: RobotConfi
     }
 
 
-def estimate_dataset(dataset: Dataset, methods: Mapping[str, FrameMethod]) -> dict[str, MethodResult]:
-    """Run every method on every row of a dataset, from the corners the dataset stores."""
+def dataset_rows(dataset: Dataset) -> list[RowInput]:
+    """What every method sees of each row: the raw features, OpenCV's detection and the refined one."""
     camera, layout = dataset.camera(), dataset.layout()
     raw = dataset.raw_features()
     refined = dataset.refined_corners()
-    rows = [
+    return [
         RowInput(
             r, detection_from_features(r, layout, camera.size), refined_detection_from_row(r, q, layout, camera.size)
         )
         for r, q in zip(raw, refined, strict=True)
     ]
+
+
+def estimate_dataset(
+    dataset: Dataset, methods: Mapping[str, FrameMethod], *, rows: Sequence[RowInput] | None = None
+) -> dict[str, MethodResult]:
+    """Run every method on every row of a dataset, from the corners the dataset stores (``rows``: its
+    ``dataset_rows``, when already built)."""
+    rows = dataset_rows(dataset) if rows is None else rows
     return {name: _collect(name, [f(row) for row in rows]) for name, f in methods.items()}
 
 
@@ -213,6 +222,8 @@ def miscalibration_study(
     *,
     factors: Sequence[float] = (1.0, 1.05, 1.5),
     regression: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None = None,
+    correct: Mapping[str, MethodResult] | None = None,
+    rows: Sequence[RowInput] | None = None,
 ) -> list[MiscalibrationRow]:
     """Depth and yaw error of the PnP methods (and the regression when given) under a wrong marker size or focal.
 
@@ -223,27 +234,36 @@ def miscalibration_study(
         regression: per (quantity, factor) a factory that returns the regression method(s) to run with the
             given (wrong) camera, e.g. a bundle trained with that camera. The marker size is not an input
             of the regression, so its rows there are the regression with the correct bundle.
+        correct: the methods' results on this dataset with the correct calibration (``evaluate_heldout``'s),
+            used as they are where the study's calibration is the correct one (factor 1), and for a
+            "regression" under a wrong marker size (which it does not read) when ``regression`` has no
+            factory for it; nothing is estimated twice.
+        rows: the dataset's ``dataset_rows``, when already built.
     """
     camera, layout, robot = dataset.camera(), dataset.layout(), dataset.robot()
-    rows: list[MiscalibrationRow] = []
+    if rows is None:
+        rows = dataset_rows(dataclasses.replace(dataset, metadata={**dataset.metadata, "camera": camera.to_ros_dict()}))
+    known = dict(correct or {})
+    out: list[MiscalibrationRow] = []
     ok = np.isfinite(reference[:, 0])
     for quantity in ("marker size", "focal length"):
         for f in factors:
             cam = _scaled_camera(camera, f) if quantity == "focal length" else camera
             lay = _scaled_layout(layout, f) if quantity == "marker size" else layout
-            methods = dict(geometric_methods(cam, lay, robot))
-            if regression is not None and (quantity, f) in regression:
-                methods.update(regression[(quantity, f)](cam))
-            results = estimate_dataset(
-                dataclasses.replace(dataset, metadata={**dataset.metadata, "camera": camera.to_ros_dict()}),
-                methods,
-            )
+            explicit = regression[(quantity, f)](cam) if regression is not None and (quantity, f) in regression else {}
+            methods = {**geometric_methods(cam, lay, robot), **explicit}
+            # Where the calibration is the correct one, a method's answers are the ones already known.
+            reuse = [n for n in methods if f == 1.0 and n in known and n not in explicit]
+            if "regression" not in methods and "regression" in known and (quantity == "marker size" or f == 1.0):
+                reuse.append("regression")
+            fresh = estimate_dataset(dataset, {n: m for n, m in methods.items() if n not in reuse}, rows=rows)
+            results = {n: known[n] if n in reuse else fresh[n] for n in dict.fromkeys([*methods, *reuse])}
             for name, r in results.items():
                 e = errors(reference, r.poses)[ok]
                 good = np.isfinite(e[:, 0])
                 # Relative to the depth from the camera: what a wrong scale multiplies.
                 rel = e[good, 0] / (reference[ok][good, 0] - robot.camera_mount.x)
-                rows.append(
+                out.append(
                     MiscalibrationRow(
                         quantity,
                         f,
@@ -253,7 +273,7 @@ def miscalibration_study(
                         float(np.degrees(np.mean(np.abs(e[good, 2])))) if good.any() else math.nan,
                     )
                 )
-    return rows
+    return out
 
 
 def _sample_rows(valid: NDArray[np.bool_], count: int) -> NDArray[np.int64]:
@@ -284,19 +304,6 @@ def fused_method(fused: FusedEstimator) -> dict[str, FrameMethod]:
         return fused.estimate(row.detection, row.refined, reg)
 
     return {"fused": run}
-
-
-def _regression_for_study(
-    regression: RegressionEstimator | None,
-    miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None,
-) -> dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]]:
-    out: dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] = dict(miscalibrated or {})
-    if regression is not None:
-        # The marker size is not an input of the regression: the same models answer whatever size is claimed.
-        for f in (1.0, 1.05, 1.5):
-            out.setdefault(("marker size", f), lambda _cam: regression_method(regression))
-        out.setdefault(("focal length", 1.0), lambda _cam: regression_method(regression))
-    return out
 
 
 @dataclass(frozen=True)
@@ -488,7 +495,8 @@ def evaluate_heldout(
     methods.update(geometric_methods(camera, layout, robot))
     if fused is not None:
         methods.update(fused_method(fused))
-    results = estimate_dataset(dataset, methods)
+    rows = dataset_rows(dataset)
+    results = estimate_dataset(dataset, methods, rows=rows)
     refs = reference_poses(dataset)
     best = refs.get(Reference.TRUTH, refs[Reference.LIDAR])
     depth = best[:, 0] - robot.camera_mount.x
@@ -497,7 +505,7 @@ def evaluate_heldout(
     studied = Reference.TRUTH in refs and fused is not None
     limit = physical_limit(dataset, {m: r.poses for m, r in results.items()}) if studied else None
     samples = paper_samples(refs[Reference.LIDAR], results, truth=refs.get(Reference.TRUTH))
-    study = miscalibration_study(dataset, best, regression=_regression_for_study(regression, miscalibrated))
+    study = miscalibration_study(dataset, best, regression=miscalibrated, correct=results, rows=rows)
     return HeldoutResult(
         rows=len(dataset),
         results=results,

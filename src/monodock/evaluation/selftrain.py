@@ -66,7 +66,7 @@ def simulate_and_train(
     stops = plan_drive(sim_train, DriveConfig(stops=config.stops), np.random.default_rng([config.seed, 2]))
     write_recording(work / "train_drive", sim_train, stops, seed=config.seed, jobs=jobs)
     _log(f"{steps}labelling it with the LiDAR ...")
-    ds, run, _ = label_recording(work / "train_drive", sim_train.layout)
+    ds, run, _ = label_recording(work / "train_drive", sim_train.layout, jobs=jobs)
     _log(f"{steps}training the seven regressors per segment ({config.trials} trials each) ...")
     options = TrainOptions(trials=config.trials, seed=config.seed, jobs=jobs, source="simulated training drive")
     result = train_bundle(ds, out, options).result

@@ -23,6 +23,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import FancyArrowPatch, Polygon, Rectangle
 
 from monodock.core.layout import DockLayout
+from monodock.core.parallel import map_with_state
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.planner import CASES, PLANNERS, Manoeuvre, PlannerConfig, plan_for, point_a
@@ -693,35 +694,48 @@ def trajectory_file(case: int | None) -> str:
     return f"trajectories_case_{'none' if case is None else case}.png"
 
 
-def write_dock_files(out: Path, results: Sequence[TrialResult], config: DockSimConfig) -> list[TrialResult]:
+def _draw(_: None, figure: tuple[Any, tuple[Any, ...], dict[str, Any]]) -> None:
+    """Draw one figure: ``fn(*args, **kwargs)`` (in a worker process when write_dock_files has jobs > 1)."""
+    fn, args, kwargs = figure
+    fn(*args, **kwargs)
+
+
+def write_dock_files(
+    out: Path, results: Sequence[TrialResult], config: DockSimConfig, *, jobs: int = 1
+) -> list[TrialResult]:
     """Into ``out``: runs.csv; the trajectories of every variant, one PNG per executed case (trajectory_file) and an
     overview (trajectories.png); the case diagrams; the error scatter; and runs/*.png, a figure for each run of
-    select_runs. Returns those runs."""
+    select_runs. Returns those runs.
+
+    The figures are independent of each other: with ``jobs`` > 1 they are drawn in that many worker processes
+    (the same files)."""
     (out / "runs.csv").write_text(runs_csv(results), encoding="utf-8")
     scene = {"layout": config.layout, "robot": config.robot, "drive": config.drive}
     variant_list = variants(results, config)
+    figures: list[tuple[Any, tuple[Any, ...], dict[str, Any]]] = []
     for case in trajectory_cases(results, config):
         runs = {v: [r for r in results if r.classified_case == case and variant_of(r) == v] for v in variant_list}
-        trajectory_plot(case, runs, out / trajectory_file(case), **scene)  # type: ignore[arg-type]
+        figures.append((trajectory_plot, (case, runs, out / trajectory_file(case)), scene))
     for kind in config.planner_kinds:
         planner = dataclasses.replace(config.mission.planner, kind=kind)
         for case in config.cases:
-            case_diagram(case, out / f"{kind}_case_{case}.png", planner=planner, **scene)  # type: ignore[arg-type]
-    trajectory_overview(results, config, out / "trajectories.png")
+            figures.append((case_diagram, (case, out / f"{kind}_case_{case}.png"), {"planner": planner, **scene}))
+    figures.append((trajectory_overview, (results, config, out / "trajectories.png"), {}))
     c = config.mission
     tolerances = (c.tolerance_lateral * 100, c.tolerance_longitudinal * 100, c.tolerance_heading_deg)
-    final_error_plot(
-        [(r.method, r.lateral_cm, r.heading_deg, r.longitudinal_cm) for r in results],
-        out / "final_errors.png",
-        (tolerances[0], tolerances[2]),
-    )
+    errors = [(r.method, r.lateral_cm, r.heading_deg, r.longitudinal_cm) for r in results]
+    figures.append((final_error_plot, (errors, out / "final_errors.png", (tolerances[0], tolerances[2])), {}))
     chosen = select_runs(results, variant_list)
     if chosen:
         (out / "runs").mkdir(exist_ok=True)
     planners = [p for _, p in variant_list]
     for r in chosen:
         label = variant_label(variant_of(r), planners)
-        run_plot(r, out / run_file(r), label=label, tolerances=tolerances, **scene)  # type: ignore[arg-type]
+        figures.append((run_plot, (r, out / run_file(r)), {"label": label, "tolerances": tolerances, **scene}))
+    # A worker costs ~3 s of a core to start (numba's and matplotlib's imports), a figure ~0.3 s: a pool pays
+    # from about two dozen figures on (the demo's forty; not one dock-sim run's five).
+    for _ in map_with_state(_draw, None, figures, jobs=jobs if len(figures) >= 24 else 1, chunksize=1):
+        pass
     return chosen
 
 
@@ -861,7 +875,7 @@ def write_dock_report(
 ) -> None:
     """Everything of a dock-sim run into ``out`` (an existing, empty folder): files (write_dock_files), report
     and summary.json."""
-    write_dock_files(out, results, config)
+    write_dock_files(out, results, config, jobs=config.jobs)
     report = HtmlReport(
         "monodock dock-sim: closed-loop docking, camera in the loop",
         lead="The papers' docking (eight cases, Point A, Moving₁-₃ with P-control) in the simulator: the robot sees "
