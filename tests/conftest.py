@@ -128,8 +128,7 @@ def bundle_copy(saved: Path, tmp_path: Path) -> Path:
     return out
 
 
-
-# --- parallel runs (pytest-xdist; .ci/run: -n 2 --dist loadgroup) ------------------------------------------
+# --- parallel runs (pytest-xdist; .ci/run: -n 2 --dist loadgroup --no-loadscope-reorder) --------------------
 #
 # Tests are handed to the workers one at a time, longest first, so that the short ones fill in around the long
 # ones and no worker is left with a long test at the end while the other idles. Tests that share a fixture of
@@ -178,7 +177,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         info = getattr(item, "_fixtureinfo", None)
         defs = info.name2fixturedefs if info is not None else {}
-        mine = [f"{item.nodeid.split('::')[0]}::{name}" for name, d in defs.items() if d and d[-1].scope == "module"]
+        mine = [f"{item.nodeid.split('::')[0]}:{name}" for name, d in defs.items() if d and d[-1].scope == "module"]
         mine += [name for name in _GROUPED_SESSION_FIXTURES if name in defs]
         keys[item.nodeid] = mine
         for k in mine[1:]:
