@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import shutil
 import sys
+import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -132,11 +134,16 @@ def bundle_copy(saved: Path, tmp_path: Path) -> Path:
 #
 # Tests are handed to the workers one at a time, longest first, so that the short ones fill in around the long
 # ones and no worker is left with a long test at the end while the other idles. Tests that share a fixture of
-# module scope, or one of the session fixtures below, go to one worker together (an xdist group), so that the
-# fixture is built once, not once per worker. ``work`` (a minute of simulation and training) is shared across
-# the workers through ``built_once`` instead and needs no group; the fuzz ``world`` (~7 s) is built per worker.
+# module scope, or one of the session fixtures below, go to one worker together (a group), so that the fixture is
+# built once, not once per worker. ``work`` (a minute of simulation and training) is shared across the workers
+# through ``built_once`` instead and needs no group; the fuzz ``world`` (~7 s) is built per worker.
+#
+# xdist's own loadgroup reads ``xdist_group`` marks by renaming the items, which pytest 9 no longer lets it do
+# (its groups are silently ignored). So the workers write the groups they computed at collection (the same in
+# each) to a file the controller named, and the controller's scheduler reads it: one unit per group.
 
 _GROUPED_SESSION_FIXTURES = ("drive", "result")
+_GROUPS_FILE = "MONODOCK_XDIST_GROUPS"
 
 # The tests of a minute or more (on a quiet 2-core machine), first: the slow tier's end-to-end runs, ROS 2 graphs
 # and long fuzz profiles, then the default tier's longest modules and tests.
@@ -162,10 +169,8 @@ def _rank(item: pytest.Item) -> int:
     return len(_FIRST)
 
 
-@pytest.hookimpl(tryfirst=True)  # before xdist's own hook reads the groups
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    items.sort(key=_rank)  # stable: within a rank, pytest's order
-    # Union-find over the items: two items that share a costly fixture instance are in one group.
+def _groups(items: list[pytest.Item]) -> dict[str, str]:
+    """Each item's group (nodeid -> name) when it shares a costly fixture instance or has an xdist_group mark."""
     parent: dict[str, str] = {}
 
     def find(key: str) -> str:
@@ -177,11 +182,54 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         info = getattr(item, "_fixtureinfo", None)
         defs = info.name2fixturedefs if info is not None else {}
-        mine = [f"{item.nodeid.split('::')[0]}:{name}" for name, d in defs.items() if d and d[-1].scope == "module"]
+        module = item.nodeid.split("::")[0]
+        mine = [f"{module}:{name}" for name, d in defs.items() if d and d[-1].scope == "module"]
         mine += [name for name in _GROUPED_SESSION_FIXTURES if name in defs]
+        mine += [
+            str(m.args[0] if m.args else m.kwargs.get("name", "default")) for m in item.iter_markers("xdist_group")
+        ]
         keys[item.nodeid] = mine
         for k in mine[1:]:
             parent[find(k)] = find(mine[0])
-    for item in items:
-        if keys[item.nodeid]:
-            item.add_marker(pytest.mark.xdist_group(find(keys[item.nodeid][0])))
+    return {nodeid: find(mine[0]) for nodeid, mine in keys.items() if mine}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    controller = not hasattr(config, "workerinput")  # the controller, before it starts the workers
+    if controller and config.pluginmanager.hasplugin("xdist") and config.getoption("dist", "no") == "loadgroup":
+        handle, name = tempfile.mkstemp(prefix="monodock-xdist-groups-", suffix=".json")
+        os.close(handle)
+        os.environ[_GROUPS_FILE] = name
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if not hasattr(config, "workerinput") and _GROUPS_FILE in os.environ:
+        Path(os.environ.pop(_GROUPS_FILE)).unlink(missing_ok=True)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    items.sort(key=_rank)  # stable: within a rank, pytest's order
+    if hasattr(config, "workerinput") and _GROUPS_FILE in os.environ:
+        target = Path(os.environ[_GROUPS_FILE])
+        partial = target.with_name(f"{target.name}.{os.environ.get('PYTEST_XDIST_WORKER', '')}")
+        partial.write_text(json.dumps(_groups(items)))
+        partial.replace(target)  # each worker writes the same groups; whole files only
+
+
+@pytest.hookimpl(optionalhook=True)  # xdist's hook: pytest -p no:xdist still loads this file
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """loadgroup with the groups of ``_groups`` (see above); units handed out in collection order."""
+    if config.getoption("dist", "no") != "loadgroup" or _GROUPS_FILE not in os.environ:
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class Grouped(LoadScopeScheduling):
+        _map: dict[str, str] | None = None
+
+        def _split_scope(self, nodeid: str) -> str:
+            if self._map is None:  # read once every worker has collected (xdist schedules only then)
+                self._map = json.loads(Path(os.environ[_GROUPS_FILE]).read_text() or "{}")
+            return self._map.get(nodeid, nodeid)
+
+    return Grouped(config, log)
