@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import fcntl
+import json
 import os
 import shutil
 import sys
-from collections.abc import Iterator
+import tempfile
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import cv2
@@ -39,6 +42,29 @@ def _no_dds_participant() -> Iterator[None]:
     )
 
 
+def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Callable[[Path], None]) -> Path:
+    """A folder that ``build`` fills, made once per test run even when pytest-xdist runs it in several workers.
+
+    Without xdist it is a fresh temporary folder. With xdist, the workers share the run's base temporary folder
+    (pytest's own for this run): the first worker to get the lock builds, the others wait for it and reuse the
+    result. A build that failed leaves no ``.done`` mark: the next worker tries again (and fails the same way).
+    The folder is the tests' to read, not to change.
+    """
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        root = tmp_path_factory.mktemp(name)
+        build(root)
+        return root
+    root = tmp_path_factory.getbasetemp().parent / f"shared-{name}"
+    with (root.parent / f"shared-{name}.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (root / ".done").exists():
+            shutil.rmtree(root, ignore_errors=True)
+            root.mkdir()
+            build(root)
+            (root / ".done").touch()
+    return root
+
+
 def _record(path: Path, sim: Simulator, stops: int, seed: int) -> None:
     plan = plan_drive(sim, DriveConfig(stops=stops), np.random.default_rng(seed))
     write_recording(path, sim, plan, seed=seed, jobs=2, progress=False)
@@ -47,7 +73,10 @@ def _record(path: Path, sim: Simulator, stops: int, seed: int) -> None:
 @pytest.fixture(scope="session")
 def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A training drive (labelled, trained with one draw per model) and a held-out drive of another seed."""
-    root = tmp_path_factory.mktemp("pipeline")
+    return built_once(tmp_path_factory, "pipeline", _build_work)
+
+
+def _build_work(root: Path) -> None:
     _record(root / "train_rec", Simulator(nuisances=FAST, seed=1), 240, 1)
     _record(root / "test_rec", Simulator(nuisances=FAST, seed=2), 40, 2)
     Simulator().layout.save(root / "layout.yaml")
@@ -55,7 +84,6 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert main(["label", str(root / "train_rec"), "--layout", layout, "--out", str(root / "train.parquet")]) == 0
     code = main(["train", str(root / "train.parquet"), "--out", str(root / "bundle"), "--trials", "1", "--jobs", "2"])
     assert code == 0
-    return root
 
 
 @pytest.fixture(scope="session")
@@ -100,3 +128,108 @@ def bundle_copy(saved: Path, tmp_path: Path) -> Path:
     out = tmp_path / "bundle"
     shutil.copytree(saved, out)
     return out
+
+
+# --- parallel runs (pytest-xdist; .ci/run: -n 2 --dist loadgroup --no-loadscope-reorder) --------------------
+#
+# Tests are handed to the workers one at a time, longest first, so that the short ones fill in around the long
+# ones and no worker is left with a long test at the end while the other idles. Tests that share a fixture of
+# module scope, or one of the session fixtures below, go to one worker together (a group), so that the fixture is
+# built once, not once per worker. ``work`` (a minute of simulation and training) is shared across the workers
+# through ``built_once`` instead and needs no group; the fuzz ``world`` (~7 s) is built per worker.
+#
+# xdist's own loadgroup reads ``xdist_group`` marks by renaming the items, which pytest 9 no longer lets it do
+# (its groups are silently ignored). So the workers write the groups they computed at collection (the same in
+# each) to a file the controller named, and the controller's scheduler reads it: one unit per group.
+
+_GROUPED_SESSION_FIXTURES = ("drive", "result")
+_GROUPS_FILE = "MONODOCK_XDIST_GROUPS"
+
+# The tests of a minute or more (on a quiet 2-core machine), first: the slow tier's end-to-end runs, ROS 2 graphs
+# and long fuzz profiles, then the default tier's longest modules and tests.
+_FIRST = (
+    "tests/cli/test_end_to_end.py::test_demo",
+    "tests/evaluation/test_dock_sim.py::",
+    "tests/ros/test_dock_graph.py::test_docking_over_dds_from_starts_in_several_cases",
+    "tests/ros/test_dock_graph.py::",
+    "tests/ros/test_detector_graph.py::",
+    "tests/fuzz/test_properties.py::",
+    "tests/evaluation/test_robustness.py::",
+    "tests/learning/test_pipeline.py::test_any_layout",
+    "tests/dock/test_mission.py::test_dock_sim_writes",
+    "tests/ros/",
+)
+
+
+def _rank(item: pytest.Item) -> int:
+    slow = item.get_closest_marker("slow") is not None
+    for i, prefix in enumerate(_FIRST):
+        if item.nodeid.startswith(prefix) and (slow or "test_properties" not in prefix):
+            return i
+    return len(_FIRST)
+
+
+def _groups(items: list[pytest.Item]) -> dict[str, str]:
+    """Each item's group (nodeid -> name) when it shares a costly fixture instance or has an xdist_group mark."""
+    parent: dict[str, str] = {}
+
+    def find(key: str) -> str:
+        while parent.setdefault(key, key) != key:
+            key = parent[key]
+        return key
+
+    keys: dict[str, list[str]] = {}
+    for item in items:
+        info = getattr(item, "_fixtureinfo", None)
+        defs = info.name2fixturedefs if info is not None else {}
+        module = item.nodeid.split("::")[0]
+        mine = [f"{module}:{name}" for name, d in defs.items() if d and d[-1].scope == "module"]
+        mine += [name for name in _GROUPED_SESSION_FIXTURES if name in defs]
+        mine += [
+            str(m.args[0] if m.args else m.kwargs.get("name", "default")) for m in item.iter_markers("xdist_group")
+        ]
+        keys[item.nodeid] = mine
+        for k in mine[1:]:
+            parent[find(k)] = find(mine[0])
+    return {nodeid: find(mine[0]) for nodeid, mine in keys.items() if mine}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    controller = not hasattr(config, "workerinput")  # the controller, before it starts the workers
+    if controller and config.pluginmanager.hasplugin("xdist") and config.getoption("dist", "no") == "loadgroup":
+        handle, name = tempfile.mkstemp(prefix="monodock-xdist-groups-", suffix=".json")
+        os.close(handle)
+        os.environ[_GROUPS_FILE] = name
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if not hasattr(config, "workerinput") and _GROUPS_FILE in os.environ:
+        Path(os.environ.pop(_GROUPS_FILE)).unlink(missing_ok=True)
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    items.sort(key=_rank)  # stable: within a rank, pytest's order
+    if hasattr(config, "workerinput") and _GROUPS_FILE in os.environ:
+        target = Path(os.environ[_GROUPS_FILE])
+        partial = target.with_name(f"{target.name}.{os.environ.get('PYTEST_XDIST_WORKER', '')}")
+        partial.write_text(json.dumps(_groups(items)))
+        partial.replace(target)  # each worker writes the same groups; whole files only
+
+
+@pytest.hookimpl(optionalhook=True)  # xdist's hook: pytest -p no:xdist still loads this file
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """loadgroup with the groups of ``_groups`` (see above); units handed out in collection order."""
+    if config.getoption("dist", "no") != "loadgroup" or _GROUPS_FILE not in os.environ:
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class Grouped(LoadScopeScheduling):
+        _map: dict[str, str] | None = None
+
+        def _split_scope(self, nodeid: str) -> str:
+            if self._map is None:  # read once every worker has collected (xdist schedules only then)
+                self._map = json.loads(Path(os.environ[_GROUPS_FILE]).read_text() or "{}")
+            return self._map.get(nodeid, nodeid)
+
+    return Grouped(config, log)
