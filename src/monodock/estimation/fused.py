@@ -574,16 +574,12 @@ class FusedEstimator:
         where this cannot tell (fewer than two markers, corners not finite, the floor start failed): then
         ``_board_fit`` decides. The same arithmetic as those two, in the same order: every frame with two or more
         markers ends here, where a dozen Python calls after the detection cost as much as the fit."""
-        source = refined if refined is not None else detection
-        roles = source.roles_seen
-        if len(roles) < 2:
+        stack = _stacked_corners(detection, refined)
+        if stack is None:
             return None
-        obs = source.observations
-        stacked = np.concatenate([obs[r].corners for r in roles], dtype=np.float64)
+        roles, stacked, factor = stack
         if stacked.shape != (4 * len(roles), 2):
             return None
-        unrefined = source.unrefined if refined is not None else roles
-        factor = np.array([UNREFINED_SIGMA_FACTOR if r in unrefined else 1.0 for r in roles])
         fixed = self._fixed.get(roles)
         if fixed is None:
             parts = self._model.parts(roles)
@@ -604,14 +600,10 @@ class FusedEstimator:
         Every frame with two or more markers ends here: the corners are stacked once, their sides measured in
         one compiled call, and the fit gets them as arrays (``planar.board_fit_stacked``).
         """
-        source = refined if refined is not None else detection
-        roles = source.roles_seen
-        if len(roles) < 2:
+        stack = _stacked_corners(detection, refined)
+        if stack is None:
             return None
-        obs = source.observations
-        stacked = np.concatenate([obs[r].corners for r in roles], dtype=np.float64)
-        unrefined = source.unrefined if refined is not None else roles
-        factor = np.array([UNREFINED_SIGMA_FACTOR if r in unrefined else 1.0 for r in roles])
+        roles, stacked, factor = stack
         sig = _corner_sigma(stacked, self._noise_law, factor) if stacked.shape == (4 * len(roles), 2) else None
         if sig is None:  # not four finite corners each: the checked path says what is wrong
             _, corners, sig, _ = self._corners(detection, refined)
@@ -686,3 +678,19 @@ class FusedEstimator:
             None,
             cov,
         )
+
+
+def _stacked_corners(
+    detection: Detection, refined: Detection | None
+) -> tuple[tuple[str, ...], NDArray[np.float64], NDArray[np.float64]] | None:
+    """The seen roles, their corners stacked in that order and each marker's corner-sigma factor (unrefined
+    corners count ``UNREFINED_SIGMA_FACTOR`` times the law's noise); None for fewer than two markers."""
+    source = refined if refined is not None else detection
+    roles = source.roles_seen
+    if len(roles) < 2:
+        return None
+    obs = source.observations
+    stacked = np.concatenate([obs[r].corners for r in roles], dtype=np.float64)
+    unrefined = source.unrefined if refined is not None else roles
+    factor = np.array([UNREFINED_SIGMA_FACTOR if r in unrefined else 1.0 for r in roles])
+    return roles, stacked, factor
