@@ -5,7 +5,7 @@ Argument: one JSON object with
     start: [x, y, yaw] of the robot in the dock frame;
     steps: the services to call in turn ("dock", "undock");
     fault: optional, {"kind": "camera" | "odometry" | "kill" | "sigint" | "cancel" | "again" | "garbage",
-           "state": the mission state that springs it (again: a second call of the same service, which cancels;
+           "state": the mission state that springs it (kill, sigint: once the robot has moved 2 cm in it; again: a second call of the same service, which cancels;
            garbage: malformed images published on the camera topic from then on),
            "for": seconds a silenced sensor stays silent (camera)};
     sim: optional, monodock_sim's parameters (e.g. cmd_vel_timeout);
@@ -171,6 +171,13 @@ for step in spec["steps"]:
             sprung = True
             at = time.monotonic()
             if fault["kind"] in ("kill", "sigint"):
+                # Spring once the robot is under way in that state, not at the instant it is entered (it may still
+                # be at rest after Moving₂'s turn): 2 cm travelled, or 5 s, whichever is first.
+                start = truth[-1][1:3]
+                under_way = time.monotonic() + 5.0
+                while math.dist(truth[-1][1:3], start) < 0.02 and time.monotonic() < under_way:
+                    rclpy.spin_once(node, timeout_sec=0.01)
+                at = time.monotonic()
                 dock.send_signal(signal.SIGKILL if fault["kind"] == "kill" else signal.SIGINT)
                 dock.wait()
                 spin_for(3.0)
