@@ -101,6 +101,28 @@ def test_cli_run_jsonl_and_nav2_bag(drive: tuple[Simulator, list[DockPose], Path
         run_cli([*argv, "--bag", str(bag)])
 
 
+@pytest.mark.parametrize("command", ["run", "estimate"])
+def test_a_bag_of_image_files_is_refused_not_left_empty(
+    drive: tuple[Simulator, list[DockPose], Path, Path], tmp_path: Path, command: str
+) -> None:
+    """Image files have no time stamps: poses are found in them, but a Nav2 bag of them would have no times.
+    Refused with the reason, and no bag (empty or not) is left behind."""
+    sim, poses, _, folder = drive
+    image = tmp_path / "near.png"
+    cv2.imwrite(str(image), sim.frame(poses[0], 0.0, np.random.default_rng(1)).image)
+    out, bag = tmp_path / "est.csv", tmp_path / "dock_bag"
+    source = ["--source", str(image)] if command == "run" else [str(image)]
+    argv = [command, *source, "--method", "board", *calibration(folder), "--out", str(out), "--bag", str(bag)]
+    with pytest.raises(InputError, match="--bag needs time-stamped frames"):
+        run_cli(argv)
+    assert not bag.exists()
+    # Without --bag, the same image gives its pose.
+    assert run_cli(argv[:-2]) == 0
+    (row,) = list(csv.DictReader(out.open()))
+    assert row["valid"] == "true"
+    assert float(row["x_m"]) == pytest.approx(poses[0].x, abs=0.03)
+
+
 @pytest.mark.parametrize("content", ["not a video at all", ""])
 def test_a_video_that_cannot_be_opened(tmp_path: Path, content: str) -> None:
     """A broken video, a missing file and an absent camera: one line naming them."""

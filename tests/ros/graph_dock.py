@@ -5,7 +5,8 @@ Argument: one JSON object with
     start: [x, y, yaw] of the robot in the dock frame;
     steps: the services to call in turn ("dock", "undock");
     fault: optional, {"kind": "camera" | "odometry" | "kill" | "sigint" | "cancel" | "again" | "garbage",
-           "state": the mission state that springs it (kill, sigint: once the robot has moved 2 cm in it; again: a second call of the same service, which cancels;
+           "state": the mission state that springs it (kill, sigint: once the robot has moved 2 cm in it;
+           again: a second call of the same service, which cancels;
            garbage: malformed images published on the camera topic from then on),
            "for": seconds a silenced sensor stays silent (camera)};
     sim: optional, monodock_sim's parameters (e.g. cmd_vel_timeout);

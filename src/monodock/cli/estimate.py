@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import csv
 import io
+import math
 import os
 
 from tqdm import tqdm
@@ -15,7 +16,7 @@ from monodock.errors import InputError
 from monodock.estimation.estimator import Estimator, FrameEstimates
 from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS
 from monodock.io.frames import open_frames
-from monodock.io.nav2 import write_pose_bag
+from monodock.io.nav2 import UNSTAMPED_BAG, write_pose_bag
 from monodock.io.rows import estimates_csv
 
 __all__ = ["add_parser", "run"]
@@ -69,6 +70,9 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--bag {args.bag} is the same path as --out")
         check_writable(args.bag, force=args.force, inputs=inputs)
     results = _estimate_all(args, estimator)
+    valid_stamps = [r.stamp for r in results if any(e.valid for e in r.estimates.values())]
+    if args.bag and valid_stamps and not any(math.isfinite(t) for t in valid_stamps):
+        raise InputError(UNSTAMPED_BAG)
     text = estimates_csv(results)
     write_text_atomic(args.out, text, force=args.force)
     valid = sum(1 for r in results for e in r.estimates.values() if e.valid)

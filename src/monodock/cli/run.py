@@ -18,7 +18,7 @@ from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator, FrameEstimates
 from monodock.io.frames import FrameSource, open_frames
 from monodock.io.live import Draw, LiveStats, run_live
-from monodock.io.nav2 import PoseStampedBagWriter
+from monodock.io.nav2 import UNSTAMPED_BAG, PoseStampedBagWriter
 from monodock.report.overlay import draw_overlay
 
 __all__ = ["add_parser", "run"]
@@ -160,4 +160,6 @@ def _run(
             max_frames=args.max_frames,
             on_message=_say,
         )
+        if bag is not None and bag.written == 0 and stats.valid > 0:
+            raise InputError(UNSTAMPED_BAG)  # inside the block: the empty bag is not kept
     return stats, source, bag

@@ -89,6 +89,10 @@ def _number(value: object) -> float:
     return float(value)  # type: ignore[arg-type]
 
 
+# Image files carry no time stamp (their rows' stamp is NaN); a bag of poses without times is no use to Nav2.
+UNSTAMPED_BAG = "--bag needs time-stamped frames and image files have none: give a video or a recording"
+
+
 def pose_of_row(row: Mapping[str, object]) -> tuple[float, DockPose] | None:
     """(stamp, DockPose) of a valid EST.csv row (as read by csv.DictReader, or the typed rows of a live run).
 
