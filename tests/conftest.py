@@ -130,7 +130,7 @@ def bundle_copy(saved: Path, tmp_path: Path) -> Path:
     return out
 
 
-# --- parallel runs (pytest-xdist; .ci/run: -n 2 --dist loadgroup --no-loadscope-reorder) --------------------
+# --- parallel runs (pytest-xdist; pyproject's addopts: -n 2 --dist loadgroup --no-loadscope-reorder) ----------
 #
 # Tests are handed to the workers one at a time, longest first, so that the short ones fill in around the long
 # ones and no worker is left with a long test at the end while the other idles. Tests that share a fixture of
@@ -143,6 +143,11 @@ def bundle_copy(saved: Path, tmp_path: Path) -> Path:
 # each) to a file the controller named, and the controller's scheduler reads it: one unit per group.
 
 _GROUPED_SESSION_FIXTURES = ("drive", "result")
+# The modules that start ROS 2 graphs (sim, detector, dock nodes in real time, in private network namespaces).
+_ROS_GRAPH_MODULES = frozenset(
+    f"tests/ros/{name}.py"
+    for name in ("test_graph", "test_dock_graph", "test_detector_graph", "test_sim_node", "test_recorder")
+)
 _GROUPS_FILE = "MONODOCK_XDIST_GROUPS"
 
 # The tests of a minute or more (on a quiet 2-core machine), first: the slow tier's end-to-end runs, ROS 2 graphs
@@ -188,6 +193,8 @@ def _groups(items: list[pytest.Item]) -> dict[str, str]:
         mine += [
             str(m.args[0] if m.args else m.kwargs.get("name", "default")) for m in item.iter_markers("xdist_group")
         ]
+        if module in _ROS_GRAPH_MODULES:  # real-time graphs: one after another, never two beside each other
+            mine.append("ros-graph")
         keys[item.nodeid] = mine
         for k in mine[1:]:
             parent[find(k)] = find(mine[0])

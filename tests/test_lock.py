@@ -35,16 +35,22 @@ def _requirements() -> list[Requirement]:
 def test_every_requirement_is_pinned_inside_its_range() -> None:
     pins = _pins()
     missing = [str(r) for r in _requirements() if canonicalize_name(r.name) not in pins]
-    outside = [f"{r} (locked {pins[canonicalize_name(r.name)]})" for r in _requirements()
-               if canonicalize_name(r.name) in pins and not r.specifier.contains(pins[canonicalize_name(r.name)],
-                                                                                  prereleases=True)]
+    outside = [
+        f"{r} (locked {pins[canonicalize_name(r.name)]})"
+        for r in _requirements()
+        if canonicalize_name(r.name) in pins
+        and not r.specifier.contains(pins[canonicalize_name(r.name)], prereleases=True)
+    ]
     assert missing == [], "not in requirements/lock.txt: run bash requirements/refresh"
     assert outside == [], "locked outside pyproject.toml's range: run bash requirements/refresh"
 
 
 def test_every_line_of_the_lock_is_an_exact_pin() -> None:
-    lines = [s for s in (line.strip() for line in (ROOT / "requirements" / "lock.txt").read_text().splitlines())
-             if s and not s.startswith("#")]
+    lines = [
+        s
+        for s in (line.strip() for line in (ROOT / "requirements" / "lock.txt").read_text().splitlines())
+        if s and not s.startswith("#")
+    ]
     assert len(lines) > 100  # ROS 2's wheels alone are dozens
     assert [s for s in lines if not re.fullmatch(r"[A-Za-z0-9_.\-]+(\[[^\]]+\])?==\S+", s)] == []
 
@@ -52,6 +58,6 @@ def test_every_line_of_the_lock_is_an_exact_pin() -> None:
 def test_ci_and_the_quick_start_install_the_lock() -> None:
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     readme = (ROOT / "README.md").read_text(encoding="utf-8")
-    assert "-c requirements/lock.txt -e \".[test]\"" in ci
+    assert '-c requirements/lock.txt -e ".[test]"' in ci
     assert re.search(r"pip install -c requirements/lock\.txt -e \"\.\[test\]\" && \.venv/bin/python -m pytest", readme)
     assert re.search(r"^uv==\S+$", (ROOT / "requirements" / "tools.txt").read_text(), flags=re.M)
