@@ -15,6 +15,7 @@ import copy
 import io
 import json
 import math
+import re
 import shutil
 import tempfile
 from collections.abc import Callable
@@ -246,12 +247,13 @@ def _cv_plausible(values: dict[str, str], text: str, fmt: str) -> bool:
         return False  # truncated
     data = copy.deepcopy(CAM)
     for key, token in values.items():
+        hexadecimal = re.fullmatch(r"[+-]?0[xX][0-9a-fA-F]+", token) is not None  # OpenCV reads 0x10 as 16
         try:
-            v: Any = float(token.replace(".nan", "nan").replace(".inf", "inf"))
+            v: Any = int(token, 16) if hexadecimal else float(token.replace(".nan", "nan").replace(".inf", "inf"))
         except ValueError:
             return False
         if key in ("width", "height"):
-            if not v.is_integer() or "." in token or "e" in token.lower():
+            if not hexadecimal and (not v.is_integer() or "." in token or "e" in token.lower()):
                 return False
             v = int(v)
             path: tuple[Any, ...] = ("image_width",) if key == "width" else ("image_height",)
