@@ -52,12 +52,19 @@ def test_label_writes_every_image_with_counts_and_truth(work: Path) -> None:
 
 def test_labelling_in_worker_processes_gives_the_same_dataset(tmp_path: Path) -> None:
     """Images labelled in chunks by two workers: the same rows, labels and counts as one process, in the same
-    order, with unpaired images among them (lost scans), and labels that agree with the recording's truth."""
+    order, with unpaired images among them (lost scans), and labels that agree with the recording's truth.
+    The two workers are asked for on the command line (``monodock label --jobs 2``)."""
     sim = Simulator(nuisances=FAST, seed=4)
     _record(tmp_path / "rec", sim, 30, 4, scan_loss=0.5)
     one, run_one, _ = label_recording(tmp_path / "rec", sim.layout, progress=False)
-    two, run_two, _ = label_recording(tmp_path / "rec", sim.layout, progress=False, jobs=2)
+    _, run_two, _ = label_recording(tmp_path / "rec", sim.layout, progress=False, jobs=2)
     assert run_two.to_dict() == run_one.to_dict()
+    sim.layout.save(tmp_path / "layout.yaml")
+    argv = ["label", str(tmp_path / "rec"), "--layout", str(tmp_path / "layout.yaml"), "--jobs", "2"]
+    assert main([*argv, "--out", str(tmp_path / "two.parquet")]) == 0
+    two = read_dataset(tmp_path / "two.parquet")
+    write_dataset(tmp_path / "one.parquet", one)  # both as the file holds them (the file adds its schema)
+    one = read_dataset(tmp_path / "one.parquet")
     assert run_one.images == 30
     assert 0 < run_one.unpaired < 30
     assert run_one.labelled > 5

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from monodock.cli.options import SubParsers, add_topics, positive_seconds
+from monodock.cli.options import SubParsers, add_jobs, add_topics, jobs, positive_seconds
 from monodock.core.atomic import check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -26,6 +26,7 @@ def add_parser(subparsers: SubParsers) -> None:
     lb.add_argument("--robot", help="robot YAML, instead of the recording's /tf_static mounts")
     lb.add_argument("--force", action="store_true", help="overwrite an existing dataset")
     add_topics(lb)
+    add_jobs(lb)
     lb.set_defaults(func=run)
 
 
@@ -43,6 +44,7 @@ def label(args: argparse.Namespace, layout: DockLayout, camera: CameraModel | No
         camera_info_topic=args.camera_info_topic,
         scan_topic=args.scan_topic,
         tolerance_s=args.tolerance,
+        jobs=jobs(getattr(args, "jobs", None)),
     )
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
