@@ -7,7 +7,6 @@ with the detector's sub-pixel noise; the estimates are then made with a camera o
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import re
 from pathlib import Path
@@ -27,13 +26,6 @@ from monodock.sim import PoseDistribution, Simulator
 from shared import noisy_detection
 
 FRAMES = 300
-
-
-def _scaled_camera(camera: CameraModel, factor: float) -> CameraModel:
-    K = list(camera.K)
-    K[0] *= factor
-    K[4] *= factor
-    return dataclasses.replace(camera, K=tuple(K))
 
 
 def _scaled_layout(layout: DockLayout, factor: float) -> DockLayout:
@@ -90,7 +82,7 @@ def test_the_true_calibration_raises_no_alarm_over_hundreds_of_frames(trained: t
 
 def test_a_focal_length_30_percent_long_is_one_warning_naming_the_camera(trained: tuple[Bundle, Simulator]) -> None:
     bundle, sim = trained
-    wrong = _scaled_camera(sim.camera, 1.3)
+    wrong = sim.camera.focal_scaled(1.3)
     said = _run(bundle, sim, wrong, sim.layout, given="camera.yaml")
     assert len(said) == 1, said
     # board and pnp put the dock 1.3x too far; the regression (the bundle's own camera) does not
@@ -118,7 +110,7 @@ def test_a_camera_beside_the_bundle_that_is_not_its_own_is_one_warning_naming_bo
     bundle, _sim = trained
     own, other = tmp_path / "own.yaml", tmp_path / "other.yaml"
     bundle.camera().save(own)
-    _scaled_camera(bundle.camera(), 1.3).save(other)
+    bundle.camera().focal_scaled(1.3).save(other)
     with caplog.at_level(logging.WARNING, logger="monodock.input"):
         make_estimator(method="board", bundle=bundle, camera=own)
     assert caplog.records == []
@@ -142,7 +134,7 @@ def test_estimate_on_rendered_frames_warns_once_with_a_wrong_focal_length_and_ne
     sim = tmp_path / "sim"
     assert main(["simulate", "--out", str(sim), "--frames", "80", "--supersample", "1", "--depth", "0.4", "1.3"]) == 0
     wrong = tmp_path / "camera_13.yaml"
-    _scaled_camera(CameraModel.load(sim / "camera.yaml"), 1.3).save(wrong)
+    CameraModel.load(sim / "camera.yaml").focal_scaled(1.3).save(wrong)
     common = ["estimate", str(sim / "images"), "--model", str(work / "bundle"), "--method", "board"]
     capfd.readouterr()
     assert main([*common, "--camera", str(sim / "camera.yaml"), "--out", str(tmp_path / "true.csv")]) == 0

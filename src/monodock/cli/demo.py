@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import shutil
 import sys
 import time
@@ -229,7 +228,7 @@ def _focal_error_bundles(
     out: dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] = {}
     camera = trained.dataset.camera()
     for f in config.focal_errors:
-        wrong_camera = dataclasses.replace(camera, K=tuple(k * f if i in (0, 4) else k for i, k in enumerate(camera.K)))
+        wrong_camera = camera.focal_scaled(f)
         path = work / f"bundle_focal_{f:g}"
         options = TrainOptions(
             trials=1, seed=config.seed, jobs=config.jobs, camera=wrong_camera, source="simulated training drive"

@@ -6,6 +6,7 @@ calibration files. Pixel coordinates follow OpenCV: the centre of the top-left p
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import os
@@ -121,6 +122,14 @@ class CameraModel:
     def size(self) -> tuple[int, int]:
         """(width, height) in pixels."""
         return self.width, self.height
+
+    def focal_scaled(self, factor: float) -> CameraModel:
+        """This camera with fx and fy times ``factor`` (a focal length that is off, as the miscalibration studies
+        and the scale check try); the principal point, distortion and size stay."""
+        K = list(self.K)
+        K[0] *= factor
+        K[4] *= factor
+        return dataclasses.replace(self, K=tuple(K))
 
     def check_plausible(self, source: str = "camera") -> None:
         """ConfigError, one line naming ``source`` and the key, unless this is a camera that can exist.

@@ -205,13 +205,6 @@ class MiscalibrationRow:
     yaw_mae_deg: float
 
 
-def _scaled_camera(camera: CameraModel, factor: float) -> CameraModel:
-    K = list(camera.K)
-    K[0] *= factor
-    K[4] *= factor
-    return dataclasses.replace(camera, K=tuple(K))
-
-
 def _scaled_layout(layout: DockLayout, factor: float) -> DockLayout:
     return dataclasses.replace(layout, marker_size=layout.marker_size * factor)
 
@@ -248,7 +241,7 @@ def miscalibration_study(
     ok = np.isfinite(reference[:, 0])
     for quantity in ("marker size", "focal length"):
         for f in factors:
-            cam = _scaled_camera(camera, f) if quantity == "focal length" else camera
+            cam = camera.focal_scaled(f) if quantity == "focal length" else camera
             lay = _scaled_layout(layout, f) if quantity == "marker size" else layout
             explicit = regression[(quantity, f)](cam) if regression is not None and (quantity, f) in regression else {}
             methods = {**geometric_methods(cam, lay, robot), **explicit}

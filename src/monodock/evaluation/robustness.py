@@ -203,10 +203,7 @@ def calibration_for(
     if level == 0.0:
         return Calibration(key, camera, layout, robot)
     if axis.key == "focal":
-        K = list(camera.K)
-        K[0] *= 1.0 + level / 100.0
-        K[4] *= 1.0 + level / 100.0
-        return Calibration(key, dataclasses.replace(camera, K=tuple(K)), layout, robot)
+        return Calibration(key, camera.focal_scaled(1.0 + level / 100.0), layout, robot)
     if axis.key == "marker_size":
         return Calibration(
             key, camera, dataclasses.replace(layout, marker_size=layout.marker_size * (1 + level / 100)), robot
