@@ -78,7 +78,8 @@ node = rclpy.create_node("driver")
 latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 states: list[tuple[float, str]] = []
 results: list[DiagnosticStatus] = []
-truth: list[tuple[float, float, float, float]] = []  # (wall time, robot x, y, heading in the dock frame)
+# (wall time, robot x, y, heading in the dock frame, the sim's stamp)
+truth: list[tuple[float, float, float, float, float]] = []
 battery: list[int] = []
 
 
@@ -87,7 +88,8 @@ def on_truth(msg: Any) -> None:
     x, y = msg.pose.position.x, msg.pose.position.y
     yaw = 2.0 * math.atan2(msg.pose.orientation.z, msg.pose.orientation.w)
     c, s = math.cos(yaw), math.sin(yaw)
-    truth.append((time.monotonic(), -(c * x + s * y), s * x - c * y, -yaw))
+    stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+    truth.append((time.monotonic(), -(c * x + s * y), s * x - c * y, -yaw, stamp))
 
 
 node.create_subscription(String, "/monodock_dock/state", lambda msg: states.append((time.monotonic(), msg.data)), 50)
@@ -131,7 +133,7 @@ def emit(kind: str, /, **values: Any) -> None:
 
 
 def final_truth() -> dict[str, float]:
-    _, x, y, heading = truth[-1]
+    _, x, y, heading, _ = truth[-1]
     return {
         "lateral_cm": 100 * y,
         "gap_cm": 100 * (-x - robot_config.front_offset),  # front edge's centre to the face
@@ -178,11 +180,15 @@ for step in spec["steps"]:
                 under_way = time.monotonic() + 5.0
                 while math.dist(truth[-1][1:3], start) < 0.02 and time.monotonic() < under_way:
                     rclpy.spin_once(node, timeout_sec=0.01)
-                at = time.monotonic()
+                at = truth[-1][4]  # the sim's time of the last state seen before the signal
                 dock.send_signal(signal.SIGKILL if fault["kind"] == "kill" else signal.SIGINT)
                 dock.wait()
-                spin_for(3.0)
-                track = [(t - at, x, y) for t, x, y, _ in truth if t >= at - 0.2]
+                # Watch 4 s of the sim's time, not of the wall clock: under load the sim falls behind the wall
+                # clock and catches up in bursts, so a wall-clock window may hold too little of its motion.
+                watch = time.monotonic() + 20.0
+                while truth[-1][4] < at + 4.0 and time.monotonic() < watch:
+                    rclpy.spin_once(node, timeout_sec=0.02)
+                track = [(stamp - at, x, y) for _, x, y, _, stamp in truth if stamp >= at - 0.2]
                 emit("fault", what=fault["kind"], track=track, returncode=dock.returncode)
                 break
             if fault["kind"] == "garbage":  # malformed images on the camera topic, among the good ones, from now on

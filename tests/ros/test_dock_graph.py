@@ -187,7 +187,9 @@ def test_the_robot_stops_when_the_dock_node_is_killed(record: Path) -> None:
     )
     track = run.first("fault")["track"]
     before = [p for p in track if p[0] < 0]
-    after = [p for p in track if p[0] > 0.5 + 0.5]  # the base's 0.5 s time-out, then its deceleration
+    # Times are the sim's, from the kill to 4 s after it. The base's 0.5 s time-out runs on the wall clock, which
+    # the sim may trail under load by a few tenths of a second; then it decelerates: at rest from 2 s on.
+    after = [p for p in track if p[0] > 2.0]
     moving = math.dist(before[0][1:], before[-1][1:]) > 0.005
     assert moving, "the robot was not moving when the node was killed"
     still = math.dist(after[0][1:], after[-1][1:])
