@@ -35,6 +35,7 @@ from monodock.core.cluster import active_client
 from monodock.core.interrupt import sigint_blocked
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.segments import SegmentTable
+from monodock.learning.treefit import lean_predict
 
 __all__ = [
     "MODEL_NAMES",
@@ -650,17 +651,24 @@ def _fit_task(
     y_svr: NDArray[np.float64],
     X_test: NDArray[np.float64],
     y_test: NDArray[np.float64],
+    *,
+    lean: bool = True,
 ) -> _TaskOutcome:
     """Fit every draw of one task and score each on the test split (runs in a worker process).
 
-    Only the best draw's estimator comes back: the others would cost their pickling and the parent's memory.
+    Forest and boosting draws are scored through ``learning.treefit`` (the same predictions for less). The best
+    of those lean draws is then fitted by scikit-learn itself, whether or not it wins the task, and when its
+    predictions are not the lean ones bit for bit, the whole task is scored again with scikit-learn alone
+    (``lean=False``). Only the best draw's estimator comes back: the others would cost their pickling and the
+    parent's memory.
     """
     import sklearn
     from sklearn.exceptions import ConvergenceWarning, UndefinedMetricWarning
     from sklearn.metrics import mean_squared_error, r2_score
 
     scores: list[_Score] = []
-    best: tuple[_Score, Any, NDArray[np.float64]] | None = None
+    best: tuple[_Score, _Draw, Any, NDArray[np.float64]] | None = None
+    best_lean: tuple[_Score, _Draw, Any, NDArray[np.float64]] | None = None
     # One BLAS thread: the workers already fill the cores, and a fixed thread count keeps results bit-identical.
     # The parameters are checked by TrainConfig and the draws, the rows are finite (TrainingSet), and every
     # prediction is checked below: scikit-learn's own checks of each fit (a third of a boosting fit's time on
@@ -674,11 +682,14 @@ def _fit_task(
         warnings.simplefilter("ignore", UndefinedMetricWarning)
         for draw in batch.draws:
             X, y = (X_svr, y_svr) if draw.model == "svr" else (X_train, y_train)
-            est = make_estimator(draw.model, draw.params, draw.random_state)
             t0, c0 = time.perf_counter(), time.process_time()
-            est.fit(X, y)
+            est: Any = None
+            found = lean_predict(draw.model, draw.params, draw.random_state, X, y, X_test) if lean else None
+            if found is None:
+                est = make_estimator(draw.model, draw.params, draw.random_state)
+                est.fit(X, y)
             seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
-            pred = np.asarray(est.predict(X_test), dtype=np.float64)
+            pred = found if found is not None else np.asarray(est.predict(X_test), dtype=np.float64)
             if np.all(np.isfinite(pred)):
                 mse = float(mean_squared_error(y_test, pred))
                 r2 = float(r2_score(y_test, pred)) if len(y_test) >= 2 else math.nan
@@ -687,9 +698,20 @@ def _fit_task(
             score = _Score(draw.model, draw.trial, mse, r2, seconds, cpu, len(y))
             scores.append(score)
             if best is None or _rank(score, batch.models) < _rank(best[0], batch.models):
-                best = (score, est, pred)
-    assert best is not None  # a batch has at least one draw
-    return _TaskOutcome(batch.task, tuple(scores), best[0], best[1], best[2])
+                best = (score, draw, est, pred)
+            if found is not None and (
+                best_lean is None or _rank(score, batch.models) < _rank(best_lean[0], batch.models)
+            ):
+                best_lean = (score, draw, est, pred)
+        assert best is not None  # a batch has at least one draw
+        if best_lean is not None:  # scikit-learn's own estimator of the best lean draw must predict the same
+            _, draw, _, pred = best_lean
+            check = make_estimator(draw.model, draw.params, draw.random_state).fit(X_train, y_train)
+            if not np.array_equal(np.asarray(check.predict(X_test), dtype=np.float64), pred):
+                return _fit_task(batch, X_train, y_train, X_svr, y_svr, X_test, y_test, lean=False)
+            if best[0] is best_lean[0]:
+                best = (best[0], draw, check, pred)
+    return _TaskOutcome(batch.task, tuple(scores), best[0], best[2], best[3])
 
 
 def _worker_count(jobs: int) -> int:
