@@ -131,3 +131,10 @@ def truthful_robot(start: Pose2D, **drive: object) -> TruthfulRobot:
         DiffDriveConfig(**drive),  # type: ignore[arg-type]
         np.random.default_rng(3),
     )
+
+
+def worker_pid(_: object, __: object) -> int:
+    """The process a task ran in (``core.parallel`` tests: a module-level function, so it pickles)."""
+    import os
+
+    return os.getpid()

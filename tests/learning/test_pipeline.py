@@ -8,15 +8,18 @@ import json
 import math
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from monodock.cli.main import main
+from monodock.core import parallel
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
+from monodock.learning import dataset as dataset_module
 from monodock.learning.dataset import dataset_columns, label_recording, read_dataset, write_dataset
 from monodock.recording import open_recording
 from monodock.sim import Nuisances, Simulator
@@ -50,12 +53,22 @@ def test_label_writes_every_image_with_counts_and_truth(work: Path) -> None:
     assert ds.metadata["counts"]["images"] == 240
 
 
-def test_labelling_in_worker_processes_gives_the_same_dataset(tmp_path: Path) -> None:
+def test_labelling_in_worker_processes_gives_the_same_dataset(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Images labelled in chunks by two workers: the same rows, labels and counts as one process, in the same
     order, with unpaired images among them (lost scans), and labels that agree with the recording's truth.
     The two workers are asked for on the command line (``monodock label --jobs 2``)."""
+    # 30 images are 4 chunks, which label inline unless the workers are asked for from 2 chunks on.
+    monkeypatch.setattr(dataset_module, "_LABEL_INLINE_BELOW", 2)
     sim = Simulator(nuisances=FAST, seed=4)
     _record(tmp_path / "rec", sim, 30, 4, scan_loss=0.5)
+    pools: list[int] = []
+    started = parallel.worker_pool
+
+    def counted(jobs: int, *args: Any) -> Any:
+        pools.append(jobs)
+        return started(jobs, *args)
+
+    monkeypatch.setattr(parallel, "worker_pool", counted)
     one, run_one, _ = label_recording(tmp_path / "rec", sim.layout, progress=False)
     _, run_two, _ = label_recording(tmp_path / "rec", sim.layout, progress=False, jobs=2)
     assert run_two.to_dict() == run_one.to_dict()
@@ -74,6 +87,7 @@ def test_labelling_in_worker_processes_gives_the_same_dataset(tmp_path: Path) ->
     valid = two["label_valid"]
     assert np.mean(np.abs(two["label_x_m"] - two["truth_x_m"])[valid]) < 0.015
     assert list(two["frame"]) == sorted(two["frame"])
+    assert pools == [2, 2]  # label_recording(jobs=2) and the command's --jobs 2 ran in workers
 
 
 def test_dataset_round_trip_and_refusals(work: Path, tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ inside each only contend (measured: 2 workers with threaded BLAS were 2.3x slowe
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing as mp
 import multiprocessing.pool
 import os
@@ -79,8 +80,8 @@ def _call_with_state(args: tuple[Callable[[Any, Any], Any], Any]) -> Any:
 
 
 def map_with_state(fn: Callable[[S, T], R], state: S, tasks: list[T], *, jobs: int, chunksize: int = 2) -> Iterator[R]:
-    """``fn(state, task)`` for every task, in order, in ``jobs`` workers (inline when jobs <= 1), or on the Dask
-    cluster of an open ``core.cluster.cluster_session`` (``--cluster``), whatever ``jobs``.
+    """``fn(state, task)`` for every task, in order, in ``jobs`` workers (inline when jobs <= 1 or there is one task
+    only), or on the Dask cluster of an open ``core.cluster.cluster_session`` (``--cluster``), whatever ``jobs``.
 
     ``state`` (e.g. a Simulator with its world) goes to each worker once, not with every task; ``fn`` must be
     a module-level function so that it pickles. Results come back as they are ready and in order, so memory
@@ -89,20 +90,26 @@ def map_with_state(fn: Callable[[S, T], R], state: S, tasks: list[T], *, jobs: i
     if active_client() is not None:
         yield from cluster_map(fn, state, tasks)
         return
-    if jobs <= 1:
+    if jobs <= 1 or len(tasks) <= 1:
         yield from (fn(state, t) for t in tasks)
         return
     with worker_pool(jobs, _set_state, (state,)) as pool:
         yield from pool.imap(_call_with_state, [(fn, t) for t in tasks], chunksize=chunksize)
 
 
-def map_stream(fn: Callable[[S, T], R], state: S, tasks: Iterable[T], *, jobs: int, window: int = 0) -> Iterator[R]:
+def map_stream(
+    fn: Callable[[S, T], R], state: S, tasks: Iterable[T], *, jobs: int, window: int = 0, inline_below: int = 2
+) -> Iterator[R]:
     """``map_with_state`` over a stream of big tasks (e.g. images read from a recording): in order, and only
     ``window`` tasks (default 4 per worker) read ahead and in flight, so memory does not grow with the stream.
 
-    (``Pool.imap`` would read the whole stream ahead into its queue.)
+    A stream of fewer than ``inline_below`` tasks runs inline: starting the workers (~0.7 s of a core each, for
+    their imports) would cost more than the tasks. (``Pool.imap`` would read the whole stream ahead.)
     """
-    if jobs <= 1:
+    stream = iter(tasks)
+    head = list(itertools.islice(stream, max(inline_below, 1)))
+    tasks = itertools.chain(head, stream)
+    if jobs <= 1 or len(head) < inline_below:
         yield from (fn(state, t) for t in tasks)
         return
     window = window or 4 * jobs

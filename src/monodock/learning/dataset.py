@@ -335,6 +335,9 @@ def label_frames(
 
 # Images per task: ~0.1 s of work, ~2.5 MB to send at 640x480.
 _LABEL_CHUNK = 8
+# Workers only for a dozen chunks or more (~1 s of work): a short recording labels faster inline than the
+# workers start.
+_LABEL_INLINE_BELOW = 12
 _FrameTask = tuple[Frame, Any, tuple[float, float, float] | None]  # the image, its paired scan, its truth
 
 
@@ -452,7 +455,8 @@ def label_recording(
         run = LabelRun()
         cols: dict[str, list[Any]] = {n: [] for n in dataset_columns()}
         bar = tqdm(desc="detect", unit="frame", leave=False, disable=None if progress else True)
-        for part_cols, part_run in map_stream(_label_chunk, setup, chunks, jobs=jobs):
+        stream = map_stream(_label_chunk, setup, chunks, jobs=jobs, inline_below=_LABEL_INLINE_BELOW)
+        for part_cols, part_run in stream:
             for name, values in part_cols.items():
                 cols[name] += values
             run.add(part_run)
