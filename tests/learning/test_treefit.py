@@ -16,7 +16,7 @@ from shared import synthetic_set
 
 def _draw(rng: np.random.Generator, model: str) -> dict[str, Any]:
     """Parameters as the selection draws them (learning.train's search spaces and leaf budgets)."""
-    trees = int(rng.integers(20, 101))
+    trees = int(rng.integers(20, 61))
     p: dict[str, Any] = {
         "n_estimators": trees,
         "max_depth": int(rng.integers(2, 17)),
@@ -72,35 +72,39 @@ def _same(a: TrainingResult, b: TrainingResult) -> None:
             np.testing.assert_array_equal(ta.y_pred, tb.y_pred)
 
 
+# Two draws of the lean types beside two model types that are always scikit-learn's, so that either may win a task.
+_CONFIG = TrainConfig(trials=2, seed=5, jobs=1, models=("linear", "svr", "random_forest", "gradient_boosting"))
+
+
 @pytest.fixture(scope="module")
-def data_and_config() -> tuple[TrainingSet, TrainConfig]:
-    return synthetic_set(3), TrainConfig(trials=3, seed=5, jobs=1)
+def data_and_plain() -> tuple[TrainingSet, TrainingResult]:
+    """The synthetic rows, and their selection by scikit-learn alone (no lean fit)."""
+    data = synthetic_set(3)
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(train_module, "lean_predict", _scikit_learn_only)
+        return data, train([data], _CONFIG, progress=False)
 
 
 def test_the_selection_is_the_same_with_and_without_the_lean_fits(
-    data_and_config: tuple[TrainingSet, TrainConfig], monkeypatch: pytest.MonkeyPatch
+    data_and_plain: tuple[TrainingSet, TrainingResult],
 ) -> None:
-    data, config = data_and_config
-    lean = train([data], config, progress=False)
-    monkeypatch.setattr(train_module, "lean_predict", _scikit_learn_only)
-    plain = train([data], config, progress=False)
+    data, plain = data_and_plain
+    lean = train([data], _CONFIG, progress=False)
     _same(lean, plain)
     chosen = [t.chosen for t in (lean.sets[0].depth, *lean.sets[0].angle) if t.chosen is not None]
     assert set(chosen) & set(LEAN_MODELS)  # the lean fits chose some tasks' models: the check above saw them
 
 
 def test_a_lean_fit_that_disagrees_with_scikit_learn_is_caught_and_the_task_scored_again(
-    data_and_config: tuple[TrainingSet, TrainConfig], monkeypatch: pytest.MonkeyPatch
+    data_and_plain: tuple[TrainingSet, TrainingResult], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """Were a scikit-learn release to grow its trees otherwise, the chosen draw's refit would disagree with the
-    lean scores, and the task would be scored again by scikit-learn: the result is scikit-learn's alone."""
-    data, config = data_and_config
-    monkeypatch.setattr(train_module, "lean_predict", _scikit_learn_only)
-    plain = train([data], config, progress=False)
+    """Were a scikit-learn release to grow its trees otherwise, the refit of a task's best lean draw would disagree
+    with its lean score, and the task would be scored again by scikit-learn: the result is scikit-learn's alone."""
+    data, plain = data_and_plain
 
     def off_by_a_little(*args: Any) -> Any:
         out = lean_predict(*args)
         return None if out is None else out * 0.999  # slightly better or worse: the ranking may change too
 
     monkeypatch.setattr(train_module, "lean_predict", off_by_a_little)
-    _same(train([data], config, progress=False), plain)
+    _same(train([data], _CONFIG, progress=False), plain)
