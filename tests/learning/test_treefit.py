@@ -54,6 +54,10 @@ def test_other_models_and_parameters_are_left_to_scikit_learn() -> None:
     X, y = np.zeros((20, 3)), np.arange(20.0)
     assert lean_predict("svr", {"C": 1.0}, 0, X, y, X) is None
     assert lean_predict("random_forest", {"n_estimators": 10, "bootstrap": False}, 0, X, y, X) is None
+    drawn = {"n_estimators": 10, "max_depth": 4, "min_samples_leaf": 1, "max_features": 0.5, "max_leaf_nodes": 8}
+    assert lean_predict("random_forest", drawn, 0, X, y, X) is not None
+    assert lean_predict("random_forest", {**drawn, "max_features": 2}, 0, X, y, X) is None  # not as drawn
+    assert lean_predict("random_forest", {k: v for k, v in drawn.items() if k != "max_leaf_nodes"}, 0, X, y, X) is None
 
 
 def _scikit_learn_only(*_: Any) -> None:
@@ -89,8 +93,23 @@ def test_the_selection_is_the_same_with_and_without_the_lean_fits(
     data_and_plain: tuple[TrainingSet, TrainingResult],
 ) -> None:
     data, plain = data_and_plain
-    lean = train([data], _CONFIG, progress=False)
+    used: list[str] = []
+
+    def counted(model: str, *args: Any) -> Any:
+        out = lean_predict(model, *args)
+        if out is not None:
+            used.append(model)
+        return out
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(train_module, "lean_predict", counted)
+        lean = train([data], _CONFIG, progress=False)
     _same(lean, plain)
+    # Every forest and boosting draw of the selection took the lean path (its draws are what treefit takes).
+    draws = sum(
+        s.trials for t in (lean.sets[0].depth, *lean.sets[0].angle) for m, s in t.scores.items() if m in LEAN_MODELS
+    )
+    assert len(used) == draws > 0
     chosen = [t.chosen for t in (lean.sets[0].depth, *lean.sets[0].angle) if t.chosen is not None]
     assert set(chosen) & set(LEAN_MODELS)  # the lean fits chose some tasks' models: the check above saw them
 
