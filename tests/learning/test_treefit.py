@@ -3,6 +3,8 @@ the model selection gives the same result with them as without, even when they a
 
 from __future__ import annotations
 
+import logging
+
 from typing import Any
 
 import numpy as np
@@ -115,10 +117,13 @@ def test_the_selection_is_the_same_with_and_without_the_lean_fits(
 
 
 def test_a_lean_fit_that_disagrees_with_scikit_learn_is_caught_and_the_task_scored_again(
-    data_and_plain: tuple[TrainingSet, TrainingResult], monkeypatch: pytest.MonkeyPatch
+    data_and_plain: tuple[TrainingSet, TrainingResult],
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
 ) -> None:
     """Were a scikit-learn release to grow its trees otherwise, the refit of a task's best lean draw would disagree
-    with its lean score, and the task would be scored again by scikit-learn: the result is scikit-learn's alone."""
+    with its lean score, and the task would be scored again by scikit-learn: the result is scikit-learn's alone,
+    and one warning says how many tasks it took (a broken lean path costs time, and is seen)."""
     data, plain = data_and_plain
 
     def off_by_a_little(*args: Any) -> Any:
@@ -126,4 +131,9 @@ def test_a_lean_fit_that_disagrees_with_scikit_learn_is_caught_and_the_task_scor
         return None if out is None else out * 0.999  # slightly better or worse: the ranking may change too
 
     monkeypatch.setattr(train_module, "lean_predict", off_by_a_little)
-    _same(train([data], _CONFIG, progress=False), plain)
+    with caplog.at_level(logging.WARNING, logger="monodock"):
+        _same(train([data], _CONFIG, progress=False), plain)
+    lines = [r.getMessage() for r in caplog.records if r.name == "monodock"]
+    assert len(lines) == 1, lines
+    fitted = sum(t.reason is None for t in (plain.sets[0].depth, *plain.sets[0].angle))
+    assert lines[0].startswith(f"{fitted} of {fitted} training tasks were scored twice"), lines  # each has trees

@@ -13,6 +13,7 @@ fitting: the exported ONNX models take float32 input, and trees then split on th
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -598,6 +599,7 @@ class _TaskOutcome:
     best: _Score
     estimator: Any
     y_pred: NDArray[np.float64]
+    rescored: bool = False  # the lean scores disagreed with scikit-learn: scored again by scikit-learn alone
 
 
 # Rough relative cost per training row, to start the slow tasks first (it only affects scheduling).
@@ -708,10 +710,17 @@ def _fit_task(
             _, draw, _, pred = best_lean
             check = make_estimator(draw.model, draw.params, draw.random_state).fit(X_train, y_train)
             if not np.array_equal(np.asarray(check.predict(X_test), dtype=np.float64), pred):
-                return _fit_task(batch, X_train, y_train, X_svr, y_svr, X_test, y_test, lean=False)
+                again = _fit_task(batch, X_train, y_train, X_svr, y_svr, X_test, y_test, lean=False)
+                return replace(again, rescored=True)
             if best[0] is best_lean[0]:
                 best = (best[0], draw, check, pred)
     return _TaskOutcome(batch.task, tuple(scores), best[0], best[2], best[3])
+
+
+def _sklearn_version() -> str:
+    import sklearn
+
+    return str(sklearn.__version__)
 
 
 def _worker_count(jobs: int) -> int:
@@ -823,6 +832,13 @@ def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = 
     with closing(_run(batches, tasks, data, n_workers, progress)) as outputs:
         for done in outputs:
             outcomes[done.task] = done
+    rescored = sum(o.rescored for o in outcomes.values())
+    if rescored:  # costs time, never correctness: say so, or a broken lean path would go unseen
+        logging.getLogger("monodock").warning(
+            f"{rescored} of {len(outcomes)} training tasks were scored twice: learning.treefit's lean trees did not "
+            f"predict what scikit-learn {_sklearn_version()} does, so scikit-learn alone scored them (same models, "
+            "more time)"
+        )
     fit_seconds = sum(s.fit_seconds for o in outcomes.values() for s in o.scores)
     cpu_seconds = sum(s.cpu_seconds for o in outcomes.values() for s in o.scores)
 
