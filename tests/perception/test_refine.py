@@ -358,3 +358,17 @@ def test_the_compiled_sampling_is_bilinear_and_opencvs() -> None:
     diff = np.abs(_remap_linear(image, mapx, mapy).astype(int) - opencv)
     assert diff.max() <= 1
     assert np.mean(diff > 0) < 1e-3
+
+
+def test_the_compiled_row_sum_is_numpys_bit_for_bit() -> None:
+    """``_bloom``'s mean over a marker's border cells (compiled since issue 24) adds them as numpy adds a row
+    (pairwise, eight running sums from eight values on): the same clipping correction to the last bit, for
+    every dictionary's cell count (4 (bits) per marker: 12 to 32) and beyond."""
+    from monodock.perception.refine import _pairwise_sum
+
+    rng = np.random.default_rng(4)
+    for n in range(1, 41):
+        rows = rng.normal(size=(200, n)) * rng.uniform(0.01, 100.0, size=(200, 1))
+        rows[rng.random(rows.shape) < 0.3] = 0.0  # the cells left out add zeros
+        numpy_sums = np.add.reduce(rows, axis=1)
+        assert all(_pairwise_sum(row) == total for row, total in zip(rows, numpy_sums, strict=True)), n

@@ -29,10 +29,10 @@ behind the border. A marker with a side that has too few good profiles (cut by t
 behind something) keeps OpenCV's corners, and ``refine_detection`` lists its role in
 ``Detection.unrefined``.
 
-All the profiles of all the markers are sampled with one ``cv2.remap`` and fitted in one call of a compiled
-kernel (``monodock.core.compiled``): a frame with three markers costs about a twentieth of the marker detection
-in a loop and a tenth right after it (``bench/speed.py``), when its markers are clipped several times that (the
-inner profiles and ``_bloom`` are still numpy).
+All the profiles of all the markers are sampled (bilinear, as ``cv2.remap``) and fitted in one call of a compiled
+kernel (``monodock.core.compiled``), the clipped markers' inner profiles and ``_bloom`` included: a frame with
+three markers costs about a twentieth of the marker detection in a loop and a tenth right after it
+(``bench/speed.py``), a frame with clipped markers a few times that.
 
 The correction assumes that the white right outside the border (the marker's quiet zone) and the code's
 white cells are the same white, and it would read printer ink spread (a wider black border) as negative
@@ -41,16 +41,15 @@ clipping shift: it runs only on clipped markers.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from functools import lru_cache
-from typing import Any, NamedTuple
+from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
-from monodock.core.compiled import kernel
+from monodock.core.compiled import inlined, kernel
 from monodock.core.lens import distort, lens_of
 from monodock.errors import InputError
 from monodock.perception.detect import Detection, MarkerObservation
@@ -161,72 +160,97 @@ def _refine(gray: NDArray[np.uint8], corners: F64, camera: CameraModel, modules:
 
     Arrays are laid out (profile j, side) or (sample, profile j, side), side = 4 * marker + k, where side k
     runs from corner k to corner k + 1. Each side has its own frame in normalised coordinates: ``along``
-    from its middle towards corner k + 1, ``across`` inwards. The loops over profiles and sides run in
-    compiled kernels; the image is sampled by ``cv2.remap``.
+    from its middle towards corner k + 1, ``across`` inwards. All of it, the clipped markers' correction
+    included, is one call of a compiled kernel.
     """
-    n_sides = corners.shape[0]
-    m = n_sides // 4
-    height, width = gray.shape
+    edge, direction, cell_side = _border_cells(modules)
     lens = lens_of(camera)
-    plain, out, ok = _refine_unclipped(gray, corners, lens, modules, 0.03 / lens[0])
-    if plain:  # the usual frame: no clipped sample, everything in that one compiled call
-        return out, ok
-    side = _Sides(*_profile_geometry(corners, lens, modules, width, height))
-    xn = side.xn
-    prof = np.asarray(
-        cv2.remap(gray, side.mapx, side.mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), np.uint8
-    )
-    prof = prof.reshape(SAMPLES, PROFILES, n_sides)
-    # Samples off the image are not data. Clipped samples are: dropping them leaves a fit of the slope alone,
-    # wild where only a pixel or two of it is below 255; kept, the clipped plateau is the bright level, and
-    # the edge's shift that comes with it is the same on the mirrored inner edge, which measures it (_bloom).
-    args: tuple[Any, Any, Any, Any] = (side.t, prof, side.inside[None], side.reach[None])
-    inner = None
-    if _clipped(prof):
-        inner = _inner_profiles(gray, lens, xn, side.clockwise, modules, side.reach, prof, side.inside)
-        if inner is not None:
-            args = _with_inner(args, inner)
-    e, s, contrast, rms = _fit_edges(*args)
-    if inner is None:  # the usual frame: the rest in one compiled call
-        return _outer_corners(e, s, contrast, rms, side, lens, corners, 0.03 / lens[0])
-    if inner is not None:
-        fit = np.stack([e, s, contrast, rms])
-        inner_fit = fit[:, :, n_sides:].reshape(4, -1)[:, : inner.mk.size]
-        e, s, contrast, rms = fit[:, :, :n_sides]
-
-    # A line per side through its clean edge points, then corner k where side k-1 meets side k.
-    alpha, beta, n_good, contrast_sum, n_clean = _side_lines(
-        e, s, contrast, rms, side.inside, side.reach, side.frac, side.side_px, side.along, side.kappa, 0.03 / camera.fx
-    )
-    qx, qy = _intersect(alpha, beta, xn, side.nnx, side.nny)
-    if inner is not None:
-        # A side without clean profiles has NaN or infinite corners (they fail _to_pixels' checks): no warnings.
-        with np.errstate(all="ignore"):
-            contrast_out = contrast_sum.reshape(m, 4).sum(axis=1) / np.maximum(n_clean.reshape(m, 4).sum(axis=1), 1)
-            delta = _bloom(inner, inner_fit, contrast_out, qx.reshape(m, 4), qy.reshape(m, 4), modules)
-        qx, qy = _intersect(alpha - np.repeat(delta, 4) * side.kappa.mean(axis=0), beta, xn, side.nnx, side.nny)
-    return _to_pixels(lens, qx, qy, corners, side.border, n_good)
+    return _refine_frame(gray, corners, lens, modules, 0.03 / lens[0], edge, direction, cell_side)
 
 
 @kernel
-def _refine_unclipped(
-    gray: NDArray[np.uint8], corners: F64, lens: F64, modules: int, floor: float
-) -> tuple[bool, F64, NDArray[np.bool_]]:  # pragma: no cover - compiled
-    """``_refine`` of a frame whose profiles hold no clipped sample, in one call: whether they held none and, if
-    so, the refined corners and which markers keep them (else empty arrays: ``_refine`` takes the clipped path)."""
+def _refine_frame(
+    gray: NDArray[np.uint8], corners: F64, lens: F64, modules: int, floor: float, edge: F64, direction: F64,
+    cell_side: NDArray[np.intp],
+) -> tuple[F64, NDArray[np.bool_]]:  # pragma: no cover - compiled  # fmt: skip
+    """``_refine`` in one call; ``edge``, ``direction``, ``cell_side``: ``_border_cells(modules)``.
+
+    Samples off the image are not data. Clipped samples are: dropping them leaves a fit of the slope alone,
+    wild where only a pixel or two of it is below 255; kept, the clipped plateau is the bright level, and the
+    edge's shift that comes with it is the same on the mirrored inner edge, which measures it (``_bloom``).
+    """
     height, width = gray.shape
     n = corners.shape[0]
-    side_px, border, reach, nnx, nny, frac, along, kappa, inside, t, mapx, mapy, _, xn = _profile_geometry(
+    side_px, border, reach, nnx, nny, frac, along, kappa, inside, t, mapx, mapy, clockwise, xn = _profile_geometry(
         corners, lens, modules, width, height
     )
     prof = _remap_linear(gray, mapx, mapy).reshape(SAMPLES, PROFILES, n)
-    if _clipped(prof):
-        return False, np.empty((0, 4, 2)), np.empty(0, np.bool_)
-    e, s, contrast, rms = _fit_edges(t, prof, inside.reshape(1, PROFILES, n), reach.reshape(1, n))
-    alpha, beta, n_good, _, _ = _side_lines(e, s, contrast, rms, inside, reach, frac, side_px, along, kappa, floor)
+    clipped = _clipped_markers(prof, inside) if _clipped(prof) else np.zeros(n // 4, np.bool_)
+    if not clipped.any():  # the usual frame
+        e, s, contrast, rms = _fit_edges(t, prof, inside.reshape(1, PROFILES, n), reach.reshape(1, n))
+        alpha, beta, n_good, _, _ = _side_lines(e, s, contrast, rms, inside, reach, frac, side_px, along, kappa, floor)
+        qx, qy = _intersect(alpha, beta, xn, nnx, nny)
+        return _to_pixels(lens, qx, qy, corners, border, n_good)
+    inner = _inner_profiles(gray, lens, xn, clockwise, reach, clipped, edge, direction, cell_side)
+    mk, ilim, it, iprof, iw = inner[0], inner[7], inner[8], inner[9], inner[10]
+    # One fit of the outer and the inner profiles: the inner ones are extra sides of PROFILES profiles each.
+    n_in = mk.shape[0]
+    cols = -(-n_in // PROFILES)
+    ft = np.zeros((SAMPLES, PROFILES, n + cols), np.float32)
+    fi, fw = np.zeros_like(ft), np.zeros_like(ft)
+    flim = np.zeros((PROFILES, n + cols), np.float32)
+    for j in range(PROFILES):
+        for k in range(n):
+            flim[j, k] = reach[k]
+            for i in range(SAMPLES):
+                ft[i, j, k], fi[i, j, k], fw[i, j, k] = t[i, 0, k], prof[i, j, k], inside[j, k]
+    for q in range(n_in):
+        j, k = q // cols, n + q % cols
+        flim[j, k] = ilim[q]
+        for i in range(SAMPLES):
+            ft[i, j, k], fi[i, j, k], fw[i, j, k] = it[i, q], iprof[i, q], iw[q]
+    e, s, contrast, rms = _fit_edges(ft, fi, fw, flim)
+    # A line per side through its clean edge points, then corner k where side k-1 meets side k.
+    alpha, beta, n_good, contrast_sum, n_clean = _side_lines(
+        e[:, :n], s[:, :n], contrast[:, :n], rms[:, :n], inside, reach, frac, side_px, along, kappa, floor
+    )
     qx, qy = _intersect(alpha, beta, xn, nnx, nny)
-    out, ok = _to_pixels(lens, qx, qy, corners, border, n_good)
-    return True, out, ok
+    m = n // 4
+    contrast_out = np.empty(m)
+    for i in range(m):
+        total, count = 0.0, 0
+        for k in range(4 * i, 4 * i + 4):
+            total += contrast_sum[k]
+            count += n_clean[k]
+        contrast_out[i] = total / max(count, 1)
+    fit = np.empty((4, n_in), np.float32)
+    for q in range(n_in):
+        j, k = q // cols, n + q % cols
+        fit[0, q], fit[1, q], fit[2, q], fit[3, q] = e[j, k], s[j, k], contrast[j, k], rms[j, k]
+    delta = _bloom(inner, fit, contrast_out, qx, qy, clipped, modules, edge)
+    for k in range(n):  # each side moved back by its marker's delta: kappa's mean over the profiles, px to normalised
+        mean_kappa = kappa[0, k]
+        for j in range(1, PROFILES):
+            mean_kappa += kappa[j, k]
+        alpha[k] -= delta[k // 4] * (mean_kappa / PROFILES)
+    qx, qy = _intersect(alpha, beta, xn, nnx, nny)
+    return _to_pixels(lens, qx, qy, corners, border, n_good)
+
+
+@kernel
+def _clipped_markers(prof: NDArray[np.uint8], inside: NDArray[np.bool_]) -> NDArray[np.bool_]:  # pragma: no cover
+    """Per marker (M,): whether its outer profiles (on the image) hold ``MIN_CLIPPED`` samples at 255 or 0."""
+    n = prof.shape[2]
+    out = np.empty(n // 4, np.bool_)
+    for m in range(n // 4):
+        count = 0
+        for k in range(4 * m, 4 * m + 4):
+            for j in range(PROFILES):
+                if inside[j, k]:
+                    for i in range(SAMPLES):
+                        count += prof[i, j, k] == 255 or prof[i, j, k] == 0
+        out[m] = count >= MIN_CLIPPED
+    return out
 
 
 @kernel
@@ -256,18 +280,6 @@ def _clipped(prof: NDArray[np.uint8]) -> bool:  # pragma: no cover - compiled
         if v == 255 or v == 0:  # noqa: PLR1714
             return True
     return False
-
-
-@kernel
-def _outer_corners(
-    e: F32, s: F32, contrast: F32, rms: F32, side: Any, lens: F64, corners: F64, floor: float
-) -> tuple[F64, NDArray[np.bool_]]:  # pragma: no cover - compiled
-    """``_side_lines``, ``_intersect`` and ``_to_pixels`` of a frame without clipped markers, in one call."""
-    alpha, beta, n_good, _, _ = _side_lines(
-        e, s, contrast, rms, side.inside, side.reach, side.frac, side.side_px, side.along, side.kappa, floor
-    )
-    qx, qy = _intersect(alpha, beta, side.xn, side.nnx, side.nny)
-    return _to_pixels(lens, qx, qy, corners, side.border, n_good)
 
 
 @kernel
@@ -309,40 +321,12 @@ def _undistort(lens: F64, corners: F64) -> F64:  # pragma: no cover - compiled
     return out
 
 
-class _Sides(NamedTuple):
-    """Where ``_refine`` samples the markers' sides (``_profile_geometry``); S sides, J profiles, T samples.
-
-    Per side (S,): ``side_px`` its length and ``border`` the border's width across it (px), ``reach`` the
-    profiles' reach either side of the detected edge (px), ``nnx``, ``nny`` its inward unit normal
-    (normalised coordinates). Per profile (J, S): ``frac`` its place from corner k (0) to corner k + 1 (1),
-    ``along`` from the side's middle (normalised), ``kappa`` normalised distance across the side per pixel
-    along the profile, ``inside`` whether it lies in the image. ``t`` (T, 1, S) the samples' offsets (px,
-    inwards), ``mapx``, ``mapy`` (T, J S) their pixels, for ``cv2.remap``; ``clockwise`` (M,) whether each
-    marker's detected corners run clockwise on screen; ``xn`` (4M, 2) the detected corners, undistorted and
-    normalised. A named tuple: the compiled calls take it whole.
-    """
-
-    side_px: F64
-    border: F64
-    reach: F64
-    nnx: F64
-    nny: F64
-    frac: F64
-    along: F64
-    kappa: F64
-    inside: NDArray[np.bool_]
-    t: F32
-    mapx: F32
-    mapy: F32
-    clockwise: NDArray[np.bool_]
-    xn: F64
-
-
 @kernel
 def _profile_geometry(
     corners: F64, lens: F64, modules: int, width: int, height: int
 ) -> tuple[Any, ...]:  # pragma: no cover - compiled
-    """The fields of ``_Sides``, in order, for the detected corners (4M, 2).
+    """Per side of the detected corners (4M, 2): side_px, border, reach, nnx, nny (S,); frac, along, kappa,
+    inside (J, S); t (T, 1, S); mapx, mapy (T, J S); then clockwise (M,) and xn (4M, 2), the corners normalised.
 
     Anchors evenly along each side, straight in normalised coordinates, away from the corners; each profile
     runs along the pixel direction of the side's inward normal, found one pixel-ish further in.
@@ -551,159 +535,158 @@ def _border_cells(modules: int) -> tuple[F64, F64, NDArray[np.intp]]:
     return edge, unit[side], side
 
 
-def _square_to_quad(x: F64, y: F64) -> F64:
-    """The homographies (8, M) from the unit square onto quads x, y (M, 4), closed form (Heckbert).
+@inlined
+def _square_to_quad(x: F64, y: F64, m: int) -> tuple[float, ...]:  # pragma: no cover - compiled
+    """The homography (8,) from the unit square onto marker m's quad in x, y (4M,), closed form (Heckbert).
 
-    Corners in ArUco order: TL, TR, BR, BL at (0, 0), (1, 0), (1, 1), (0, 1). ``_on_quad`` applies them.
+    Corners in ArUco order: TL, TR, BR, BL at (0, 0), (1, 0), (1, 1), (0, 1). ``_on_quad`` applies it.
     """
-    x0, x1, x2, x3 = x.T
-    y0, y1, y2, y3 = y.T
+    x0, x1, x2, x3 = x[4 * m], x[4 * m + 1], x[4 * m + 2], x[4 * m + 3]
+    y0, y1, y2, y3 = y[4 * m], y[4 * m + 1], y[4 * m + 2], y[4 * m + 3]
     sx, sy = x0 - x1 + x2 - x3, y0 - y1 + y2 - y3
     dx1, dx2, dy1, dy2 = x1 - x2, x3 - x2, y1 - y2, y3 - y2
     den = dx1 * dy2 - dx2 * dy1
     g, h = (sx * dy2 - dx2 * sy) / den, (dx1 * sy - sx * dy1) / den
-    return np.stack([x1 - x0 + g * x1, x3 - x0 + h * x3, x0, y1 - y0 + g * y1, y3 - y0 + h * y3, y0, g, h])
+    return x1 - x0 + g * x1, x3 - x0 + h * x3, x0, y1 - y0 + g * y1, y3 - y0 + h * y3, y0, g, h
 
 
-def _on_quad(hom: F64, u: F64, v: F64) -> tuple[F64, F64]:
-    """Points (u, v) of the unit square through homographies ``hom`` (8, ...) that broadcast with them."""
+@inlined
+def _on_quad(hom: tuple[float, ...], u: float, v: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """The point (u, v) of the unit square through the homography ``hom`` (``_square_to_quad``)."""
     a, b, c, d, e, f, g, h = hom
     w = g * u + h * v + 1.0
     return (a * u + b * v + c) / w, (d * u + e * v + f) / w
 
 
-@dataclass(frozen=True)
-class _Inner:
-    """Profiles across the border's inner edge of clipped markers, one per code cell along the border.
+@kernel
+def _inner_profiles(
+    gray: NDArray[np.uint8], lens: F64, xn: F64, clockwise: NDArray[np.bool_], reach: F64,
+    clipped: NDArray[np.bool_], edge: F64, direction: F64, cell_side: NDArray[np.intp],
+) -> tuple[Any, ...]:  # pragma: no cover - compiled  # fmt: skip
+    """The profiles across the border's inner edge of the ``clipped`` markers, one per code cell along it.
 
     Each runs outward from the middle of the cell's edge, where the detected corners put it: across a white
     cell, the mirror of an outer profile (white to black); across a black cell, nothing (the fit's contrast
-    drops it). ``mk`` (N,) marker, ``cell`` (N,) index into ``_border_cells``, ``x``, ``y``, ``nx``, ``ny``
-    (N,) anchor and outward unit normal (normalised coordinates), ``kappa`` (N,) normalised distance per
-    pixel along the profile, ``lim`` (N,) reach; ``t``, ``prof``, ``w`` (T, N).
-    """
+    drops it). Built like the outer ones: a straight normal in normalised coordinates, its direction in pixels
+    one pixel-ish out, the outer side's reach. ``xn`` (4M, 2) the detected corners (normalised), ``reach``
+    (4M,) the sides' profile reach; ``edge``, ``direction``, ``cell_side`` from ``_border_cells``.
 
-    mk: NDArray[np.intp]
-    cell: NDArray[np.intp]
-    clipped: NDArray[np.bool_]
-    x: F64
-    y: F64
-    nx: F64
-    ny: F64
-    kappa: F64
-    lim: F32
-    t: F32
-    prof: NDArray[np.uint8]
-    w: NDArray[np.bool_]
-
-
-def _inner_profiles(
-    gray: NDArray[np.uint8],
-    lens: F64,
-    xn: F64,
-    clockwise: NDArray[np.bool_],
-    modules: int,
-    reach: F64,
-    prof: NDArray[np.uint8],
-    inside: NDArray[np.bool_],
-) -> _Inner | None:
-    """The profiles across the border's inner edge of the markers with ``MIN_CLIPPED`` clipped samples, or None.
-
-    ``lens`` the camera (``lens.lens_of``), ``xn`` (4M, 2) the detected corners (normalised), ``clockwise``
-    (M,) whether they run clockwise on screen, ``reach`` (4M,) the sides' profile reach, ``prof`` (T, J, 4M)
-    and ``inside`` (J, 4M) the outer profiles. Built like the outer ones: a straight normal in normalised
-    coordinates, its direction in pixels one pixel-ish out, the outer side's reach.
+    Returns, per profile (N,): its marker, its cell, anchor x, y and outward unit normal nx, ny (normalised),
+    kappa (normalised distance per pixel along it), reach (float32); then t and the samples (T, N) and whether
+    it lies on the image (N,).
     """
     height, width = gray.shape
-    m = xn.shape[0] // 4
-    n_clipped = np.add.reduce((prof == 255) | (prof == 0), (0, 1), where=inside)
-    clipped = n_clipped.reshape(m, 4).sum(axis=1) >= MIN_CLIPPED
-    if not np.any(clipped):
-        return None
-    edge, direction, side = _border_cells(modules)
-    mk = np.repeat(np.flatnonzero(clipped), side.size)
-    cell = np.tile(np.arange(side.size), mk.size // side.size)
-    # The edge middles and a short step along the edge, through the detected corners' homographies.
-    g = edge[cell] + np.array([0.0, 1e-3])[:, None, None] * direction[cell]
-    hom = _square_to_quad(xn[:, 0].reshape(m, 4), xn[:, 1].reshape(m, 4))[:, mk]
-    x, y = _on_quad(hom, g[..., 0], g[..., 1])
-    dx, dy = x[1] - x[0], y[1] - y[0]
-    # The outward normal, on the outer sides' outer side (see _refine).
-    scale = np.where(clockwise[mk], -1.0, 1.0) / np.hypot(dx, dy)
-    nx, ny = -dy * scale, dx * scale
+    n_cells = edge.shape[0]
+    n = int(clipped.sum()) * n_cells
+    mk, cell = np.empty(n, np.intp), np.empty(n, np.intp)
+    x, y, nx, ny, kappa = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    lim = np.empty(n, np.float32)
+    t = np.empty((SAMPLES, n), np.float32)
+    mapx, mapy = np.empty((SAMPLES, n), np.float32), np.empty((SAMPLES, n), np.float32)
+    on_image = np.empty(n, np.bool_)
+    xs, ys = xn[:, 0].copy(), xn[:, 1].copy()
     step = 1.0 / lens[0]
-    pu, pv = distort(lens, x[0], y[0])
-    qu, qv = distort(lens, x[0] + step * nx, y[0] + step * ny)
-    dpx, dpy = qu - pu, qv - pv
-    inv = 1.0 / np.hypot(dpx, dpy)
-    lim = reach.reshape(m, 4)[mk, side[cell]].astype(np.float32)
-    t = lim * _GRID[:, None]  # (T, N), pixels, positive outward
-    mapx, mapy = (pu + t * (dpx * inv)).astype(np.float32), (pv + t * (dpy * inv)).astype(np.float32)
-    ok = (
-        (np.minimum(mapx[0], mapx[-1]) >= 0)
-        & (np.maximum(mapx[0], mapx[-1]) <= width - 1)
-        & (np.minimum(mapy[0], mapy[-1]) >= 0)
-        & (np.maximum(mapy[0], mapy[-1]) <= height - 1)
-    )
-    inner_prof = np.asarray(cv2.remap(gray, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), np.uint8)
-    w = np.broadcast_to(ok, t.shape)
-    return _Inner(mk, cell, clipped, x[0], y[0], nx, ny, step * inv, lim, t, inner_prof, w)
+    q = 0
+    for m in range(clipped.shape[0]):
+        if not clipped[m]:
+            continue
+        hom = _square_to_quad(xs, ys, m)
+        sign = -1.0 if clockwise[m] else 1.0
+        for c in range(n_cells):
+            mk[q], cell[q] = m, c
+            # The edge's middle and a short step along it, through the detected corners' homography.
+            x0, y0 = _on_quad(hom, edge[c, 0] + 0.0 * direction[c, 0], edge[c, 1] + 0.0 * direction[c, 1])
+            x1, y1 = _on_quad(hom, edge[c, 0] + 1e-3 * direction[c, 0], edge[c, 1] + 1e-3 * direction[c, 1])
+            dx, dy = x1 - x0, y1 - y0
+            scale = sign / np.hypot(dx, dy)  # the outward normal, on the outer sides' outer side
+            x[q], y[q], nx[q], ny[q] = x0, y0, -dy * scale, dx * scale
+            pu, pv = distort(lens, x0, y0)
+            qu, qv = distort(lens, x0 + step * nx[q], y0 + step * ny[q])
+            dpx, dpy = qu - pu, qv - pv
+            inv = 1.0 / np.hypot(dpx, dpy)
+            kappa[q] = step * inv
+            lim[q] = reach[4 * m + cell_side[c]]
+            for i in range(SAMPLES):
+                t[i, q] = lim[q] * _GRID[i]  # pixels, positive outward
+                mapx[i, q] = pu + t[i, q] * (dpx * inv)
+                mapy[i, q] = pv + t[i, q] * (dpy * inv)
+            a, b = mapx[0, q], mapx[SAMPLES - 1, q]
+            u, v = mapy[0, q], mapy[SAMPLES - 1, q]
+            on_image[q] = min(a, b) >= 0 and max(a, b) <= width - 1 and min(u, v) >= 0 and max(u, v) <= height - 1
+            q += 1
+    return mk, cell, x, y, nx, ny, kappa, lim, t, _remap_linear(gray, mapx, mapy), on_image
 
 
-def _with_inner(args: tuple[F32, F32, F32, F32], inner: _Inner) -> tuple[F32, F32, F32, F32]:
-    """The outer profiles' fit arguments with the inner profiles as extra columns of PROFILES profiles each."""
-    t, intensity, w, lim = args
-    n_sides, n = intensity.shape[2], inner.mk.size
-    cols = -(-n // PROFILES)
-    out = [np.zeros((SAMPLES, PROFILES, n_sides + cols), np.float32) for _ in range(3)]
-    lim_out = np.ones((PROFILES, n_sides + cols), np.float32)
-    lim_out[:, :n_sides] = lim
-    flat = np.zeros((SAMPLES, PROFILES * cols), np.float32)
-    extras = (inner.t, inner.prof.astype(np.float32), inner.w.astype(np.float32))
-    for dst, outer, extra in zip(out, (t, intensity, w), extras, strict=True):
-        dst[:, :, :n_sides] = outer
-        flat[:, :n] = extra
-        dst[:, :, n_sides:] = flat.reshape(SAMPLES, PROFILES, cols)
-    flat[0, :n] = inner.lim
-    lim_out[:, n_sides:] = flat[0].reshape(PROFILES, cols)
-    return out[0], out[1], out[2], lim_out
+@inlined
+def _pairwise_sum(a: F64) -> float:  # pragma: no cover - compiled
+    """numpy's sum of a row (its pairwise summation, for up to 128 values): the same number, bit for bit."""
+    n = a.shape[0]
+    if n < 8:
+        total = 0.0
+        for i in range(n):
+            total += a[i]
+        return total
+    r = a[:8].copy()
+    i = 8
+    while i < n - n % 8:
+        for j in range(8):
+            r[j] += a[i + j]
+        i += 8
+    total = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        total += a[i]
+        i += 1
+    return float(total)
 
 
-def _bloom(inner: _Inner, fit: F32, contrast_out: F64, qx: F64, qy: F64, modules: int) -> F64:
+@kernel
+def _bloom(
+    inner: tuple[Any, ...], fit: F32, contrast_out: F64, qx: F64, qy: F64, clipped: NDArray[np.bool_], modules: int,
+    edge: F64,
+) -> F64:  # pragma: no cover - compiled  # fmt: skip
     """Per marker (M,): how far clipping put its fitted outer edges inside the true ones, px (0: not clipped).
 
-    ``fit`` (4, N) holds the inner profiles' edge, blur, contrast and RMS, ``contrast_out`` (M,) the
-    markers' mean contrast on their outer edges, ``qx``, ``qy`` (M, 4) the corners from the fitted outer
-    edges (normalised). If those edges sit delta inside, the corners put the inner edge 2 delta / modules
-    too far in and the fit finds it delta too far out, so that it appears e = 2 delta (1 - 1 / modules)
-    outward of where the corners put it, whatever the blur. A clipped marker with fewer than ``MIN_INNER``
-    white cells measured takes the median of the others, or 0.
+    ``inner``: ``_inner_profiles``; ``fit`` (4, N) the inner profiles' edge, blur, contrast and RMS,
+    ``contrast_out`` (M,) the markers' mean contrast on their outer edges, ``qx``, ``qy`` (4M,) the corners from
+    the fitted outer edges (normalised). If those edges sit delta inside, the corners put the inner edge
+    2 delta / modules too far in and the fit finds it delta too far out, so that it appears
+    e = 2 delta (1 - 1 / modules) outward of where the corners put it, whatever the blur. A clipped marker with
+    fewer than ``MIN_INNER`` white cells measured takes the median of the others, or 0.
     """
-    e, s, contrast, rms = fit
-    good = inner.w[0] & (np.abs(e) < 0.8 * inner.lim) & (s < inner.lim) & (rms < 0.15 * contrast)
-    good &= contrast > 0.5 * contrast_out[inner.mk]  # a black cell, or a shadow: no edge
-    edge, _, _ = _border_cells(modules)
-    g = edge[inner.cell]
-    x, y = _on_quad(_square_to_quad(qx, qy)[:, inner.mk], g[:, 0], g[:, 1])
+    mk, cell, x0, y0, nx, ny, kappa, lim, _, _, on_image = inner
+    m = clipped.shape[0]
     # Each white cell's edge, outward of where the refined corners put it (px); a row per marker, NaN-padded.
-    m = qx.shape[0]
     found = np.full((m, edge.shape[0]), np.nan)
-    offset = ((inner.x - x) * inner.nx + (inner.y - y) * inner.ny) / inner.kappa
-    found[inner.mk, inner.cell] = np.where(good, e + offset, np.nan)
+    count = np.zeros(m, np.intp)
+    for q in range(mk.shape[0]):
+        e, s, contrast, rms = fit[0, q], fit[1, q], fit[2, q], fit[3, q]
+        good = on_image[q] and abs(e) < np.float32(0.8) * lim[q] and s < lim[q] and rms < np.float32(0.15) * contrast
+        good = good and contrast > 0.5 * contrast_out[mk[q]]  # a black cell, or a shadow: no edge
+        if good:
+            x, y = _on_quad(_square_to_quad(qx, qy, mk[q]), edge[cell[q], 0], edge[cell[q], 1])
+            found[mk[q], cell[q]] = e + ((x0[q] - x) * nx[q] + (y0[q] - y) * ny[q]) / kappa[q]
+            count[mk[q]] += 1
     # A mean (the spread is mostly noise), without the cells more than 3 robust sigmas off the median.
-    rows = np.arange(m)
-    count = np.bincount(inner.mk, weights=good, minlength=m).astype(np.intp)
-    half = np.minimum(count // 2, found.shape[1] - 1)
-    off = np.abs(found - np.sort(found, axis=1)[rows, half, None])
-    spread = np.maximum(3.0 * 1.4826 * np.sort(off, axis=1)[rows, half], 0.1)
-    keep = off <= spread[:, None]  # NaN is not
-    with np.errstate(invalid="ignore", divide="ignore"):
-        delta = np.add.reduce(np.where(keep, found, 0.0), 1) / keep.sum(axis=1) / (2.0 * (1.0 - 1.0 / modules))
-    measured = inner.clipped & (count >= MIN_INNER)
-    if not np.any(measured):
+    delta = np.zeros(m)
+    measured = np.zeros(m, np.bool_)
+    for i in range(m):
+        if not clipped[i]:
+            continue
+        half = min(count[i] // 2, found.shape[1] - 1)
+        row = found[i]
+        off = np.abs(row - np.sort(row)[half])  # NaN sorts last, and stays NaN
+        spread = 3.0 * 1.4826 * np.sort(off)[half]
+        spread = spread if not spread < 0.1 else 0.1
+        keep = off <= spread  # NaN is not
+        delta[i] = _pairwise_sum(np.where(keep, row, 0.0)) / keep.sum() / (2.0 * (1.0 - 1.0 / modules))
+        measured[i] = count[i] >= MIN_INNER
+    if not measured.any():
         return np.zeros(m)
-    delta[inner.clipped & ~measured] = np.sort(delta[measured])[np.count_nonzero(measured) // 2]
-    return np.where(inner.clipped, delta, 0.0)
+    fallback = np.sort(delta[measured])[int(measured.sum()) // 2]
+    for i in range(m):
+        if clipped[i] and not measured[i]:
+            delta[i] = fallback
+    return delta
 
 
 @kernel
