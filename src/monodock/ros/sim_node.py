@@ -4,10 +4,10 @@ The simulated differential drive (``monodock.sim.diffdrive``) runs in real time 
 camera publishes every frame ``camera_latency`` after the exposure, stamped with the exposure time; odometry,
 the rear range, the contact switch, the battery's charging state and the ground truth go out every control
 period (50 Hz), ``/clock`` with them. It drives by ``cmd_vel`` through the base's latency, lag and slip, and
-stops when ``cmd_vel`` falls silent for ``cmd_vel_timeout`` as real bases do. Its stamps are the wall clock at
-the start plus the simulated time. Real-time pacing keeps the two together on an idle machine; on a busy one the
-simulation runs slower than the wall clock, so nodes that time sensor data against their own clock (the docking
-node) run with ``use_sim_time`` on the ``/clock`` it publishes, as with any simulator.
+stops when ``cmd_vel`` falls silent for ``cmd_vel_timeout`` simulated seconds, as real bases do. Its stamps are the
+wall clock at the start plus the simulated time. Real-time pacing keeps the two together on an idle machine; on a
+busy one the simulation runs slower than the wall clock, so nodes that time sensor data against their own clock
+(the docking node) run with ``use_sim_time`` on the ``/clock`` it publishes, as with any simulator.
 
 Faults on demand: ``~/silence_camera`` and ``~/silence_odometry`` (std_srvs/SetBool) stop and restart those
 topics.
@@ -164,15 +164,19 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
     def _on_cmd_vel(self, msg: Any) -> None:
         v, w = float(msg.linear.x), float(msg.angular.z)
         if math.isfinite(v) and math.isfinite(w):
-            self.last_cmd = (time.monotonic(), v, w)
+            self.last_cmd = (self.robot.t, v, w)  # simulated time: callbacks run between physics steps
 
-    def command(self, _t: float, _odom: Odometry) -> tuple[float, float]:
-        """The latest cmd_vel, or a stop once it is older than the timeout (what real bases do)."""
+    def command(self, t: float, _odom: Odometry) -> tuple[float, float]:
+        """The latest cmd_vel, or a stop once it is older than the timeout (what real bases do).
+
+        Timed on the simulated clock, as the physics: on a busy machine the simulation falls behind the wall clock,
+        and a wall-clock time-out would stop a base whose commands are on time in its own (and /clock's) time.
+        """
         if not rclpy.ok() or self.stop:
             raise KeyboardInterrupt  # shut down: leave the runner (raised here, in Python, between steps)
         for _ in range(8):  # whatever has arrived (one callback a call)
             rclpy.spin_once(self, timeout_sec=0.0)
-        if self.last_cmd is None or time.monotonic() - self.last_cmd[0] > self.settings.cmd_vel_timeout:
+        if self.last_cmd is None or t - self.last_cmd[0] > self.settings.cmd_vel_timeout:
             return (0.0, 0.0)
         return (self.last_cmd[1], self.last_cmd[2])
 
