@@ -548,6 +548,7 @@ def _check_calibration(options: DockOptions) -> None:
 
 def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
     """Run the node until shut down; ``argv`` carries the ROS arguments. 0 on shutdown, 2 on bad options."""
+    from rclpy.executors import SingleThreadedExecutor  # type: ignore[import-not-found, unused-ignore]
     from rclpy.signals import SignalHandlerOptions  # type: ignore[import-not-found, unused-ignore]
 
     # monodock handles SIGINT and SIGTERM itself: rclpy's handlers would shut the context down before the last
@@ -558,8 +559,12 @@ def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
     try:
         node = DockNode(options)
         node.get_logger().info(f"ready: docking with {node.method or 'the camera from camera_info'}")
+        # One executor for the node's life: rclpy.spin_once(node) adds and removes the node on every call, and
+        # odometry, the clock and the sensors bring a few hundred callbacks a second.
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
         while rclpy.ok() and not stop:
-            rclpy.spin_once(node, timeout_sec=0.1)
+            executor.spin_once(timeout_sec=0.1)
     except MonodockError as exc:
         print(f"monodock-dock-ros: error: {exc}", file=sys.stderr)
         return 2

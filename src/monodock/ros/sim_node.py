@@ -133,7 +133,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             sim, Pose2D(*s.start), DiffDriveConfig(camera_rate=s.camera_rate), np.random.default_rng(s.seed)
         )
         self.epoch = time.time()  # ROS time = this + simulated time
-        self.last_cmd: tuple[float, float, float] | None = None  # (wall time, v, w)
+        self.last_cmd: tuple[float, float, float] | None = None  # (simulated time, v, w)
         self.stop: ShutdownFlag | None = None  # SIGINT/SIGTERM, checked between steps
         qos_sensor = rclpy.qos.qos_profile_sensor_data
         self.pub_image = self.create_publisher(Image, "image", qos_sensor)
@@ -151,6 +151,10 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.silenced: set[str] = set()
         for name in ("camera", "odometry"):
             self.create_service(SetBool, f"~/silence_{name}", self._silencer(name))
+        from rclpy.executors import SingleThreadedExecutor  # type: ignore[import-not-found, unused-ignore]
+
+        self._executor = SingleThreadedExecutor()  # its own: rclpy.spin_once adds and removes the node every call
+        self._executor.add_node(self)
 
     def _silencer(self, name: str) -> Any:
         def on_request(request: Any, response: Any) -> Any:
@@ -174,11 +178,30 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         """
         if not rclpy.ok() or self.stop:
             raise KeyboardInterrupt  # shut down: leave the runner (raised here, in Python, between steps)
-        for _ in range(8):  # whatever has arrived (one callback a call)
-            rclpy.spin_once(self, timeout_sec=0.0)
+        self._take_messages()
         if self.last_cmd is None or t - self.last_cmd[0] > self.settings.cmd_vel_timeout:
             return (0.0, 0.0)
         return (self.last_cmd[1], self.last_cmd[2])
+
+    def _take_messages(self, most: int = 8) -> None:
+        """Run the callbacks of what has arrived (cmd_vel, the silencing services), up to ``most``, and return as
+        soon as nothing is ready: one look at the wait set in the usual control period, where spinning a fixed
+        eight times cost eight (a fifth of a core at 50 Hz, measured)."""
+        from rclpy.executors import (  # type: ignore[import-not-found, unused-ignore]
+            ExternalShutdownException,
+            ShutdownException,
+            TimeoutException,
+        )
+
+        for _ in range(most):
+            try:
+                handler, _, _ = self._executor.wait_for_ready_callbacks(timeout_sec=0.0)
+            except (TimeoutException, ShutdownException, ExternalShutdownException):
+                return
+            handler()  # as rclpy's own spin_once does
+            error: BaseException | None = handler.exception()
+            if error is not None:
+                raise error
 
     def ros_seconds(self, t: float) -> float:
         return self.epoch + t
