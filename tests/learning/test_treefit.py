@@ -4,7 +4,6 @@ the model selection gives the same result with them as without, even when they a
 from __future__ import annotations
 
 import logging
-
 from typing import Any
 
 import numpy as np
