@@ -717,12 +717,6 @@ def _fit_task(
     return _TaskOutcome(batch.task, tuple(scores), best[0], best[2], best[3])
 
 
-def _sklearn_version() -> str:
-    import sklearn
-
-    return str(sklearn.__version__)
-
-
 def _worker_count(jobs: int) -> int:
     if jobs > 0:
         return jobs
@@ -834,9 +828,11 @@ def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = 
             outcomes[done.task] = done
     rescored = sum(o.rescored for o in outcomes.values())
     if rescored:  # costs time, never correctness: say so, or a broken lean path would go unseen
+        import sklearn
+
         logging.getLogger("monodock").warning(
             f"{rescored} of {len(outcomes)} training tasks were scored twice: learning.treefit's lean trees did not "
-            f"predict what scikit-learn {_sklearn_version()} does, so scikit-learn alone scored them (same models, "
+            f"predict what scikit-learn {sklearn.__version__} does, so scikit-learn alone scored them (same models, "
             "more time)"
         )
     fit_seconds = sum(s.fit_seconds for o in outcomes.values() for s in o.scores)

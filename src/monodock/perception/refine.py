@@ -192,7 +192,7 @@ def _refine_frame(
         qx, qy = _intersect(alpha, beta, xn, nnx, nny)
         return _to_pixels(lens, qx, qy, corners, border, n_good)
     inner = _inner_profiles(gray, lens, xn, clockwise, reach, clipped, edge, direction, cell_side)
-    mk, ilim, it, iprof, iw = inner[0], inner[7], inner[8], inner[9], inner[10]
+    mk, _, _, _, _, _, _, ilim, it, iprof, iw = inner  # the rest is _bloom's
     # One fit of the outer and the inner profiles: the inner ones are extra sides of PROFILES profiles each.
     n_in = mk.shape[0]
     cols = -(-n_in // PROFILES)

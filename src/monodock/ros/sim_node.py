@@ -151,10 +151,16 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.silenced: set[str] = set()
         for name in ("camera", "odometry"):
             self.create_service(SetBool, f"~/silence_{name}", self._silencer(name))
-        from rclpy.executors import SingleThreadedExecutor  # type: ignore[import-not-found, unused-ignore]
+        from rclpy.executors import (  # type: ignore[import-not-found, unused-ignore]
+            ExternalShutdownException,
+            ShutdownException,
+            SingleThreadedExecutor,
+            TimeoutException,
+        )
 
         self._executor = SingleThreadedExecutor()  # its own: rclpy.spin_once adds and removes the node every call
         self._executor.add_node(self)
+        self._nothing_ready = (TimeoutException, ShutdownException, ExternalShutdownException)
 
     def _silencer(self, name: str) -> Any:
         def on_request(request: Any, response: Any) -> Any:
@@ -187,16 +193,10 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         """Run the callbacks of what has arrived (cmd_vel, the silencing services), up to ``most``, and return as
         soon as nothing is ready: one look at the wait set in the usual control period, where spinning a fixed
         eight times cost eight (a fifth of a core at 50 Hz, measured)."""
-        from rclpy.executors import (  # type: ignore[import-not-found, unused-ignore]
-            ExternalShutdownException,
-            ShutdownException,
-            TimeoutException,
-        )
-
         for _ in range(most):
             try:
                 handler, _, _ = self._executor.wait_for_ready_callbacks(timeout_sec=0.0)
-            except (TimeoutException, ShutdownException, ExternalShutdownException):
+            except self._nothing_ready:
                 return
             handler()  # as rclpy's own spin_once does
             error: BaseException | None = handler.exception()
