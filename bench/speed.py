@@ -46,9 +46,10 @@ import numpy as np  # noqa: E402
 from _common import bench_parser, chunk_seed, emit, environment, fmt, markdown_table, pin_one_cpu, simulate_chunks  # noqa: E402
 from monodock.estimation.bundle import load_bundle  # noqa: E402
 from monodock.estimation.estimator import Estimator  # noqa: E402
-from monodock.estimation.fused import FusedEstimator, FusionTables  # noqa: E402
+from monodock.estimation.factory import make_estimator  # noqa: E402
+from monodock.estimation.fused import FusionTables  # noqa: E402
+from monodock.estimation.methods import MethodSetup, build_methods  # noqa: E402
 from monodock.estimation.pnp import estimate_board, estimate_single_marker  # noqa: E402
-from monodock.estimation.regression import RegressionEstimator  # noqa: E402
 from monodock.perception.detect import Detection, MarkerDetector  # noqa: E402
 from monodock.perception.features import feature_vector  # noqa: E402
 from monodock.perception.refine import refine_detection  # noqa: E402
@@ -60,15 +61,12 @@ CHUNK = 20
 def _fused_estimator(model: str | None, camera: Any, layout: Any, robot: Any) -> Estimator:
     """The fused method as ``monodock estimate --method fused`` runs it (geometry alone without a bundle)."""
     if model is None:
-        return Estimator(
-            camera, layout, robot, ("fused",), fused=FusedEstimator(camera, layout, robot, FusionTables(0.22))
-        )
+        geometry = MethodSetup(camera, layout, robot, tables=FusionTables(0.22))
+        return Estimator(camera, layout, robot, build_methods(("fused",), geometry))
     bundle = load_bundle(Path(model))
     if bundle.layout() != layout or bundle.robot() != robot:
         raise SystemExit(f"{model}: the bundle is not for the simulator's default layout and mounts")
-    regression = RegressionEstimator(bundle, camera, robot)
-    fused = FusedEstimator(camera, layout, robot, bundle.fusion_tables(), regression)
-    return Estimator(camera, layout, robot, ("fused",), fused=fused)
+    return make_estimator(method="fused", bundle=bundle, camera=camera, layout=layout, robot=robot)
 
 
 def render_chunk(task: tuple[int, int, int]) -> list[np.ndarray]:

@@ -50,7 +50,7 @@ from monodock.estimation.bundle import Bundle, bundle_size_bytes, ort_session
 from monodock.learning.dataset import read_dataset
 from monodock.learning.export import onnx_model_bytes, save_bundle
 from monodock.learning.pipeline import training_sets
-from monodock.learning.train import MODEL_NAMES, TrainConfig, TrainingSet, make_estimator, train
+from monodock.learning.train import MODEL_NAMES, TrainConfig, TrainingSet, make_regressor, train
 
 # Samples per 5 cm segment from 25 cm in the paper's Table 2 (the 245-250 cm segment is not listed: none).
 PAPER_SEGMENT_COUNTS = [
@@ -249,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         warnings.simplefilter("ignore")  # Lasso's convergence warnings: the fit is only timed here
         for model in MODEL_NAMES:
             params = sr.depth.scores[model].params
-            est = make_estimator(model, params, 0)
+            est = make_regressor(model, params, 0)
             n_fit = fit_rows if model == "svr" else len(X32)
             est.fit(X32[:n_fit].astype(np.float64), ts.depth[:n_fit])
             sess = ort_session(onnx_model_bytes(est, X32.shape[1]))

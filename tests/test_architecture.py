@@ -50,12 +50,13 @@ _SCRIPT = textwrap.dedent(
     from monodock.core.layout import DockLayout
     from monodock.core.robot import RobotConfig
     from monodock.estimation.estimator import Estimator
-    from monodock.estimation.fused import FusedEstimator, FusionTables
+    from monodock.estimation.fused import FusionTables
+    from monodock.estimation.methods import MethodSetup, build_methods
 
     # Run what runs first on a robot: the fused method's warm-up (two synthetic views through every kernel).
     camera, layout, robot = CameraModel.default(), DockLayout.default(), RobotConfig.default()
-    fused = FusedEstimator(camera, layout, robot, FusionTables(0.22))
-    Estimator(camera, layout, robot, ("fused",), fused=fused).warm_up()
+    fused = build_methods(("fused",), MethodSetup(camera, layout, robot, tables=FusionTables(0.22)))
+    Estimator(camera, layout, robot, fused).warm_up()
     print(json.dumps(sorted(sys.modules)))
     """
 )

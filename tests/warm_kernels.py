@@ -35,12 +35,13 @@ def warm_estimation() -> None:
     from monodock.core.pose import DockPose
     from monodock.core.robot import RobotConfig
     from monodock.estimation.estimator import Estimator
-    from monodock.estimation.fused import FusedEstimator, FusionTables
+    from monodock.estimation.fused import FusionTables
+    from monodock.estimation.methods import MethodSetup, build_methods
     from monodock.perception.synthetic import synthetic_view
 
     camera, layout, robot = CameraModel.default(), DockLayout.default(), RobotConfig.default()
-    fused = FusedEstimator(camera, layout, robot, FusionTables(0.22))
-    estimator = Estimator(camera, layout, robot, ("fused", "board", "pnp"), fused=fused)
+    setup = MethodSetup(camera, layout, robot, tables=FusionTables(0.22))
+    estimator = Estimator(camera, layout, robot, build_methods(("fused", "board", "pnp"), setup))
     estimator.warm_up()  # a normal and a clipped view
     image = synthetic_view(camera, layout, robot, DockPose(robot.camera_mount.x + 0.8, 0.05, 0.1))
     image.flags.writeable = False  # as decoded from a recording: numba compiles read-only arrays separately

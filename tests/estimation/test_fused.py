@@ -89,7 +89,6 @@ def test_the_regression_runs_only_where_it_can_improve_the_answer() -> None:
     as good as the corners is run and pulls the answer; a lone far marker always asks it (the yaw sign). The
     answer does not depend on whether the caller already had the regression's."""
     from monodock.core.pose import DockPose
-    from monodock.estimation.fused import FusedEstimator
     from monodock.estimation.pnp import PoseEstimate
     from monodock.sim import Simulator
 
@@ -162,12 +161,13 @@ def test_the_warm_up_runs_both_refiner_paths_on_valid_views() -> None:
     from monodock.core.layout import DockLayout
     from monodock.core.robot import RobotConfig
     from monodock.estimation.estimator import Estimator
+    from monodock.estimation.methods import MethodSetup, build_methods
 
     camera, layout, robot = CameraModel.default(), DockLayout.default(), RobotConfig.default()
-    fused = FusedEstimator(camera, layout, robot, FusionTables(0.22))
+    setup = MethodSetup(camera, layout, robot, tables=FusionTables(0.22))
     seen: list[tuple[float, Any]] = []
     for methods in (("board",), ("fused",)):
-        est = Estimator(camera, layout, robot, methods, fused=fused)
+        est = Estimator(camera, layout, robot, build_methods(methods, setup))
         run = est.estimate
 
         def spy(name: str, stamp: float, image: Any, run: Any = run) -> Any:

@@ -17,6 +17,7 @@ import pytest
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.errors import InputError
 from monodock.estimation.estimator import Estimator
+from monodock.estimation.methods import MethodFrame
 from monodock.estimation.pnp import PoseEstimate, estimate_board
 from monodock.io.frames import FrameSource, open_frames
 from monodock.io.live import run_live
@@ -182,7 +183,14 @@ def test_live_rows_and_bag_carry_a_methods_covariance(
         e = estimate_board(det, sim.camera, sim.layout, sim.robot)
         return dataclasses.replace(e, method="fused", covariance=cov if e.pose is not None else None)
 
-    est = Estimator(sim.camera, sim.layout, sim.robot, ("fused",), extra={"fused": board_with_covariance})
+    @dataclasses.dataclass(frozen=True)
+    class BoardWithCovariance:
+        name: str = "fused"
+
+        def estimate(self, frame: MethodFrame) -> PoseEstimate:
+            return board_with_covariance(frame.detection)
+
+    est = Estimator(sim.camera, sim.layout, sim.robot, {"fused": BoardWithCovariance()})
     sink = io.StringIO()
     with open_frames(str(video), skip_bad=True) as source, PoseStampedBagWriter(tmp_path / "cov_bag") as bag:
         run_live(source, est, "fused", sink=sink, output_format="jsonl", bag=bag, max_frames=5)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from monodock.learning import train as train_module
-from monodock.learning.train import TrainConfig, TrainingResult, TrainingSet, make_estimator, train
+from monodock.learning.train import TrainConfig, TrainingResult, TrainingSet, make_regressor, train
 from monodock.learning.treefit import LEAN_MODELS, lean_predict
 from shared import synthetic_set
 
@@ -46,7 +46,7 @@ def test_lean_predictions_are_scikit_learns_bit_for_bit(model: str, case: int) -
     params, seed = _draw(rng, model), int(rng.integers(0, 2**31))
     lean = lean_predict(model, params, seed, X, y, X_test)
     with sklearn.config_context(skip_parameter_validation=True, assume_finite=True):
-        reference = make_estimator(model, params, seed).fit(X, y).predict(X_test)
+        reference = make_regressor(model, params, seed).fit(X, y).predict(X_test)
     assert lean is not None
     np.testing.assert_array_equal(lean, reference)
 

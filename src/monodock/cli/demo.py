@@ -26,11 +26,11 @@ from monodock.core.camera import CameraModel
 from monodock.core.projection import project_to_image, scan_in_base
 from monodock.errors import MonodockError
 from monodock.estimation.bundle import Bundle, load_bundle
-from monodock.estimation.estimator import Estimator, FrameEstimates
-from monodock.estimation.fused import FusedEstimator
-from monodock.estimation.regression import RegressionEstimator
+from monodock.estimation.estimator import FrameEstimates
+from monodock.estimation.factory import make_estimator
+from monodock.estimation.methods import MethodSetup, PoseMethod, build_methods
 from monodock.evaluation.dock_sim import DockSimConfig, run_dock_sim, summarize
-from monodock.evaluation.heldout import FrameMethod, HeldoutResult, HeldoutSummary, evaluate_heldout, regression_method
+from monodock.evaluation.heldout import HeldoutResult, HeldoutSummary, evaluate_heldout
 from monodock.evaluation.selftrain import SelfTrainConfig, simulate_and_train
 from monodock.learning.dataset import Dataset, LabelRun, label_errors, label_recording, write_dataset
 from monodock.learning.label import points_across_marker
@@ -99,8 +99,7 @@ class _HeldOut:
     sim: Simulator
     seed: int
     dataset: Dataset
-    regression: RegressionEstimator
-    fused: FusedEstimator
+    learnt: dict[str, PoseMethod]  # the regression and fused, as the frame estimator runs them
     frame: FrameView | None
     overlays: tuple[LidarOverlay, ...]
 
@@ -168,11 +167,10 @@ def _held_out_drive(tmp: Path, work: Path, config: DemoConfig, trained: _Trained
     seed = config.seed + 1000
     sim = Simulator(nuisances=Nuisances(), seed=seed)
     stops = plan_drive(sim, DriveConfig(stops=config.test_stops), np.random.default_rng([seed, 2]))
-    regression = RegressionEstimator(trained.bundle, sim.camera, sim.robot)
-    fused = FusedEstimator(sim.camera, sim.layout, sim.robot, trained.bundle.fusion_tables(), regression)
-    estimator = Estimator(
-        sim.camera, sim.layout, sim.robot, FRAME_METHODS, extra={"regression": regression.estimate}, fused=fused
+    estimator = make_estimator(
+        methods=FRAME_METHODS, bundle=trained.bundle, camera=sim.camera, layout=sim.layout, robot=sim.robot
     )
+    learnt = {m: estimator.pose_methods[m] for m in ("regression", "fused")}
     depth = np.array([s.pose.x - sim.robot.camera_mount.x for s in stops])
     picks = {int(np.argmin(np.abs(depth - d))): name for name, d in OVERLAY_DEPTHS}
     # Square on: off the axis and turned away as little as possible (30 cm weighs as much as 30 degrees).
@@ -206,7 +204,7 @@ def _held_out_drive(tmp: Path, work: Path, config: DemoConfig, trained: _Trained
     write_recording(work / "test_drive", sim, stops, seed=seed, jobs=config.jobs, on_frame=on_frame)
     dataset, _, _ = label_recording(work / "test_drive", sim.layout, jobs=config.jobs)
     write_dataset(tmp / "test.parquet", dataset)
-    return _HeldOut(sim, seed, dataset, regression, fused, views[0] if views else None, tuple(overlays))
+    return _HeldOut(sim, seed, dataset, learnt, views[0] if views else None, tuple(overlays))
 
 
 def _docking(tmp: Path, config: DemoConfig) -> DockingRun:
@@ -223,9 +221,9 @@ def _docking(tmp: Path, config: DemoConfig) -> DockingRun:
 
 def _focal_error_bundles(
     work: Path, config: DemoConfig, trained: _Trained, held: _HeldOut
-) -> dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]]:
+) -> dict[tuple[str, float], Callable[[CameraModel], dict[str, PoseMethod]]]:
     """The regression trained through a camera file whose focal length is off, per factor of the study."""
-    out: dict[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] = {}
+    out: dict[tuple[str, float], Callable[[CameraModel], dict[str, PoseMethod]]] = {}
     camera = trained.dataset.camera()
     for f in config.focal_errors:
         wrong_camera = camera.focal_scaled(f)
@@ -235,8 +233,8 @@ def _focal_error_bundles(
         )
         wrong = load_bundle(train_bundle(trained.dataset, path, options).path)
 
-        def factory(c: CameraModel, b: Bundle = wrong) -> dict[str, FrameMethod]:
-            return regression_method(RegressionEstimator(b, c, held.sim.robot))
+        def factory(c: CameraModel, b: Bundle = wrong) -> dict[str, PoseMethod]:
+            return build_methods(("regression",), MethodSetup(c, held.sim.layout, held.sim.robot, b))
 
         out[("focal length", f)] = factory
     return out
@@ -246,7 +244,7 @@ def _study(work: Path, config: DemoConfig, trained: _Trained, held: _HeldOut) ->
     """Stage 6: every method on the held-out drive, the physical limit and the SolvePnP-failure study."""
     _log("[6/6] evaluating; training the focal-length-error bundles for the SolvePnP-failure study ...")
     miscalibrated = _focal_error_bundles(work, config, trained, held)
-    return evaluate_heldout(held.dataset, held.regression, fused=held.fused, miscalibrated=miscalibrated)
+    return evaluate_heldout(held.dataset, held.learnt, miscalibrated=miscalibrated)
 
 
 def demo_settings(config: DemoConfig, sim: Simulator, test_seed: int) -> dict[str, object]:

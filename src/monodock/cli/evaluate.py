@@ -22,8 +22,7 @@ from monodock.cli.options import (
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
-from monodock.estimation.fused import FusedEstimator
-from monodock.estimation.regression import RegressionEstimator
+from monodock.estimation.methods import MethodSetup, build_methods
 from monodock.evaluation.heldout import evaluate_heldout, reference_poses
 from monodock.evaluation.robustness import RobustnessConfig, run_robustness
 from monodock.learning.dataset import read_dataset
@@ -153,14 +152,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"{args.recording}: no row has a finite LiDAR label or the truth (x, y, yaw): nothing to evaluate against"
         )
-    regression = RegressionEstimator(bundle, ds.camera(), robot)
-    fused = None
-    if bundle.has_fusion_tables:
-        fused = FusedEstimator(ds.camera(), layout, robot, bundle.fusion_tables(), regression)
-    else:
+    learnt = ("regression", "fused") if bundle.has_fusion_tables else ("regression",)
+    if not bundle.has_fusion_tables:
         print("note: the bundle has no fusion tables (trained before the fused method); fused is left out")
+    methods = build_methods(learnt, MethodSetup(ds.camera(), layout, robot, bundle))
     with atomic_directory(args.out, force=args.force) as out:
-        result = evaluate_heldout(ds, regression, fused=fused)
+        result = evaluate_heldout(ds, methods)
         summary = result.summary()
         write_evaluation_report(out, result, summary, title=f"monodock evaluation: {args.recording}")
     for method, row in summary.overall.items():

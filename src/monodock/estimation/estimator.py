@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,18 +15,12 @@ from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.consistency import ScaleCheck
-from monodock.estimation.fused import FusedEstimator
-from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
+from monodock.estimation.methods import NEEDS_BUNDLE, MethodFrame, MethodSetup, PoseMethod, build_methods
+from monodock.estimation.pnp import PoseEstimate
 from monodock.perception.detect import Detection, MarkerDetector, as_gray
-from monodock.perception.refine import refine_detection
 from monodock.perception.synthetic import synthetic_view
 
-__all__ = ["METHODS", "Estimator", "FrameEstimates"]
-
-Method = Callable[[Detection, CameraModel, DockLayout, RobotConfig], PoseEstimate]
-
-# The geometric methods; the regression of the papers joins them with its model bundle.
-METHODS: dict[str, Method] = {"pnp": estimate_single_marker, "board": estimate_board}
+__all__ = ["Estimator", "FrameEstimates"]
 
 
 @dataclass(frozen=True)
@@ -40,12 +34,12 @@ class FrameEstimates:
 
 
 class Estimator:
-    """Detector plus the calibration every method shares (camera, layout, mounts).
+    """Detector plus the methods, all on one calibration (camera, layout, mounts).
 
-    ``extra`` adds methods that need more than the calibration, e.g.
-    ``{"regression": RegressionEstimator(...).estimate}``; ``fused`` the fused method, which also needs the
-    image (for its refined corners) and reuses the regression's answer when both are asked for. ``check`` watches
-    the geometric poses' scale against the regression's over the first frames (``consistency.ScaleCheck``).
+    ``methods``: names of the methods that need nothing but the calibration ("pnp", "board"), or methods built
+    by ``estimation.methods.build_methods`` (``make_estimator`` builds them from a bundle); they run in this
+    order on each frame, each seeing the answers of those before it. ``check`` watches the geometric poses'
+    scale against the regression's over the first frames (``consistency.ScaleCheck``).
     """
 
     def __init__(
@@ -53,24 +47,22 @@ class Estimator:
         camera: CameraModel,
         layout: DockLayout,
         robot: RobotConfig,
-        methods: Sequence[str] = ("board",),
+        methods: Sequence[str] | Mapping[str, PoseMethod] = ("board",),
         *,
         refinement: str = "subpix",
-        extra: Mapping[str, Callable[[Detection], PoseEstimate]] | None = None,
-        fused: FusedEstimator | None = None,
         check: ScaleCheck | None = None,
     ) -> None:
-        self.extra = dict(extra or {})
+        if isinstance(methods, Mapping):
+            built = dict(methods)
+        else:
+            learnt = [m for m in methods if m in NEEDS_BUNDLE]
+            if learnt:
+                raise InputError(f"the {learnt[0]} method needs a model bundle (make_estimator builds it)")
+            built = build_methods(methods, MethodSetup(camera, layout, robot))
         self.check = check
-        self.fused = fused
-        available: dict[str, object] = {**METHODS, **self.extra}
-        if fused is not None:
-            available["fused"] = fused
-        unknown = [m for m in methods if m not in available]
-        if unknown:
-            raise InputError(f"unknown method '{unknown[0]}' (available: {', '.join(available)})")
         self.camera, self.layout, self.robot = camera, layout, robot
-        self.methods = tuple(methods)
+        self.pose_methods = built
+        self.methods = tuple(built)
         self.detector = MarkerDetector(layout, refinement=refinement)
         self.modules = layout.modules
 
@@ -86,19 +78,18 @@ class Estimator:
         """Detection and the estimates of every method for one image."""
         self.check_image(image, name)
         gray = as_gray(image)
-        det = self.detector.detect(gray)
-        ests: dict[str, PoseEstimate] = {}
-        for m in self.methods:
-            if m == "fused" and self.fused is not None:
-                refined = refine_detection(gray, det, self.camera, modules=self.modules)
-                ests[m] = self.fused.estimate(det, refined, ests.get("regression"))
-            elif m in self.extra:
-                ests[m] = self.extra[m](det)
-            else:
-                ests[m] = METHODS[m](det, self.camera, self.layout, self.robot)
+        return self.estimate_detection(name, stamp, gray, self.detector.detect(gray))
+
+    def estimate_detection(
+        self, name: str, stamp: float, gray: NDArray[np.uint8], detection: Detection
+    ) -> FrameEstimates:
+        """Every method's estimate from a detection already made on the (mono8) image."""
+        frame = MethodFrame(detection, self.camera, gray=gray, modules=self.modules)
+        for m, method in self.pose_methods.items():
+            frame.earlier[m] = method.estimate(frame)
         if self.check is not None and not self.check.done:
-            self.check.add(det, ests)
-        return FrameEstimates(name, stamp, det, ests)
+            self.check.add(detection, frame.earlier)
+        return FrameEstimates(name, stamp, detection, frame.earlier)
 
     @property
     def method(self) -> str:

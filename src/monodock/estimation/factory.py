@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 from monodock.core.camera import CameraModel
@@ -19,12 +20,11 @@ from monodock.errors import InputError
 from monodock.estimation.bundle import Bundle, load_bundle
 from monodock.estimation.consistency import GEOMETRIC, ScaleCheck, camera_disagreement
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.fused import FusedEstimator
+from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE, MethodSetup, build_methods
 from monodock.estimation.regression import RegressionEstimator
 
 __all__ = ["METHOD_NAMES", "REFINEMENTS", "bundle_calibration", "make_estimator"]
 
-METHOD_NAMES = ("regression", "pnp", "board", "fused")
 REFINEMENTS = ("none", "subpix", "contour")
 
 PathLike = str | os.PathLike[str]
@@ -90,6 +90,7 @@ def _source(camera: CameraModel | PathLike) -> str:
 def make_estimator(
     *,
     method: str | None = None,
+    methods: Sequence[str] | None = None,
     bundle: Bundle | PathLike | None = None,
     camera: CameraModel | PathLike | None = None,
     layout: DockLayout | PathLike | None = None,
@@ -97,11 +98,15 @@ def make_estimator(
     refinement: str = "subpix",
     check_scale: bool = False,
 ) -> Estimator:
-    """The Estimator for ``method`` (its ``method`` attribute), from a bundle or the calibration.
+    """The Estimator for ``method`` (its ``method`` attribute), or for several ``methods`` at once, from a bundle
+    or the calibration. The one way to build an estimator: the command line, the ROS 2 nodes, dock-sim, the demo
+    and the evaluation all come here (the methods themselves from ``estimation.methods``).
 
     Args:
         method: "regression" (the papers'; needs a bundle, the default with one), "pnp" (marker 2 alone),
             "board" (all visible markers; the default without a bundle) or "fused" (needs a bundle).
+        methods: several of those, run in this order on each frame (the first is the ``method``); not with
+            ``method``.
         bundle: a loaded Bundle or its folder.
         camera, layout, robot: objects or their files; with a bundle, camera and robot override the bundle's and
             layout must match it; without one, all three are needed.
@@ -114,26 +119,35 @@ def make_estimator(
         InputError: an unknown method or refinement, a method that needs a bundle without one, missing
             calibration, a layout other than the bundle's, or a bad file (one line saying which).
     """
-    if method is not None and method not in METHOD_NAMES:
-        raise InputError(f"unknown method '{method}' (from {', '.join(METHOD_NAMES)})")
+    if method is not None and methods is not None:
+        raise InputError("give method or methods, not both")
+    names = tuple(methods) if methods is not None else ((method,) if method is not None else ())
+    if methods is not None and not names:
+        raise InputError("no method asked for")
+    unknown = [m for m in names if m not in METHOD_NAMES]
+    if unknown:
+        raise InputError(f"unknown method '{unknown[0]}' (from {', '.join(METHOD_NAMES)})")
     if refinement not in REFINEMENTS:
         raise InputError(f"unknown corner refinement '{refinement}' (from {', '.join(REFINEMENTS)})")
     if bundle is None:
-        if method in ("regression", "fused"):
-            raise InputError(f"the {method} method needs a model bundle")
+        learnt = [m for m in names if m in NEEDS_BUNDLE]
+        if learnt:
+            raise InputError(f"the {learnt[0]} method needs a model bundle")
         missing = [k for k, v in (("camera", camera), ("layout", layout), ("robot", robot)) if v is None]
         if missing:
             raise InputError(f"without a model bundle, give the {', '.join(missing)} (the PnP methods need them)")
         assert camera is not None
         assert layout is not None
         assert robot is not None
-        chosen = method or "board"
-        return Estimator(_camera(camera), _layout(layout), _robot(robot), (chosen,), refinement=refinement)
+        cam, dock, mounts = _camera(camera), _layout(layout), _robot(robot)
+        setup = MethodSetup(cam, dock, mounts)
+        built = build_methods(names or ("board",), setup)
+        return Estimator(cam, dock, mounts, built, refinement=refinement)
     loaded = bundle if isinstance(bundle, Bundle) else load_bundle(Path(bundle))
     cam, dock, mounts = bundle_calibration(loaded, camera=camera, layout=layout, robot=robot)
-    chosen = method or "regression"
+    names = names or ("regression",)
     check = None
-    if check_scale and chosen in GEOMETRIC and loaded.camera().size == cam.size:
+    if check_scale and names[0] in GEOMETRIC and loaded.camera().size == cam.size:
         check = ScaleCheck(
             RegressionEstimator(loaded, loaded.camera(), mounts).estimate,
             cam,
@@ -142,10 +156,5 @@ def make_estimator(
             given_camera=_source(camera) if camera is not None else "",
             bundle_camera=loaded.camera(),
         )
-    if chosen == "regression":
-        regression = RegressionEstimator(loaded, cam, mounts)
-        return Estimator(cam, dock, mounts, (chosen,), refinement=refinement, extra={chosen: regression.estimate})
-    if chosen == "fused":
-        fused = FusedEstimator(cam, dock, mounts, loaded.fusion_tables(), RegressionEstimator(loaded, cam, mounts))
-        return Estimator(cam, dock, mounts, (chosen,), refinement=refinement, fused=fused, check=check)
-    return Estimator(cam, dock, mounts, (chosen,), refinement=refinement, check=check)
+    built = build_methods(names, MethodSetup(cam, dock, mounts, loaded))
+    return Estimator(cam, dock, mounts, built, refinement=refinement, check=check)

@@ -451,13 +451,19 @@ class FusedEstimator:
         self._fixed: dict[tuple[str, ...], tuple[Any, Any, Any]] = {}
 
     def estimate(
-        self, detection: Detection, refined: Detection | None = None, reg: PoseEstimate | None = None
+        self,
+        detection: Detection,
+        refined: Detection | None = None,
+        reg: PoseEstimate | None = None,
+        *,
+        raw: NDArray[np.float64] | None = None,
     ) -> PoseEstimate:
         """The fused DockPose of a frame from its OpenCV detection and its refined corners.
 
         With two or more markers the planar fit starts from the board's IPPE solution (``_board_fit``), and
         the regression is used only where it can improve that answer (``_regression_helps``); ``reg`` is its
-        answer when the caller has it already (the result is the same either way), else it runs when needed.
+        answer when the caller has it already (the result is the same either way), else it runs when needed, on
+        ``raw`` (the raw features as a dataset stores them) when given, else on the detection.
         The board fit is reused by the combination, not done again.
         """
         quick = self._quick_board(detection, refined)
@@ -471,7 +477,11 @@ class FusedEstimator:
             if not self._regression_helps(fit.roles, g, g_cov):
                 return self._answer(g, g_cov, fit.roles, fit.rms_px)
         if reg is None and self.regression is not None:
-            reg = self.regression.estimate(detection)
+            reg = (
+                self.regression.estimate(detection)
+                if raw is None
+                else self.regression.estimate_raw(raw, detection.roles_seen)
+            )
         return self.combine(detection, refined, reg, fit)
 
     def geometry(

@@ -18,7 +18,7 @@ import json
 import math
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,9 +48,8 @@ from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise, OdometryNoise
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
-from monodock.estimation.estimator import METHODS, Estimator
-from monodock.estimation.fused import FusedEstimator
-from monodock.estimation.regression import RegressionEstimator
+from monodock.estimation.factory import make_estimator
+from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.faults import Obstacle
 from monodock.sim.nuisance import Nuisances
@@ -82,7 +81,7 @@ __all__ = [
     "summarize",
 ]
 
-ALL_METHODS = ("regression", *METHODS, "fused")
+ALL_METHODS = METHOD_NAMES
 
 # The faults of the fault table (``DockSimConfig.faults``); "none" is the nominal run from the same start.
 FAULTS = {
@@ -95,7 +94,7 @@ FAULTS = {
     "person-behind": "someone steps 0.5 m behind the robot as soon as it starts to reverse, for 4 s",
 }
 # The methods that need the model bundle.
-BUNDLE_METHODS = ("regression", "fused")
+BUNDLE_METHODS = tuple(m for m in METHOD_NAMES if m in NEEDS_BUNDLE)
 
 
 @dataclass(frozen=True)
@@ -285,26 +284,16 @@ def _environment(config: DockSimConfig) -> _Environment:
     if key not in _ENV:
         _ENV.clear()
         sim = config.simulator()
-        extra: dict[str, Callable[[Any], Any]] = {}
-        fused = None
-        if any(m in BUNDLE_METHODS for m in config.methods):
-            assert config.bundle is not None
-            bundle = load_bundle(config.bundle)
-            regression = RegressionEstimator(bundle, sim.camera, sim.robot)
-            extra["regression"] = regression.estimate
-            if "fused" in config.methods:
-                tables = bundle.fusion_tables()
-                fused = FusedEstimator(sim.camera, sim.layout, sim.robot, tables, regression)
-        # One estimator per method, so that a frame costs only its own method.
+        bundle = load_bundle(config.bundle) if config.bundle is not None else None
+        # One estimator per method, so that a frame costs only its own method; built as the robot builds its own.
         perceive = {
             m: make_perceive(
-                Estimator(
-                    sim.camera,
-                    sim.layout,
-                    sim.robot,
-                    (m,),
-                    extra={k: v for k, v in extra.items() if k == m},
-                    fused=fused if m == "fused" else None,
+                make_estimator(
+                    method=m,
+                    bundle=bundle if m in BUNDLE_METHODS else None,
+                    camera=sim.camera,
+                    layout=sim.layout,
+                    robot=sim.robot,
                 ),
                 m,
             )

@@ -25,9 +25,8 @@ from monodock.core.camera import CameraModel
 from monodock.core.config import json_text
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.estimation.fused import FusedEstimator
-from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
-from monodock.estimation.regression import RegressionEstimator
+from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods
+from monodock.estimation.pnp import PoseEstimate
 from monodock.evaluation.dock_sim import RunGroup
 from monodock.evaluation.limit import PhysicalLimit, physical_limit
 from monodock.evaluation.metrics import BandRow, band_table
@@ -50,14 +49,12 @@ __all__ = [
     "errors",
     "estimate_dataset",
     "evaluate_heldout",
-    "fused_method",
     "geometric_methods",
     "invalid_reasons",
     "mean_abs_error",
     "miscalibration_study",
     "paper_samples",
     "reference_poses",
-    "regression_method",
 ]
 
 
@@ -112,9 +109,6 @@ class RowInput:
     refined: Detection
 
 
-FrameMethod = Callable[[RowInput], PoseEstimate]
-
-
 def _collect(method: str, estimates: Sequence[PoseEstimate]) -> MethodResult:
     poses = np.full((len(estimates), 3), np.nan)
     for i, e in enumerate(estimates):
@@ -123,12 +117,9 @@ def _collect(method: str, estimates: Sequence[PoseEstimate]) -> MethodResult:
     return MethodResult(method, poses, tuple(e.reason for e in estimates))
 
 
-def geometric_methods(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> dict[str, FrameMethod]:
-    """The PnP baselines as per-row methods, all on the given calibration."""
-    return {
-        "pnp": lambda row: estimate_single_marker(row.detection, camera, layout, robot),
-        "board": lambda row: estimate_board(row.detection, camera, layout, robot),
-    }
+def geometric_methods(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> dict[str, PoseMethod]:
+    """The PnP baselines, all on the given calibration."""
+    return build_methods(("pnp", "board"), MethodSetup(camera, layout, robot))
 
 
 def dataset_rows(dataset: Dataset) -> list[RowInput]:
@@ -145,12 +136,19 @@ def dataset_rows(dataset: Dataset) -> list[RowInput]:
 
 
 def estimate_dataset(
-    dataset: Dataset, methods: Mapping[str, FrameMethod], *, rows: Sequence[RowInput] | None = None
+    dataset: Dataset, methods: Mapping[str, PoseMethod], *, rows: Sequence[RowInput] | None = None
 ) -> dict[str, MethodResult]:
-    """Run every method on every row of a dataset, from the corners the dataset stores (``rows``: its
-    ``dataset_rows``, when already built)."""
+    """Run every method, in order, on every row of a dataset, from the corners and raw features the dataset
+    stores (``rows``: its ``dataset_rows``, when already built)."""
     rows = dataset_rows(dataset) if rows is None else rows
-    return {name: _collect(name, [f(row) for row in rows]) for name, f in methods.items()}
+    camera = dataset.camera()
+    answers: dict[str, list[PoseEstimate]] = {name: [] for name in methods}
+    for row in rows:
+        frame = MethodFrame(row.detection, camera, refined_corners=row.refined, raw=row.raw)
+        for name, method in methods.items():
+            frame.earlier[name] = method.estimate(frame)
+            answers[name].append(frame.earlier[name])
+    return {name: _collect(name, found) for name, found in answers.items()}
 
 
 def reference_poses(dataset: Dataset) -> dict[Reference, NDArray[np.float64]]:
@@ -214,7 +212,7 @@ def miscalibration_study(
     reference: NDArray[np.float64],
     *,
     factors: Sequence[float] = (1.0, 1.05, 1.5),
-    regression: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None = None,
+    regression: Mapping[tuple[str, float], Callable[[CameraModel], Mapping[str, PoseMethod]]] | None = None,
     correct: Mapping[str, MethodResult] | None = None,
     rows: Sequence[RowInput] | None = None,
 ) -> list[MiscalibrationRow]:
@@ -282,21 +280,6 @@ def mean_abs_error(poses: NDArray[np.float64], reference: NDArray[np.float64], c
     e = np.abs(_wrap(d) if col == 2 else d) * scale
     e = e[np.isfinite(e)]
     return float(e.mean()) if e.size else math.nan
-
-
-def regression_method(estimator: RegressionEstimator) -> dict[str, FrameMethod]:
-    """The regression as a per-row method (it works on the raw features and the roles seen)."""
-    return {"regression": lambda row: estimator.estimate_raw(row.raw, row.detection.roles_seen)}
-
-
-def fused_method(fused: FusedEstimator) -> dict[str, FrameMethod]:
-    """The fused method as a per-row method (refined corners and the regression's answer for the row)."""
-
-    def run(row: RowInput) -> PoseEstimate:
-        reg = fused.regression.estimate_raw(row.raw, row.detection.roles_seen) if fused.regression else None
-        return fused.estimate(row.detection, row.refined, reg)
-
-    return {"fused": run}
 
 
 @dataclass(frozen=True)
@@ -467,27 +450,25 @@ class HeldoutResult:
 
 def evaluate_heldout(
     dataset: Dataset,
-    regression: RegressionEstimator | None,
+    learnt: Mapping[str, PoseMethod] | None = None,
     *,
-    fused: FusedEstimator | None = None,
-    miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], dict[str, FrameMethod]]] | None = None,
+    miscalibrated: Mapping[tuple[str, float], Callable[[CameraModel], Mapping[str, PoseMethod]]] | None = None,
 ) -> HeldoutResult:
-    """Run the regression, single-marker PnP, board PnP and fused (when given) on a labelled dataset.
+    """Run the regression and fused (when given), single-marker PnP and board PnP on a labelled dataset.
 
     Args:
         dataset: the held-out labelled dataset (its camera, layout and robot are the right calibration).
-        regression: the papers' regression, or None to leave it out.
-        fused: the fused method, or None; with the truth it also brings the physical-limit study.
+        learnt: the methods that need a bundle, by name ("regression", "fused"), as ``build_methods`` makes
+            them; the fused method with the truth also brings the physical-limit study.
         miscalibrated: regression factories for the miscalibration study's wrong focal lengths (see
             ``miscalibration_study``).
     """
     camera, layout, robot = dataset.camera(), dataset.layout(), dataset.robot()
-    methods: dict[str, FrameMethod] = {}
-    if regression is not None:
-        methods.update(regression_method(regression))
+    learnt = dict(learnt or {})
+    methods: dict[str, PoseMethod] = {k: learnt[k] for k in ("regression",) if k in learnt}
     methods.update(geometric_methods(camera, layout, robot))
-    if fused is not None:
-        methods.update(fused_method(fused))
+    methods.update({k: v for k, v in learnt.items() if k not in methods})
+    fused = "fused" in learnt
     rows = dataset_rows(dataset)
     results = estimate_dataset(dataset, methods, rows=rows)
     refs = reference_poses(dataset)
@@ -495,7 +476,7 @@ def evaluate_heldout(
     depth = best[:, 0] - robot.camera_mount.x
     # The truth first when known: it is the headline's reference.
     bands = {r: tuple(band_rows(depth, refs[r], results)) for r in (Reference.TRUTH, Reference.LIDAR) if r in refs}
-    studied = Reference.TRUTH in refs and fused is not None
+    studied = Reference.TRUTH in refs and fused
     limit = physical_limit(dataset, {m: r.poses for m, r in results.items()}) if studied else None
     samples = paper_samples(refs[Reference.LIDAR], results, truth=refs.get(Reference.TRUTH))
     study = miscalibration_study(dataset, best, regression=miscalibrated, correct=results, rows=rows)

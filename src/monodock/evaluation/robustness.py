@@ -42,9 +42,9 @@ from monodock.core.robot import Mount, RobotConfig
 from monodock.core.scan import LaserScan
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
-from monodock.estimation.fused import FusedEstimator, FusionTables
-from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
-from monodock.estimation.regression import RegressionEstimator
+from monodock.estimation.fused import FusionTables
+from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods
+from monodock.estimation.pnp import PoseEstimate
 from monodock.learning.dataset import Dataset, LabelRun, label_frames
 from monodock.learning.fusion import learn_fusion_from
 from monodock.perception.detect import Detection, MarkerDetector
@@ -356,7 +356,7 @@ def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, FusionTables, int]
     )
     meta = {"camera": cal.camera.to_ros_dict(), "robot": cal.robot.to_dict(), "layout": cal.layout.to_dict()}
     ds = Dataset({k: np.asarray(v) for k, v in cols.items()}, meta)
-    regression = RegressionEstimator(load_bundle(Path(setup.bundle_path)), cal.camera, cal.robot)
+    regression = MethodSetup(cal.camera, cal.layout, cal.robot, load_bundle(Path(setup.bundle_path))).regression
     tables = learn_fusion_from(ds, regression, cal.camera, cal.layout, cal.robot, np.arange(n, dtype=np.int64))
     return key, tables, run.labelled
 
@@ -388,19 +388,22 @@ class _FrameResult:
 
 
 class _Runtime:
-    """The models a worker loads once: the detector, and per calibration level the methods on those files."""
+    """The models a worker loads once: the detector, and per calibration level the methods on those files
+    (``estimation.methods``): the regression and the PnP methods, fused with the bundle's tables (``STALE``) and,
+    where they were re-learned with those files, fused with those."""
 
     def __init__(self, setup: _TestSetup) -> None:
-
         bundle = load_bundle(Path(setup.bundle_path))
-        stale = bundle.fusion_tables()
         self.detector = MarkerDetector(setup.sim.layout)
-        self.methods: dict[str, tuple[Calibration, RegressionEstimator, FusedEstimator | None, FusedEstimator]] = {}
+        self.methods: dict[str, tuple[Calibration, dict[str, PoseMethod], PoseMethod | None, PoseMethod]] = {}
         for key, cal in setup.calibrations.items():
-            reg = RegressionEstimator(bundle, cal.camera, cal.robot)
+            files = MethodSetup(cal.camera, cal.layout, cal.robot, bundle)
+            plain = build_methods(("regression", "pnp", "board"), files)
+            stale = build_methods(("fused",), files)["fused"]
             learned = setup.tables.get(key)
-            fused = FusedEstimator(cal.camera, cal.layout, cal.robot, learned, reg) if learned is not None else None
-            self.methods[key] = (cal, reg, fused, FusedEstimator(cal.camera, cal.layout, cal.robot, stale, reg))
+            relearned = dataclasses.replace(files, tables=learned) if learned is not None else None
+            fused = build_methods(("fused",), relearned)["fused"] if relearned is not None else None
+            self.methods[key] = (cal, plain, fused, stale)
 
 
 _RUNTIME: list[tuple[_TestSetup, _Runtime]] = []
@@ -425,21 +428,18 @@ def _run_methods(
     """Every method on one image with one calibration level's files (``relearned``: also fused with the
     tables re-learned with those files)."""
 
-    cal, reg_method, fused, stale = rt.methods[key]
+    cal, plain, fused, stale = rt.methods[key]
     ck = _camera_key(cal.camera)
     if ck not in refined_by_camera:
         # The refinement straightens the sides through the lens model of the file it is given.
         refined_by_camera[ck] = refine_detection(image, det, cal.camera, modules=cal.layout.modules)
-    refined = refined_by_camera[ck]
-    reg = reg_method.estimate(det)
-    out = {
-        "regression": _row(reg),
-        "pnp": _row(estimate_single_marker(det, cal.camera, cal.layout, cal.robot)),
-        "board": _row(estimate_board(det, cal.camera, cal.layout, cal.robot)),
-        STALE: _row(stale.estimate(det, refined, reg)),
-    }
+    frame = MethodFrame(det, cal.camera, refined_corners=refined_by_camera[ck])
+    for name, method in plain.items():
+        frame.earlier[name] = method.estimate(frame)
+    out = {name: _row(e) for name, e in frame.earlier.items()}
+    out[STALE] = _row(stale.estimate(frame))
     if relearned and fused is not None:
-        out["fused"] = _row(fused.estimate(det, refined, reg))
+        out["fused"] = _row(fused.estimate(frame))
     return out
 
 

@@ -47,7 +47,7 @@ __all__ = [
     "TrainingResult",
     "TrainingSet",
     "describe_search_space",
-    "make_estimator",
+    "make_regressor",
     "segment_quota",
     "train",
 ]
@@ -171,7 +171,7 @@ class ModelScore:
 
     Attributes:
         model: The model type, one of MODEL_NAMES.
-        params: The hyperparameters of the best draw, as passed to make_estimator (JSON-able).
+        params: The hyperparameters of the best draw, as passed to make_regressor (JSON-able).
         mse: Test mean squared error (m² for depth, deg² for yaw); inf if the model failed.
         r2: Test coefficient of determination (NaN when undefined, e.g. a constant test target).
         fit_seconds: Wall time of that draw's fit.
@@ -395,7 +395,7 @@ def _resolve(model: str, raw: Mapping[str, Any], *, y_std: float, n_features: in
     return p
 
 
-def make_estimator(model: str, params: Mapping[str, Any], random_state: int = 0) -> Any:
+def make_regressor(model: str, params: Mapping[str, Any], random_state: int = 0) -> Any:
     """An unfitted scikit-learn estimator of one model type with the given hyperparameters.
 
     Linear, ridge, lasso and SVR are Pipelines with a StandardScaler first; tree models see raw inputs.
@@ -688,7 +688,7 @@ def _fit_task(
             est: Any = None
             found = lean_predict(draw.model, draw.params, draw.random_state, X, y, X_test) if lean else None
             if found is None:
-                est = make_estimator(draw.model, draw.params, draw.random_state)
+                est = make_regressor(draw.model, draw.params, draw.random_state)
                 est.fit(X, y)
             seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
             pred = found if found is not None else np.asarray(est.predict(X_test), dtype=np.float64)
@@ -708,7 +708,7 @@ def _fit_task(
         assert best is not None  # a batch has at least one draw
         if best_lean is not None:  # scikit-learn's own estimator of the best lean draw must predict the same
             _, draw, _, pred = best_lean
-            check = make_estimator(draw.model, draw.params, draw.random_state).fit(X_train, y_train)
+            check = make_regressor(draw.model, draw.params, draw.random_state).fit(X_train, y_train)
             if not np.array_equal(np.asarray(check.predict(X_test), dtype=np.float64), pred):
                 again = _fit_task(batch, X_train, y_train, X_svr, y_svr, X_test, y_test, lean=False)
                 return replace(again, rescored=True)

@@ -42,7 +42,7 @@ def lean_predict(
     y: NDArray[np.float64],
     X_test: NDArray[np.float64],
 ) -> NDArray[np.float64] | None:
-    """The test predictions of ``make_estimator(model, params, random_state)`` fitted on (X, y), or None when
+    """The test predictions of ``make_regressor(model, params, random_state)`` fitted on (X, y), or None when
     this model or these parameters have no lean fit (then fit the estimator itself).
 
     X and X_test hold float32 values (the estimators convert to float32 first); rows are finite.
