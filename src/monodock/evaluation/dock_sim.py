@@ -32,6 +32,7 @@ from monodock.core.layout import DockLayout
 from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
+from monodock.core.records import file_key, from_record, to_record
 from monodock.core.robot import RobotConfig
 from monodock.dock.controller import (
     DockingConfig,
@@ -543,10 +544,6 @@ def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialR
 # --- the numbers: summary.json -------------------------------------------------------------------------
 
 
-def _number(value: Any) -> float | None:
-    return None if value is None else float(value)
-
-
 @dataclass(frozen=True)
 class AbsStats:
     """Mean, median, 95th percentile and maximum of absolute values (None when there were none)."""
@@ -563,13 +560,6 @@ class AbsStats:
         if a.size == 0:
             return cls(None, None, None, None)
         return cls(float(a.mean()), float(np.median(a)), float(np.percentile(a, 95)), float(a.max()))
-
-    def to_dict(self) -> dict[str, float | None]:
-        return {"mean": self.mean, "median": self.median, "p95": self.p95, "max": self.max}
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> AbsStats:
-        return cls(_number(d["mean"]), _number(d["median"]), _number(d["p95"]), _number(d["max"]))
 
 
 @dataclass(frozen=True)
@@ -590,18 +580,19 @@ class RunGroup:
     final_longitudinal_cm: AbsStats
     final_heading_deg: AbsStats
     time_s: AbsStats
-    retries_total: int
-    retries_max: int
+    retries_total: int = field(metadata=file_key("retries.total"))
+    retries_max: int = field(metadata=file_key("retries.max"))
     impact_speed_mps: AbsStats
     case_agreement: float | None
     failures: Mapping[str, int]
     charging: int = 0  # runs the charger confirmed
-    reseats_total: int = 0
-    recoveries_total: int = 0  # retries after the markers were lost
+    reseats_total: int = field(default=0, metadata=file_key("reseats"))
+    recoveries_total: int = field(default=0, metadata=file_key("recoveries"))  # retries after the markers were lost
     collisions: int = 0  # runs whose footprint touched an obstacle
     faults_triggered: int = 0
-    redock_tried: int = 0  # docked runs that undocked and docked again
-    redocked: int = 0  # of those: docked again within the tolerances
+    # Docked runs that undocked and docked again; of those, the ones docked again within the tolerances.
+    redock_tried: int = field(default=0, metadata=file_key("redock.tried"))
+    redocked: int = field(default=0, metadata=file_key("redock.redocked"))
     recovered: int = 0  # of the successes: those after a retry, recovery, re-seat or wait
     failed_cleanly: int = 0  # failed with a reason, stopped, nothing hit
 
@@ -636,56 +627,6 @@ class RunGroup:
             failed_cleanly=sum(r.failed_cleanly for r in results),
         )
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "runs": self.runs,
-            "successes": self.successes,
-            "success_rate": self.success_rate,
-            "final_lateral_cm": self.final_lateral_cm.to_dict(),
-            "final_longitudinal_cm": self.final_longitudinal_cm.to_dict(),
-            "final_heading_deg": self.final_heading_deg.to_dict(),
-            "time_s": self.time_s.to_dict(),
-            "retries": {"total": self.retries_total, "max": self.retries_max},
-            "impact_speed_mps": self.impact_speed_mps.to_dict(),
-            "case_agreement": self.case_agreement,
-            "failures": dict(self.failures),
-            "charging": self.charging,
-            "reseats": self.reseats_total,
-            "recoveries": self.recoveries_total,
-            "collisions": self.collisions,
-            "faults_triggered": self.faults_triggered,
-            "redock": {"tried": self.redock_tried, "redocked": self.redocked},
-            "recovered": self.recovered,
-            "failed_cleanly": self.failed_cleanly,
-        }
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> RunGroup:
-        return cls(
-            runs=int(d["runs"]),
-            successes=int(d["successes"]),
-            success_rate=_number(d["success_rate"]),
-            final_lateral_cm=AbsStats.from_dict(d["final_lateral_cm"]),
-            final_longitudinal_cm=AbsStats.from_dict(d["final_longitudinal_cm"]),
-            final_heading_deg=AbsStats.from_dict(d["final_heading_deg"]),
-            time_s=AbsStats.from_dict(d["time_s"]),
-            retries_total=int(d["retries"]["total"]),
-            retries_max=int(d["retries"]["max"]),
-            impact_speed_mps=AbsStats.from_dict(d["impact_speed_mps"]),
-            case_agreement=_number(d["case_agreement"]),
-            failures={str(k): int(v) for k, v in d["failures"].items()},
-            # absent before issue 16:
-            charging=int(d.get("charging", 0)),
-            reseats_total=int(d.get("reseats", 0)),
-            recoveries_total=int(d.get("recoveries", 0)),
-            collisions=int(d.get("collisions", 0)),
-            faults_triggered=int(d.get("faults_triggered", 0)),
-            redock_tried=int(d.get("redock", {}).get("tried", 0)),
-            redocked=int(d.get("redock", {}).get("redocked", 0)),
-            recovered=int(d.get("recovered", 0)),
-            failed_cleanly=int(d.get("failed_cleanly", 0)),
-        )
-
 
 @dataclass(frozen=True)
 class MethodRuns:
@@ -709,21 +650,6 @@ class MethodRuns:
             {c: RunGroup.of([r for r in results if (r.classified_case or 0) == c]) for c in executed},
         )
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "overall": self.overall.to_dict(),
-            "cases": {str(c): g.to_dict() for c, g in self.cases.items()},
-            "executed": {str(c): g.to_dict() for c, g in self.executed.items()},
-        }
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> MethodRuns:
-        return cls(
-            RunGroup.from_dict(d["overall"]),
-            {int(c): RunGroup.from_dict(g) for c, g in d["cases"].items()},
-            {int(c): RunGroup.from_dict(g) for c, g in d.get("executed", {}).items()},  # absent before issue 16
-        )
-
 
 FILTER_BANDS_CM = tuple(range(25, 251, 25))  # camera depth band edges of the filter figures
 
@@ -745,17 +671,6 @@ class PoseMae:
         err = np.array([[e[0] - t[0], e[1] - t[1], wrap_angle(e[2] - t[2])] for e, t in pairs])
         mae = np.abs(err).mean(axis=0)
         return cls(float(mae[0] * 100), float(mae[1] * 100), math.degrees(mae[2]))
-
-    def to_dict(self) -> dict[str, float]:
-        return {"depth_cm": self.depth_cm, "lateral_cm": self.lateral_cm, "yaw_deg": self.yaw_deg}
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any] | None) -> PoseMae | None:
-        return None if d is None else cls(float(d["depth_cm"]), float(d["lateral_cm"]), float(d["yaw_deg"]))
-
-
-def _optional(mae: PoseMae | None) -> dict[str, float] | None:
-    return None if mae is None else mae.to_dict()
 
 
 @dataclass(frozen=True)
@@ -790,42 +705,13 @@ class FilterBlock:
             nees_mean=float(np.mean(nees)) if nees else None,
         )
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "frames": self.frames,
-            "filtered": _optional(self.filtered),
-            "single_frame": _optional(self.single_frame),
-            "coasting_frames": self.coasting_frames,
-            "coasting": _optional(self.coasting),
-            "nees_mean": self.nees_mean,
-        }
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> FilterBlock:
-        return cls(
-            frames=int(d["frames"]),
-            filtered=PoseMae.from_dict(d["filtered"]),
-            single_frame=PoseMae.from_dict(d["single_frame"]),
-            coasting_frames=int(d["coasting_frames"]),
-            coasting=PoseMae.from_dict(d["coasting"]),
-            nees_mean=_number(d["nees_mean"]),
-        )
-
 
 @dataclass(frozen=True)
 class FilterBand:
     """One band of the true depth from the camera, [low, high) cm, and the filter's block there."""
 
     depth_cm: tuple[int, int]
-    block: FilterBlock
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"depth_cm": list(self.depth_cm), **self.block.to_dict()}
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> FilterBand:
-        lo, hi = d["depth_cm"]
-        return cls((int(lo), int(hi)), FilterBlock.from_dict(d))
+    block: FilterBlock = field(metadata=file_key(""))  # its keys beside depth_cm in the file
 
 
 @dataclass(frozen=True)
@@ -835,21 +721,6 @@ class FilterAccuracy:
     bands: tuple[FilterBand, ...]
     all: FilterBlock
     under_25cm: FilterBlock
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "bands": [b.to_dict() for b in self.bands],
-            "all": self.all.to_dict(),
-            "under_25cm": self.under_25cm.to_dict(),
-        }
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> FilterAccuracy:
-        return cls(
-            tuple(FilterBand.from_dict(b) for b in d["bands"]),
-            FilterBlock.from_dict(d["all"]),
-            FilterBlock.from_dict(d["under_25cm"]),
-        )
 
 
 def filter_accuracy(results: Sequence[TrialResult], camera_x: float) -> FilterAccuracy:
@@ -877,7 +748,7 @@ def filter_accuracy(results: Sequence[TrialResult], camera_x: float) -> FilterAc
     )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DockSimSettings:
     """What a dock-sim run was: starts, Point A, the success tolerances, the camera and the renderer."""
 
@@ -886,47 +757,12 @@ class DockSimSettings:
     distance_m: tuple[float, float]
     max_heading_deg: float
     standoff_m: float
-    planner: str
-    tolerance_lateral_cm: float
-    tolerance_longitudinal_cm: float
-    tolerance_heading_deg: float
+    planner: str = "monodock"  # summaries written before the papers' planner have none
+    tolerance_lateral_cm: float = field(metadata=file_key("tolerances.lateral_cm"))
+    tolerance_longitudinal_cm: float = field(metadata=file_key("tolerances.longitudinal_cm"))
+    tolerance_heading_deg: float = field(metadata=file_key("tolerances.heading_deg"))
     camera_rate_hz: float
     supersample: int
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "trials_per_case": self.trials_per_case,
-            "seed": self.seed,
-            "distance_m": list(self.distance_m),
-            "max_heading_deg": self.max_heading_deg,
-            "standoff_m": self.standoff_m,
-            "planner": self.planner,
-            "tolerances": {
-                "lateral_cm": self.tolerance_lateral_cm,
-                "longitudinal_cm": self.tolerance_longitudinal_cm,
-                "heading_deg": self.tolerance_heading_deg,
-            },
-            "camera_rate_hz": self.camera_rate_hz,
-            "supersample": self.supersample,
-        }
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> DockSimSettings:
-        t = d["tolerances"]
-        lo, hi = d["distance_m"]
-        return cls(
-            trials_per_case=int(d["trials_per_case"]),
-            seed=int(d["seed"]),
-            distance_m=(float(lo), float(hi)),
-            max_heading_deg=float(d["max_heading_deg"]),
-            standoff_m=float(d["standoff_m"]),
-            planner=str(d.get("planner", "monodock")),  # summaries written before the papers' planner
-            tolerance_lateral_cm=float(t["lateral_cm"]),
-            tolerance_longitudinal_cm=float(t["longitudinal_cm"]),
-            tolerance_heading_deg=float(t["heading_deg"]),
-            camera_rate_hz=float(d["camera_rate_hz"]),
-            supersample=int(d["supersample"]),
-        )
 
 
 @dataclass(frozen=True)
@@ -950,25 +786,6 @@ class RunSpeed:
             render_s_per_run=mean([r.render_s for r in results]),
             perceive_s_per_run=mean([r.perceive_s for r in results]),
             frames_per_run=mean([r.frames for r in results]),
-        )
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "runs": self.runs,
-            "wall_s_per_run": self.wall_s_per_run,
-            "render_s_per_run": self.render_s_per_run,
-            "perceive_s_per_run": self.perceive_s_per_run,
-            "frames_per_run": self.frames_per_run,
-        }
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> RunSpeed:
-        return cls(
-            int(d["runs"]),
-            _number(d["wall_s_per_run"]),
-            _number(d["render_s_per_run"]),
-            _number(d["perceive_s_per_run"]),
-            _number(d["frames_per_run"]),
         )
 
 
@@ -997,35 +814,19 @@ class DockSimSummary:
         return self.methods[self.method].cases
 
     def to_dict(self) -> dict[str, Any]:
-        first = self.methods[self.method].to_dict()
-        return {
-            "method": self.method,
-            "overall": first["overall"],
-            "cases": first["cases"],
-            "methods": {m: b.to_dict() for m, b in self.methods.items()},
-            "filter": {m: f.to_dict() for m, f in self.filter.items()},
-            "settings": self.settings.to_dict(),
-            "speed": self.speed.to_dict(),
-        }
+        """The file's layout: the first method's ``overall`` and ``cases`` also at the top, beside ``method``."""
+        record = to_record(self)
+        first = record["methods"][self.method]
+        return {"method": self.method, "overall": first["overall"], "cases": first["cases"], **record}
 
     def to_json(self) -> str:
         """summary.json's text."""
         return json_text(self.to_dict())
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> DockSimSummary:
-        return cls(
-            method=str(d["method"]),
-            methods={str(m): MethodRuns.from_dict(b) for m, b in d["methods"].items()},
-            filter={str(m): FilterAccuracy.from_dict(f) for m, f in d["filter"].items()},
-            settings=DockSimSettings.from_dict(d["settings"]),
-            speed=RunSpeed.from_dict(d["speed"]),
-        )
-
-    @classmethod
     def from_json(cls, text: str) -> DockSimSummary:
         """Read summary.json's text back."""
-        return cls.from_dict(json.loads(text))
+        return from_record(cls, json.loads(text), "summary.json")
 
     @classmethod
     def read(cls, path: Path) -> DockSimSummary:

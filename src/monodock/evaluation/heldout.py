@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from monodock.core.camera import CameraModel
 from monodock.core.config import json_text
 from monodock.core.layout import DockLayout
+from monodock.core.records import to_record
 from monodock.core.robot import RobotConfig
 from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods
 from monodock.estimation.pnp import PoseEstimate
@@ -389,7 +390,7 @@ class HeldoutSummary:
         out["miscalibration"] = [dataclasses.asdict(r) for r in self.miscalibration]
         out["invalid_reasons"] = {m: dict(c) for m, c in self.invalid_reasons.items()}
         if self.docking is not None:
-            out["docking"] = {m: g.to_dict() for m, g in self.docking.items()}
+            out["docking"] = {m: to_record(g) for m, g in self.docking.items()}
         return out
 
     def to_json(self) -> str:

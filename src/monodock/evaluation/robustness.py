@@ -38,6 +38,7 @@ from monodock.core.config import json_text
 from monodock.core.layout import ROLE_NUMBER, ROLES, DockLayout
 from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
+from monodock.core.records import file_key, to_record
 from monodock.core.robot import Mount, RobotConfig
 from monodock.core.scan import LaserScan
 from monodock.errors import InputError
@@ -537,9 +538,6 @@ class MethodCurve:
         values: tuple[float, ...] = getattr(self, name)
         return values
 
-    def to_dict(self) -> dict[str, list[float]]:
-        return {k: list(self.stat(k)) for k in STATS}
-
 
 @dataclass(frozen=True)
 class AxisResult:
@@ -558,7 +556,7 @@ class AxisResult:
             "default": a.default,
             "levels": list(a.levels),
             "frames": self.frames,
-            "methods": {m: c.to_dict() for m, c in self.methods.items()},
+            "methods": to_record(self.methods),
         }
 
 
@@ -575,14 +573,6 @@ class OcclusionStats:
     occluded_marker_detected_pct: tuple[float, ...]
     occluded_marker: Mapping[str, int]
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "levels": list(self.levels),
-            "hidden_measured_pct": list(self.hidden_measured_pct),
-            "occluded_marker_detected_pct": list(self.occluded_marker_detected_pct),
-            "occluded_marker": dict(self.occluded_marker),
-        }
-
 
 @dataclass(frozen=True)
 class WorstLevel:
@@ -593,26 +583,15 @@ class WorstLevel:
     yaw_mae_deg: float
     valid_rate: float
 
-    def to_dict(self) -> dict[str, float]:
-        return dataclasses.asdict(self)
-
 
 @dataclass(frozen=True)
 class HeadlineRow:
     """One axis of the headline: per method its worst level; whether fused and board stay within GOOD_ENOUGH."""
 
     axis: str
-    worst: Mapping[str, WorstLevel]
+    worst: Mapping[str, WorstLevel] = field(metadata=file_key(""))  # each method's block beside "axis" in the file
     fused_within: bool
     board_within: bool
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "axis": self.axis,
-            **{m: w.to_dict() for m, w in self.worst.items()},
-            "fused_within": self.fused_within,
-            "board_within": self.board_within,
-        }
 
 
 @dataclass(frozen=True)
@@ -620,25 +599,13 @@ class RobustnessSettings:
     """What a robustness run was, as the report and summary.json show it (text for people)."""
 
     bundle: str
-    test_frames: int
+    test_frames: int = field(metadata=file_key("test frames"))
     seed: int
-    pose_distribution: str
-    test_frame_rendering: str
-    calibration_set: str
+    pose_distribution: str = field(metadata=file_key("pose distribution"))
+    test_frame_rendering: str = field(metadata=file_key("test frame rendering"))
+    calibration_set: str = field(metadata=file_key("calibration set"))
     processes: int
     runtime: str
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "bundle": self.bundle,
-            "test frames": self.test_frames,
-            "seed": self.seed,
-            "pose distribution": self.pose_distribution,
-            "test frame rendering": self.test_frame_rendering,
-            "calibration set": self.calibration_set,
-            "processes": self.processes,
-            "runtime": self.runtime,
-        }
 
 
 def _worst(values: Iterable[float]) -> float:
@@ -679,12 +646,12 @@ class RobustnessSummary:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "settings": self.settings.to_dict(),
+            "settings": to_record(self.settings),
             "runtime_s": self.runtime_s,
             "good_enough": {"depth_cm": GOOD_ENOUGH[0], "lateral_cm": GOOD_ENOUGH[1], "yaw_deg": GOOD_ENOUGH[2]},
-            "headline": [r.to_dict() for r in self.headline],
+            "headline": to_record(self.headline),
             "axes": {k: a.to_dict() for k, a in self.axes.items()},
-            "occlusion": self.occlusion.to_dict() if self.occlusion is not None else {},
+            "occlusion": to_record(self.occlusion) if self.occlusion is not None else {},
         }
 
     def to_json(self) -> str:

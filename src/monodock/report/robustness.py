@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib import ticker
 
+from monodock.core.records import to_record
 from monodock.evaluation.robustness import METHODS, STALE, AxisKind, AxisResult, HeadlineRow, RobustnessResult
 from monodock.report.html import HtmlReport
 from monodock.report.plotting import METHOD_COLOURS, METHOD_LABELS, plt
@@ -143,7 +144,7 @@ def write_robustness_report(result: RobustnessResult, out: Path) -> None:
     )
     report.table(headline_table(summary.headline))
     report.heading("Settings")
-    report.settings(result.settings.to_dict())
+    report.settings(to_record(result.settings))
     report.paragraph(
         "Each axis is swept on its own, everything else at the defaults (Nuisances()). The same test poses are "
         "used at every level, each frame with the same random draws (sensor noise, exposure jitter, motion-blur "
