@@ -60,6 +60,50 @@ def _median_ms(values: list[float]) -> float:
     return 1e3 * float(np.median(values))
 
 
+def _time_poses(
+    name: str, sim: Any, poses: list[Any], detector: MarkerDetector, seed: int
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Seconds per pose: the radiance, the image, the whole frame and detection; and each stage of a frame."""
+    times: dict[str, list[float]] = {"radiance": [], "image": [], "frame": [], "detection": []}
+    stages: dict[str, list[float]] = {}
+    for k, pose in enumerate(poses):
+        T = sim.world_T_optical(pose)
+        stats = RenderStats()
+        t = time.perf_counter()
+        radiance = render_radiance(sim.world, sim.camera, T, supersample=sim.nuisances.supersample, stats=stats)
+        times["radiance"].append(time.perf_counter() - t)
+        t = time.perf_counter()
+        apply_nuisances(radiance, sim.nuisances, np.random.default_rng(k))
+        sensor = time.perf_counter() - t
+        for stage, seconds in (
+            ("culling", stats.culling_s),
+            ("pixel corners", stats.corners_s),
+            ("edge pixels", stats.edges_s),
+            ("sensor nuisances", sensor),
+            ("flat tiles %", 100.0 * stats.flat_tiles),
+        ):
+            stages.setdefault(stage, []).append(seconds)
+        t = time.perf_counter()
+        image = sim.render(pose, rng=np.random.default_rng([seed, k]))
+        times["image"].append(time.perf_counter() - t)
+        t = time.perf_counter()
+        sim.frame(pose, rng=np.random.default_rng([seed, k]))
+        times["frame"].append(time.perf_counter() - t)
+        t = time.perf_counter()
+        detector.detect(image)
+        times["detection"].append(time.perf_counter() - t)
+        t = time.perf_counter()
+        sim.scan(pose, rng=np.random.default_rng(k))
+        stages.setdefault("LiDAR scan", []).append(time.perf_counter() - t)
+        t = time.perf_counter()
+        sim.true_corners(pose)
+        [sim._visible_fraction(sim.world, pose, r) for r in ROLES]
+        stages.setdefault("truth", []).append(time.perf_counter() - t)
+        print(f"\r{name}: {k + 1}/{len(poses)}", end="", file=sys.stderr)
+    print(file=sys.stderr)
+    return times, stages
+
+
 def main(argv: list[str] | None = None) -> int:
     p = bench_parser(__doc__, frames=40, frames_help="random poses timed per set-up", seed=0)
     p.add_argument("--reference-frames", type=int, default=4, help="poses also rendered by the reference (4)")
@@ -75,43 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         poses = [sim.sample_pose(rng=rng) for _ in range(args.frames)]
         detector = MarkerDetector(sim.layout)
         detector.detect(sim.frame(poses[0], rng=np.random.default_rng(0)).image)  # warm-up: compiles, caches
-        times: dict[str, list[float]] = {"radiance": [], "image": [], "frame": [], "detection": []}
-        stages: dict[str, list[float]] = {}
-        for k, pose in enumerate(poses):
-            T = sim.world_T_optical(pose)
-            stats = RenderStats()
-            t = time.perf_counter()
-            radiance = render_radiance(sim.world, sim.camera, T, supersample=sim.nuisances.supersample, stats=stats)
-            times["radiance"].append(time.perf_counter() - t)
-            t = time.perf_counter()
-            apply_nuisances(radiance, sim.nuisances, np.random.default_rng(k))
-            sensor = time.perf_counter() - t
-            for stage, seconds in (
-                ("culling", stats.culling_s),
-                ("pixel corners", stats.corners_s),
-                ("edge pixels", stats.edges_s),
-                ("sensor nuisances", sensor),
-                ("flat tiles %", 100.0 * stats.flat_tiles),
-            ):
-                stages.setdefault(stage, []).append(seconds)
-            t = time.perf_counter()
-            image = sim.render(pose, rng=np.random.default_rng([args.seed, k]))
-            times["image"].append(time.perf_counter() - t)
-            t = time.perf_counter()
-            sim.frame(pose, rng=np.random.default_rng([args.seed, k]))
-            times["frame"].append(time.perf_counter() - t)
-            t = time.perf_counter()
-            detector.detect(image)
-            times["detection"].append(time.perf_counter() - t)
-            t = time.perf_counter()
-            sim.scan(pose, rng=np.random.default_rng(k))
-            stages.setdefault("LiDAR scan", []).append(time.perf_counter() - t)
-            t = time.perf_counter()
-            sim.true_corners(pose)
-            [sim._visible_fraction(sim.world, pose, r) for r in ROLES]
-            stages.setdefault("truth", []).append(time.perf_counter() - t)
-            print(f"\r{name}: {k + 1}/{len(poses)}", end="", file=sys.stderr)
-        print(file=sys.stderr)
+        times, stages = _time_poses(name, sim, poses, detector, args.seed)
 
         # Exactness and the reference's time, on the first poses.
         ref_times, off_edge_max, edge_mean, new_err, ref_err, edge_share = [], [], [], [], [], []

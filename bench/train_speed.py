@@ -195,6 +195,34 @@ def cli_main(args: argparse.Namespace) -> int:
     return 0 if not diffs else 1
 
 
+SVR_FIT_ROWS = 4000  # SVR's fit is O(n²): its latency is timed on a model fit on at most this many rows
+
+
+def _latency_per_model(ts: Any, sr: Any, row: np.ndarray, calls: int) -> dict[str, dict[str, float]]:
+    """Per model type, one-row latency on one CPU (ONNX Runtime and scikit-learn): the depth task, the type's
+    first hyperparameter draw."""
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    from threadpoolctl import threadpool_limits
+
+    X32 = ts.X.astype(np.float32)
+    latency: dict[str, dict[str, float]] = {}
+    fit_rows = min(len(X32), SVR_FIT_ROWS)
+    with threadpool_limits(limits=1), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Lasso's convergence warnings: the fit is only timed here
+        for model in MODEL_NAMES:
+            params = sr.depth.scores[model].params
+            est = make_regressor(model, params, 0)
+            n_fit = fit_rows if model == "svr" else len(X32)
+            est.fit(X32[:n_fit].astype(np.float64), ts.depth[:n_fit])
+            sess = ort_session(onnx_model_bytes(est, X32.shape[1]))
+            out_name = sess.get_outputs()[0].name
+            t_onnx = _median_us(lambda sess=sess, out_name=out_name: sess.run([out_name], {"input": row}), calls)
+            t_skl = _median_us(lambda est=est: est.predict(row), max(100, calls // 10))
+            latency[model] = {"onnx_us": t_onnx, "sklearn_us": t_skl, "ratio": t_skl / t_onnx}
+    return latency
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n", maxsplit=1)[0])
     p.add_argument("--rows", type=_positive, default=20000, help="synthetic training rows (default 20000)")
@@ -237,26 +265,7 @@ def main(argv: list[str] | None = None) -> int:
         seg = next(k for k, t in enumerate(sr.angle) if t.chosen is not None)
         t_bundle_yaw = _median_us(lambda: bundle.predict_yaw_deg(ts.name, seg, row[0]), args.calls)
 
-    # Per model type, one-row latency on one CPU: the depth task, the type's first hyperparameter draw.
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    from threadpoolctl import threadpool_limits
-
-    X32 = ts.X.astype(np.float32)
-    latency: dict[str, dict[str, float]] = {}
-    fit_rows = min(len(X32), 4000)
-    with threadpool_limits(limits=1), warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # Lasso's convergence warnings: the fit is only timed here
-        for model in MODEL_NAMES:
-            params = sr.depth.scores[model].params
-            est = make_regressor(model, params, 0)
-            n_fit = fit_rows if model == "svr" else len(X32)
-            est.fit(X32[:n_fit].astype(np.float64), ts.depth[:n_fit])
-            sess = ort_session(onnx_model_bytes(est, X32.shape[1]))
-            out_name = sess.get_outputs()[0].name
-            t_onnx = _median_us(lambda sess=sess, out_name=out_name: sess.run([out_name], {"input": row}), args.calls)
-            t_skl = _median_us(lambda est=est: est.predict(row), max(100, args.calls // 10))
-            latency[model] = {"onnx_us": t_onnx, "sklearn_us": t_skl, "ratio": t_skl / t_onnx}
+    latency = _latency_per_model(ts, sr, row, args.calls)
 
     mb = size / 1e6
     env = environment()
@@ -292,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
             ],
         ),
         "",
-        f"One-row latency per model type (depth task, the type's best draw; SVR fit on {fit_rows} rows), "
+        f"One-row latency per model type (depth task, the type's best draw; SVR fit on "
+        f"{min(len(ts.X), SVR_FIT_ROWS)} rows), "
         f"median of {args.calls} calls, one CPU, one thread:",
         "",
         markdown_table(

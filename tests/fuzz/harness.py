@@ -327,10 +327,9 @@ def _leftovers(expect: Expect) -> list[str]:
     return left
 
 
-def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
-    """Every way ``run`` broke the contract, as (kind, detail); empty when it held."""
+def _exit_problems(run: Run, err_lines: list[str]) -> list[tuple[str, str]]:
+    """How the run ended: a hang, an internal error, a traceback, a refusal of more than one clean line."""
     found: list[tuple[str, str]] = []
-    err_lines = [line for line in run.err.splitlines() if line.strip()]
     if run.hung:
         found.append(
             ("hang", f"still running at its time limit (run {run.seconds:.0f} s; interrupted: 5 s after the signal)")
@@ -351,19 +350,25 @@ def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
         if len(err_lines) != 1 or len(good) != 1:
             shown = " | ".join(line[:120] for line in err_lines[:3])
             found.append(("traceback/noise", f"{len(err_lines)} stderr lines: {shown}"))
-    silent = [line for line in err_lines if line.startswith("silent: ")]
-    if silent:
-        found.append(("silent wrong", silent[0][8:]))
-        err_lines = [line for line in err_lines if not line.startswith("silent: ")]
-    if run.code == 0:
-        noise = [line for line in err_lines if not line.startswith(("warning:", "note:", "monodock"))]
-        if noise:
-            found.append(("traceback/noise", f"library output on success: {noise[0][:120]}"))
-        if expect.refuse:
-            est = [o for o in expect.outputs if o.suffix == ".csv" and o.is_file()]
-            if not (est and expect.implausible_ok_without_valid):
-                found.append(("silent wrong", "accepted an implausible input (exit 0)"))
-        found += _outputs_problems(run, expect)
+    return found
+
+
+def _success_problems(run: Run, expect: Expect, err_lines: list[str]) -> list[tuple[str, str]]:
+    """A run that exited 0: library noise on stderr, an implausible input accepted, wrong outputs."""
+    found: list[tuple[str, str]] = []
+    noise = [line for line in err_lines if not line.startswith(("warning:", "note:", "monodock"))]
+    if noise:
+        found.append(("traceback/noise", f"library output on success: {noise[0][:120]}"))
+    if expect.refuse:
+        est = [o for o in expect.outputs if o.suffix == ".csv" and o.is_file()]
+        if not (est and expect.implausible_ok_without_valid):
+            found.append(("silent wrong", "accepted an implausible input (exit 0)"))
+    return found + _outputs_problems(run, expect)
+
+
+def _disk_problems(run: Run, expect: Expect) -> list[tuple[str, str]]:
+    """What the run left on disk: outputs of a failed run, temporary files, inputs changed or replaced."""
+    found: list[tuple[str, str]] = []
     if run.code != 0:
         for out in expect.outputs:
             if not run.existed.get(str(out)) and os.path.lexists(out):
@@ -379,6 +384,20 @@ def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
         b = run.before.get(str(p), "absent")
         if b.startswith("special:") and run.after.get(str(p)) != b:
             found.append(("input destroyed", f"{p.name} (not a regular file) was replaced"))
+    return found
+
+
+def judge(run: Run, expect: Expect) -> list[tuple[str, str]]:
+    """Every way ``run`` broke the contract, as (kind, detail); empty when it held."""
+    err_lines = [line for line in run.err.splitlines() if line.strip()]
+    found = _exit_problems(run, err_lines)
+    silent = [line for line in err_lines if line.startswith("silent: ")]
+    if silent:
+        found.append(("silent wrong", silent[0][8:]))
+        err_lines = [line for line in err_lines if not line.startswith("silent: ")]
+    if run.code == 0:
+        found += _success_problems(run, expect, err_lines)
+    found += _disk_problems(run, expect)
     # one finding per kind, first detail kept
     seen: dict[str, str] = {}
     for kind, detail in found:

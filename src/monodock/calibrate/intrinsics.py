@@ -239,6 +239,97 @@ def _calibrate(
     return float(rms), np.asarray(K, dtype=np.float64), D, per_view
 
 
+def _detect_views(
+    views: Iterable[tuple[str, NDArray[np.generic]]],
+    board: tuple[int, int],
+    size: tuple[int, int] | None,
+    max_blur_px: float,
+) -> tuple[list[ViewResult], tuple[int, int] | None]:
+    """Find the board in each view, checking every image has ``size`` (default: the first image's)."""
+    results: list[ViewResult] = []
+    for view_name, image in views:
+        h, w = np.asarray(image).shape[:2]
+        if size is None:
+            size = (int(w), int(h))
+        elif (w, h) != size:
+            raise InputError(f"{view_name}: image size {w}x{h} differs from {size[0]}x{size[1]} of the other images")
+        corners, reason = find_board(image, board, max_blur_px=max_blur_px)
+        results.append(ViewResult(view_name, corners is not None, reason, corners=corners))
+    return results, size
+
+
+def _usable_views(results: list[ViewResult], board: tuple[int, int], min_views: int) -> list[int]:
+    """Indices of the views where the board was found; refused when fewer than ``min_views``."""
+    cols, rows = board
+    n_images = len(results)
+    usable = [k for k, r in enumerate(results) if r.corners is not None]
+    if not usable:
+        raise InputError(f"checkerboard {cols}x{rows} never found in {n_images} images: {_reason_summary(results)}")
+    if len(usable) < min_views:
+        raise InputError(
+            f"only {len(usable)} usable checkerboard {cols}x{rows} views in {n_images} images, need at least "
+            f"{min_views}: {_reason_summary(results)}"
+        )
+    return usable
+
+
+def _calibrate_without_outliers(
+    obj: NDArray[np.float32], sets: dict[int, NDArray[np.float64]], size: tuple[int, int], min_views: int
+) -> tuple[float, NDArray[np.float64], NDArray[np.float64], set[int], float]:
+    """Calibrate, then again without the views far above the median error: RMS, K, D, outliers and the limit."""
+    rms, K, D, per_view = _calibrate(obj, list(sets.values()), size)
+    limit = max(_OUTLIER_FACTOR * float(np.median(per_view)), _OUTLIER_FLOOR_PX)
+    outliers = {k for k, e in zip(sets, per_view, strict=True) if e > limit}
+    # Leaving the outliers out must still leave enough views; otherwise keep them all.
+    if outliers and len(sets) - len(outliers) >= min_views:
+        rms, K, D, _ = _calibrate(obj, [c for k, c in sets.items() if k not in outliers], size)
+    else:
+        outliers = set()
+    return rms, K, D, outliers, limit
+
+
+def _final_views(
+    results: list[ViewResult],
+    obj: NDArray[np.float32],
+    K: NDArray[np.float64],
+    D: NDArray[np.float64],
+    outliers: set[int],
+    limit: float,
+) -> list[ViewResult]:
+    """The views with their reprojection errors under the final camera, outliers marked as not used."""
+    final: list[ViewResult] = []
+    for k, r in enumerate(results):
+        if r.corners is None:
+            final.append(r)
+            continue
+        # Every view's error with the final camera (outliers included), from its own best pose.
+        _, rvec, tvec = cv2.solvePnP(obj, r.corners.astype(np.float32), K, D)
+        px, _ = cv2.projectPoints(obj, rvec, tvec, K, D)
+        e = float(np.sqrt(np.mean(np.sum((px.reshape(-1, 2) - r.corners) ** 2, axis=1))))
+        if k in outliers:
+            final.append(ViewResult(r.name, False, f"outlier: reprojection {e:.2f} px > {limit:.2f} px", e, r.corners))
+        else:
+            final.append(ViewResult(r.name, True, "", e, r.corners))
+    return final
+
+
+def _calibration_warnings(fraction: float, n_used: int, results: list[ViewResult], outliers: set[int]) -> list[str]:
+    """Warnings on a weak calibration: poor corner coverage, few views used, views left out as outliers."""
+    warnings: list[str] = []
+    if fraction < _MIN_COVERAGE:
+        warnings.append(
+            f"corners cover only {fraction:.0%} of the image ({COVERAGE_GRID[0]}x{COVERAGE_GRID[1]} grid); "
+            "add views with the board near the image edges and corners, where the distortion is strongest"
+        )
+    if n_used < _FEW_VIEWS:
+        warnings.append(f"only {n_used} views used; 15-25 views at varied tilts give a stable calibration")
+    for k in sorted(outliers):
+        warnings.append(
+            f"{results[k].name}: left out, reprojection error far above the others (board moved, bent or misdetected?)"
+        )
+    return warnings
+
+
 def calibrate_intrinsics(
     views: Iterable[tuple[str, NDArray[np.generic]]],
     board: tuple[int, int],
@@ -268,65 +359,18 @@ def calibrate_intrinsics(
     """
     if not square > 0:
         raise InputError(f"--square must be a positive length in metres, got {square}")
-    size = image_size
-    results: list[ViewResult] = []
-    for view_name, image in views:
-        h, w = np.asarray(image).shape[:2]
-        if size is None:
-            size = (int(w), int(h))
-        elif (w, h) != size:
-            raise InputError(f"{view_name}: image size {w}x{h} differs from {size[0]}x{size[1]} of the other images")
-        corners, reason = find_board(image, board, max_blur_px=max_blur_px)
-        results.append(ViewResult(view_name, corners is not None, reason, corners=corners))
-    cols, rows = board
-    n_images = len(results)
-    if size is None or n_images == 0:
+    results, size = _detect_views(views, board, image_size, max_blur_px)
+    if size is None or len(results) == 0:
         raise InputError("no images to calibrate from")
-    usable = [k for k, r in enumerate(results) if r.corners is not None]
-    if not usable:
-        raise InputError(f"checkerboard {cols}x{rows} never found in {n_images} images: {_reason_summary(results)}")
-    if len(usable) < min_views:
-        raise InputError(
-            f"only {len(usable)} usable checkerboard {cols}x{rows} views in {n_images} images, need at least "
-            f"{min_views}: {_reason_summary(results)}"
-        )
+    usable = _usable_views(results, board, min_views)
     obj = _object_points(board, square)
     sets = {k: c for k in usable if (c := results[k].corners) is not None}
-    rms, K, D, per_view = _calibrate(obj, list(sets.values()), size)
-    limit = max(_OUTLIER_FACTOR * float(np.median(per_view)), _OUTLIER_FLOOR_PX)
-    outliers = {k for k, e in zip(sets, per_view, strict=True) if e > limit}
-    if outliers and len(sets) - len(outliers) >= min_views:
-        rms, K, D, _ = _calibrate(obj, [c for k, c in sets.items() if k not in outliers], size)
-    else:
-        outliers = set()
-    final: list[ViewResult] = []
-    for k, r in enumerate(results):
-        if r.corners is None:
-            final.append(r)
-            continue
-        # Every view's error with the final camera (outliers included), from its own best pose.
-        _, rvec, tvec = cv2.solvePnP(obj, r.corners.astype(np.float32), K, D)
-        px, _ = cv2.projectPoints(obj, rvec, tvec, K, D)
-        e = float(np.sqrt(np.mean(np.sum((px.reshape(-1, 2) - r.corners) ** 2, axis=1))))
-        if k in outliers:
-            final.append(ViewResult(r.name, False, f"outlier: reprojection {e:.2f} px > {limit:.2f} px", e, r.corners))
-        else:
-            final.append(ViewResult(r.name, True, "", e, r.corners))
+    rms, K, D, outliers, limit = _calibrate_without_outliers(obj, sets, size, min_views)
+    final = _final_views(results, obj, K, D, outliers, limit)
     used_sets = [r.corners for r in final if r.used and r.corners is not None]
     coverage = _coverage(used_sets, size)
     fraction = float(np.count_nonzero(coverage)) / coverage.size
-    warnings: list[str] = []
-    if fraction < _MIN_COVERAGE:
-        warnings.append(
-            f"corners cover only {fraction:.0%} of the image ({COVERAGE_GRID[0]}x{COVERAGE_GRID[1]} grid); "
-            "add views with the board near the image edges and corners, where the distortion is strongest"
-        )
-    if len(used_sets) < _FEW_VIEWS:
-        warnings.append(f"only {len(used_sets)} views used; 15-25 views at varied tilts give a stable calibration")
-    for k in sorted(outliers):
-        warnings.append(
-            f"{results[k].name}: left out, reprojection error far above the others (board moved, bent or misdetected?)"
-        )
+    warnings = _calibration_warnings(fraction, len(used_sets), results, outliers)
     camera = CameraModel.from_intrinsics(size[0], size[1], K[0, 0], K[1, 1], K[0, 2], K[1, 2], D, name=name)
     return IntrinsicsResult(camera, rms, tuple(final), coverage, fraction, tuple(warnings), board, float(square))
 

@@ -402,63 +402,78 @@ def _numbers(matrix: Any, key: str, path: Path) -> NDArray[np.float64]:
     return np.asarray(matrix, dtype=np.float64)
 
 
+def _refuse_repeated_keys(fs: cv2.FileStorage, path: Path) -> None:
+    """Refuse a file whose top-level map names a key twice."""
+    # OpenCV keeps the first of a key named twice without a word; monodock's YAML loader refuses it (config.py)
+    keys = list(fs.root().keys()) if fs.root().isMap() else []
+    twice = next((k for i, k in enumerate(keys) if k in keys[:i]), None)
+    if twice is not None:
+        raise ConfigError(f"{path}: key '{twice[:80]}' appears twice; each key may appear once")
+
+
+def _first_node(fs: cv2.FileStorage, *names: str) -> Any:
+    """The first non-empty node among ``names`` (alternative spellings of one field), or None."""
+    for n in names:
+        nd = fs.getNode(n)
+        if not nd.empty():
+            return nd
+    return None
+
+
+def _storage_image_size(fs: cv2.FileStorage, path: Path) -> tuple[float, float]:
+    """(width, height) from image_width/image_height, else from a two-element image_size; not yet checked."""
+    wn, hn = _first_node(fs, "image_width", "width"), _first_node(fs, "image_height", "height")
+    if wn is not None and hn is not None:
+        return float(wn.real()), float(hn.real())
+    sn = _first_node(fs, "image_size", "imageSize")
+    if sn is None:
+        raise ConfigError(f"{path}: missing field 'image_width'")
+    if sn.isSeq() and sn.size() == 2:
+        size = np.array([sn.at(0).real(), sn.at(1).real()])
+    else:
+        m = sn.mat() if not sn.isSeq() and not sn.isMap() else None
+        size = np.asarray(m).ravel() if m is not None else np.zeros(0)
+    if size.size != 2:
+        raise ConfigError(f"{path}: image_size: expected [width, height]")
+    return float(size[0]), float(size[1])
+
+
+def _check_storage_size(width_f: float, height_f: float, path: Path) -> None:
+    """Refuse an image size that is not whole, finite, positive and at most ``MAX_IMAGE_SIDE`` px a side."""
+    if not (math.isfinite(width_f) and math.isfinite(height_f)) or not (
+        0 < width_f <= MAX_IMAGE_SIDE
+        and 0 < height_f <= MAX_IMAGE_SIDE
+        and width_f == int(width_f)
+        and height_f == int(height_f)
+    ):
+        raise ConfigError(
+            f"{path}: image size must be whole numbers 1 to {MAX_IMAGE_SIDE} px, got {width_f:g}x{height_f:g}"
+        )
+
+
 def _read_opencv_storage(path: Path) -> CameraModel:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     if not fs.isOpened():
         raise ConfigError(f"{path}: cannot be read as an OpenCV FileStorage file")
     try:
-        # OpenCV keeps the first of a key named twice without a word; monodock's YAML loader refuses it (config.py)
-        keys = list(fs.root().keys()) if fs.root().isMap() else []
-        twice = next((k for i, k in enumerate(keys) if k in keys[:i]), None)
-        if twice is not None:
-            raise ConfigError(f"{path}: key '{twice[:80]}' appears twice; each key may appear once")
-
-        def node(*names: str) -> Any:
-            for n in names:
-                nd = fs.getNode(n)
-                if not nd.empty():
-                    return nd
-            return None
-
-        km = node("camera_matrix", "cameraMatrix", "K", "intrinsic_matrix")
+        _refuse_repeated_keys(fs, path)
+        km = _first_node(fs, "camera_matrix", "cameraMatrix", "K", "intrinsic_matrix")
         if km is None:
             raise ConfigError(f"{path}: missing field 'camera_matrix'")
         K = _numbers(km.mat(), "camera_matrix", path)
         if K.size != 9:
             raise ConfigError(f"{path}: camera_matrix: expected a 3x3 matrix")
-        dn = node("distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
+        dn = _first_node(fs, "distortion_coefficients", "dist_coeffs", "distCoeffs", "D")
         if dn is None:
             raise ConfigError(f"{path}: missing field 'distortion_coefficients'")
         D = _numbers(dn.mat(), "distortion_coefficients", path).ravel()
-        wn, hn = node("image_width", "width"), node("image_height", "height")
-        if wn is None or hn is None:
-            sn = node("image_size", "imageSize")
-            if sn is None:
-                raise ConfigError(f"{path}: missing field 'image_width'")
-            if sn.isSeq() and sn.size() == 2:
-                size = np.array([sn.at(0).real(), sn.at(1).real()])
-            else:
-                m = sn.mat() if not sn.isSeq() and not sn.isMap() else None
-                size = np.asarray(m).ravel() if m is not None else np.zeros(0)
-            if size.size != 2:
-                raise ConfigError(f"{path}: image_size: expected [width, height]")
-            width_f, height_f = float(size[0]), float(size[1])
-        else:
-            width_f, height_f = float(wn.real()), float(hn.real())
+        width_f, height_f = _storage_image_size(fs, path)
         if D.size == 4:
             D = np.r_[D, 0.0]
         model = "rational_polynomial" if D.size == 8 else "plumb_bob"
         if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D))):
             raise ConfigError(f"{path}: camera_matrix or distortion_coefficients hold NaN or infinite values")
-        if not (math.isfinite(width_f) and math.isfinite(height_f)) or not (
-            0 < width_f <= MAX_IMAGE_SIDE
-            and 0 < height_f <= MAX_IMAGE_SIDE
-            and width_f == int(width_f)
-            and height_f == int(height_f)
-        ):
-            raise ConfigError(
-                f"{path}: image size must be whole numbers 1 to {MAX_IMAGE_SIDE} px, got {width_f:g}x{height_f:g}"
-            )
+        _check_storage_size(width_f, height_f, path)
         try:
             camera = CameraModel(
                 int(width_f), int(height_f), tuple(K.ravel().tolist()), tuple(D.tolist()), model, path.stem

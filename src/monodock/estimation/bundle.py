@@ -109,6 +109,95 @@ def _describe(names: Sequence[str], other: Sequence[str]) -> str:
     return f"{len(names)} features ({at})"
 
 
+def _read_manifest(p: Path) -> tuple[Path, dict[str, Any]]:
+    """The bundle's ``bundle.json`` path and contents, checked for this schema version and its own digest."""
+    if not p.is_dir():
+        raise InputError(f"{p} is not a model bundle folder")
+    mf = p / BUNDLE_FILE
+    if not mf.is_file():
+        raise InputError(f"{p} is not a model bundle: it has no {BUNDLE_FILE}")
+    try:
+        manifest = load_json(mf, "bundle manifest")
+    except ConfigError as exc:
+        raise InputError(str(exc)) from None
+    version = manifest.get("schema_version")
+    if version != BUNDLE_SCHEMA_VERSION:
+        raise InputError(
+            f"{p} has bundle schema version {version}; this monodock reads version {BUNDLE_SCHEMA_VERSION}"
+        )
+    try:
+        intact = manifest.get(MANIFEST_DIGEST) == manifest_digest(manifest)
+    except (TypeError, ValueError):  # NaN or a value JSON cannot re-encode: not what export wrote
+        intact = False
+    if not intact:
+        raise InputError(f"{mf} does not match its own digest ({MANIFEST_DIGEST}): it was edited or corrupted")
+    return mf, manifest
+
+
+def _check_structure(
+    manifest: dict[str, Any], mf: Path
+) -> tuple[dict[str, Any], dict[str, dict[str, Any]], SegmentTable]:
+    """The manifest's metadata, marker sets and segment table, each checked to have the shape export writes."""
+    meta = manifest.get("metadata")
+    sets = manifest.get("sets")
+    if not isinstance(meta, dict) or not isinstance(sets, dict) or not sets:
+        raise InputError(f"{mf} is malformed: 'metadata' or 'sets' is missing")
+    try:
+        segments = SegmentTable(**manifest["segments"])
+    except (KeyError, TypeError, ConfigError) as exc:
+        raise InputError(f"{mf} is malformed: bad 'segments' ({exc})") from None
+    for name, entry in sets.items():
+        if not isinstance(entry, dict) or not isinstance(entry.get("feature_names"), list):
+            raise InputError(f"{mf} is malformed: marker set {name} has no list of feature_names")
+    return meta, sets, segments
+
+
+def _check_features(
+    sets: dict[str, dict[str, Any]],
+    meta: dict[str, Any],
+    expected_feature_names: Mapping[str, Sequence[str]] | None,
+    feature_schema: str | None,
+) -> None:
+    """Refuse a bundle trained on another feature schema, or on other features for a set this monodock computes."""
+    schema = meta.get("feature_schema", "(none recorded)")
+    if feature_schema is not None and schema != feature_schema:
+        raise InputError(f"bundle was trained on feature schema {schema}; this monodock computes {feature_schema}")
+    if expected_feature_names is None:
+        return
+    common = [name for name in sets if name in expected_feature_names]
+    if not common:
+        raise InputError(
+            f"bundle has marker sets {', '.join(sets)}; this monodock computes {', '.join(expected_feature_names)}"
+        )
+    for name in common:
+        have = list(sets[name].get("feature_names", []))
+        want = list(expected_feature_names[name])
+        if have != want:
+            raise InputError(
+                f"bundle was trained on feature schema {schema} with {_describe(have, want)} for marker set "
+                f"{name}; this monodock computes {_describe(want, have)}"
+            )
+
+
+def _open_models(
+    p: Path, mf: Path, sets: dict[str, dict[str, Any]], segments: SegmentTable
+) -> tuple[dict[str, _Model], dict[str, list[_Model | None]]]:
+    """Per marker set, its depth model and its per-segment yaw models (None for a segment without one)."""
+    depth: dict[str, _Model] = {}
+    yaw: dict[str, list[_Model | None]] = {}
+    for name, entry in sets.items():
+        nf = len(entry["feature_names"])
+        depth_entry, yaw_entries = entry.get("depth"), entry.get("yaw")
+        if not isinstance(yaw_entries, list) or len(yaw_entries) != segments.count:
+            raise InputError(f"{mf} is malformed: marker set {name} needs {segments.count} yaw entries")
+        model = _open(p, depth_entry, nf, mf)
+        if model is None:
+            raise InputError(f"{mf} is malformed: marker set {name} has no depth model")
+        depth[name] = model
+        yaw[name] = [_open(p, e, nf, mf) for e in yaw_entries]
+    return depth, yaw
+
+
 class Bundle:
     """A loaded model bundle: predicts depth (m) and per-segment yaw (deg) with ONNX Runtime, one thread."""
 
@@ -157,69 +246,10 @@ class Bundle:
                 feature mismatch, or a model ONNX Runtime cannot load. One line saying which.
         """
         p = Path(path)
-        if not p.is_dir():
-            raise InputError(f"{p} is not a model bundle folder")
-        mf = p / BUNDLE_FILE
-        if not mf.is_file():
-            raise InputError(f"{p} is not a model bundle: it has no {BUNDLE_FILE}")
-        try:
-            manifest = load_json(mf, "bundle manifest")
-        except ConfigError as exc:
-            raise InputError(str(exc)) from None
-        version = manifest.get("schema_version")
-        if version != BUNDLE_SCHEMA_VERSION:
-            raise InputError(
-                f"{p} has bundle schema version {version}; this monodock reads version {BUNDLE_SCHEMA_VERSION}"
-            )
-        try:
-            intact = manifest.get(MANIFEST_DIGEST) == manifest_digest(manifest)
-        except (TypeError, ValueError):  # NaN or a value JSON cannot re-encode: not what export wrote
-            intact = False
-        if not intact:
-            raise InputError(f"{mf} does not match its own digest ({MANIFEST_DIGEST}): it was edited or corrupted")
-        meta = manifest.get("metadata")
-        sets = manifest.get("sets")
-        if not isinstance(meta, dict) or not isinstance(sets, dict) or not sets:
-            raise InputError(f"{mf} is malformed: 'metadata' or 'sets' is missing")
-        try:
-            segments = SegmentTable(**manifest["segments"])
-        except (KeyError, TypeError, ConfigError) as exc:
-            raise InputError(f"{mf} is malformed: bad 'segments' ({exc})") from None
-        for name, entry in sets.items():
-            if not isinstance(entry, dict) or not isinstance(entry.get("feature_names"), list):
-                raise InputError(f"{mf} is malformed: marker set {name} has no list of feature_names")
-
-        schema = meta.get("feature_schema", "(none recorded)")
-        if feature_schema is not None and schema != feature_schema:
-            raise InputError(f"bundle was trained on feature schema {schema}; this monodock computes {feature_schema}")
-        if expected_feature_names is not None:
-            common = [name for name in sets if name in expected_feature_names]
-            if not common:
-                raise InputError(
-                    f"bundle has marker sets {', '.join(sets)}; this monodock computes "
-                    f"{', '.join(expected_feature_names)}"
-                )
-            for name in common:
-                have = list(sets[name].get("feature_names", []))
-                want = list(expected_feature_names[name])
-                if have != want:
-                    raise InputError(
-                        f"bundle was trained on feature schema {schema} with {_describe(have, want)} for marker set "
-                        f"{name}; this monodock computes {_describe(want, have)}"
-                    )
-
-        depth: dict[str, _Model] = {}
-        yaw: dict[str, list[_Model | None]] = {}
-        for name, entry in sets.items():
-            nf = len(entry["feature_names"])
-            depth_entry, yaw_entries = entry.get("depth"), entry.get("yaw")
-            if not isinstance(yaw_entries, list) or len(yaw_entries) != segments.count:
-                raise InputError(f"{mf} is malformed: marker set {name} needs {segments.count} yaw entries")
-            model = _open(p, depth_entry, nf, mf)
-            if model is None:
-                raise InputError(f"{mf} is malformed: marker set {name} has no depth model")
-            depth[name] = model
-            yaw[name] = [_open(p, e, nf, mf) for e in yaw_entries]
+        mf, manifest = _read_manifest(p)
+        meta, sets, segments = _check_structure(manifest, mf)
+        _check_features(sets, meta, expected_feature_names, feature_schema)
+        depth, yaw = _open_models(p, mf, sets, segments)
         bundle = cls(p, manifest, segments, depth, yaw)
         # The calibration it was trained with is checked as its files would be, before any estimate (the part
         # that is there: a bundle lacking one is refused, naming it, where it is needed).

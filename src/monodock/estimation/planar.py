@@ -580,7 +580,7 @@ def _lm3(
 
 
 @kernel
-def _evaluate(
+def _evaluate(  # noqa: PLR0912 - a compiled kernel
     th: Any, problem: tuple[Any, ...], X: Any, N: Any, H: Any, g: Any
 ) -> tuple[bool, float]:  # pragma: no cover - compiled
     """The design X = [J | r] (pixel − target), N = XᵀWX, H = JᵀWJ (+Λ), g = JᵀWr (+Λe) at pose ``th``,
@@ -760,7 +760,25 @@ def _solve4(
         inf = np.full((3, 3), np.inf)
         return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles, *_offsets(th[3], axis))
     cost, _, _, X, N = current
-    n = len(parts.obj)
+    offsets = _offsets(th[3], axis)
+    return _fit4(pose, cost, X, N, len(parts.obj), info, pitch_info, iterations, converged, roles, offsets)
+
+
+def _fit4(
+    pose: DockPose,
+    cost: float,
+    X: NDArray[np.float64],
+    N: list[list[float]],
+    n: int,
+    info: list[list[float]] | None,
+    pitch_info: float,
+    iterations: int,
+    converged: bool,
+    roles: tuple[str, ...],
+    offsets: tuple[float, float],
+) -> PlanarFit:
+    """``_solve4``'s answer at its last evaluation: the (x, y, yaw) covariances with δ marginalised, by the
+    corners' noise model and by the residuals, the scale and the RMS."""
     dof = 2 * n - 4
     chi2 = N[4][4]
     scale = math.sqrt(chi2 / dof) if dof > 0 else math.nan
@@ -775,7 +793,7 @@ def _solve4(
     cov_res = _marginal3([[N[k][m] + s2 * lam4[k][m] for m in range(4)] for k in range(4)], s2)
     r = X[:, :, 4].ravel()
     rms = math.sqrt(float(r @ r) / n)
-    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles, *_offsets(th[3], axis))
+    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles, *offsets)
 
 
 def _offsets(delta: float, axis: int) -> tuple[float, float]:
@@ -958,7 +976,7 @@ def _board_lm(
 
 
 @kernel
-def _floor_start(
+def _floor_start(  # noqa: PLR0912 - a compiled kernel
     Z: Any, target: Any, mode: int, scale: float, rows: Any, lens: Any
 ) -> tuple[bool, Any]:  # pragma: no cover - compiled
     """A start for the planar fit, (x, y, yaw), from corner pixels ``target`` (N, 2), and whether it exists.

@@ -154,15 +154,18 @@ def write_dataset(path: str | os.PathLike[str], dataset: Dataset, *, force: bool
     write_bytes_atomic(path, buf.getvalue(), force=force)
 
 
-def read_dataset(path: str | os.PathLike[str]) -> Dataset:
-    """Read a dataset written by ``monodock label``; InputError when it is not one."""
-    p = Path(path)
+def _read_table(p: Path) -> pa.Table:
+    """The Parquet table of a dataset file; InputError when there is no file or it is not Parquet."""
     if not p.is_file():
         raise InputError(f"dataset not found: {p}")
     try:
-        table = pq.read_table(p)
+        return pq.read_table(p)
     except (pa.ArrowException, OSError) as exc:
         raise InputError(f"{p}: not a Parquet file ({str(exc).splitlines()[0]})") from None
+
+
+def _read_metadata(p: Path, table: pa.Table) -> dict[str, Any]:
+    """The table's ``monodock`` metadata, checked to be a JSON object of a schema this monodock reads."""
     raw_meta = (table.schema.metadata or {}).get(b"monodock")
     if raw_meta is None:
         raise InputError(f"{p}: not a monodock dataset (no 'monodock' metadata; write it with monodock label)")
@@ -174,38 +177,53 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
         raise InputError(f"{p}: metadata: expected a JSON object, got {type(meta).__name__}")
     if meta.get("schema") not in _READABLE_SCHEMAS:
         raise InputError(f"{p}: dataset schema {meta.get('schema')!r}, this monodock reads {DATASET_SCHEMA!r}")
+    return meta
+
+
+def _check_columns(p: Path, table: pa.Table, meta: dict[str, Any]) -> None:
+    """Refuse a table lacking a column its schema must have, or without rows."""
+    # An older schema lacks the columns added since; they read as NaN.
     optional = _NEW_IN_SCHEMA_2 if meta.get("schema") != DATASET_SCHEMA else ()
     missing = [n for n in dataset_columns() if n not in table.column_names and n not in optional]
     if missing:
         raise InputError(f"{p}: dataset lacks columns {', '.join(missing[:5])}{' …' if len(missing) > 5 else ''}")
     if table.num_rows == 0:
         raise InputError(f"{p}: the dataset has no rows")
-    cols: dict[str, NDArray[Any]] = {}
-    for n in dataset_columns():
-        if n not in table.column_names:
-            cols[n] = np.full(table.num_rows, -1 if n in _INT else np.nan, dtype=np.int64 if n in _INT else np.float64)
-            continue
-        col = table.column(n)
-        want = _arrow_type(n)
-        if col.type != want:
-            try:
-                col = col.cast(want)
-            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-                raise InputError(f"{p}: column {n} holds {col.type}, expected {want}") from None
-        if n in _STR:
-            cols[n] = np.array(col.to_pylist(), dtype=object)
-        elif n in _BOOL:
-            cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=bool)
-        elif n in _INT:
-            cols[n] = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
-        else:
-            values = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
-            # NaN is "none" (a marker not seen, a row without a label); anything else is pixels, metres, degrees or
-            # seconds, and far beyond MAX_DATASET_VALUE is a damaged file, not a measurement.
-            bad = np.flatnonzero(~np.isnan(values) & ~(np.abs(values) <= MAX_DATASET_VALUE))
-            if bad.size:
-                raise InputError(f"{p}: column {n}, row {bad[0]}: {values[bad[0]]:g} is not a plausible value")
-            cols[n] = values
+
+
+def _column_values(p: Path, table: pa.Table, n: str) -> NDArray[Any]:
+    """Column ``n`` as a numpy array of its type; -1 or NaN throughout when the file (an older schema) lacks it."""
+    if n not in table.column_names:
+        return np.full(table.num_rows, -1 if n in _INT else np.nan, dtype=np.int64 if n in _INT else np.float64)
+    col = table.column(n)
+    want = _arrow_type(n)
+    if col.type != want:
+        try:
+            col = col.cast(want)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            raise InputError(f"{p}: column {n} holds {col.type}, expected {want}") from None
+    if n in _STR:
+        return np.array(col.to_pylist(), dtype=object)
+    if n in _BOOL:
+        return np.asarray(col.to_numpy(zero_copy_only=False), dtype=bool)
+    if n in _INT:
+        return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
+    values = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+    # NaN is "none" (a marker not seen, a row without a label); anything else is pixels, metres, degrees or
+    # seconds, and far beyond MAX_DATASET_VALUE is a damaged file, not a measurement.
+    bad = np.flatnonzero(~np.isnan(values) & ~(np.abs(values) <= MAX_DATASET_VALUE))
+    if bad.size:
+        raise InputError(f"{p}: column {n}, row {bad[0]}: {values[bad[0]]:g} is not a plausible value")
+    return values
+
+
+def read_dataset(path: str | os.PathLike[str]) -> Dataset:
+    """Read a dataset written by ``monodock label``; InputError when it is not one."""
+    p = Path(path)
+    table = _read_table(p)
+    meta = _read_metadata(p, table)
+    _check_columns(p, table, meta)
+    cols = {n: _column_values(p, table, n) for n in dataset_columns()}
     dataset = Dataset(cols, meta, str(p))
     # The calibration the features were measured with is checked as its files would be, before any work.
     dataset.camera(), dataset.robot(), dataset.layout()
@@ -251,6 +269,56 @@ def _reason_kind(reason: str) -> str:
     return reason.split(" (", maxsplit=1)[0]
 
 
+def _markers_seen(raw: NDArray[np.float64]) -> str:
+    """The markers a raw feature vector saw, as the ``markers_seen`` column holds them ("m1 m2 m3")."""
+    return " ".join(m for m in ("m1", "m2", "m3") if raw[FEATURE_NAMES.index(f"{m}_seen")] == 1.0)
+
+
+def _label_one(
+    raw: NDArray[np.float64],
+    seen: str,
+    error: str,
+    scan: Any,
+    camera: CameraModel,
+    robot: RobotConfig,
+    run: LabelRun,
+) -> LidarLabel:
+    """The LiDAR label of one frame, or an invalid one saying why there is none (counting a missing marker 2)."""
+    if error:
+        return LidarLabel(reason=f"image unreadable: {error}")
+    if "m2" not in seen.split():
+        run.no_marker2 += 1
+        return LidarLabel(reason="marker 2 not detected")
+    if scan is None:
+        return LidarLabel(reason="no scan within the pairing tolerance")
+    corners = {
+        m: raw[[FEATURE_NAMES.index(f"{m}_{c}_{a}") for c in ("tl", "tr", "br", "bl") for a in ("u", "v")]]
+        for m in seen.split()
+    }
+    # The side markers' returns seed the face line too (they help when an occluder hides marker 2's).
+    others = [c.reshape(4, 2) for m, c in corners.items() if m != "m2"]
+    return label_frame(corners["m2"].reshape(4, 2), scan, camera, robot, other_corners=others)
+
+
+def _append_values(
+    cols: dict[str, list[Any]],
+    raw: NDArray[np.float64],
+    ref: NDArray[np.float64] | None,
+    lab: LidarLabel,
+    t: tuple[float, float, float] | None,
+) -> None:
+    """Append one row's features, refined corners (NaN when none), label and truth (NaN when none) to ``cols``."""
+    for name, value in zip(FEATURE_NAMES, raw, strict=True):
+        cols[name].append(float(value))
+    ref = ref if ref is not None else np.full(len(REFINED_CORNER_NAMES), np.nan)
+    for name, value in zip(REFINED_CORNER_NAMES, ref, strict=True):
+        cols[name].append(float(value))
+    for name, value in lab.row().items():
+        cols[name].append(value)
+    for name, value in zip(TRUTH_COLUMNS, t if t is not None else (math.nan,) * 3, strict=True):
+        cols[name].append(value)
+
+
 def label_frames(
     frames: list[tuple[int, float, NDArray[np.float64] | None, str]],
     scans: list[Any],
@@ -276,7 +344,6 @@ def label_frames(
         on_row: called with each row's index (progress).
     """
     cols: dict[str, list[Any]] = {n: [] for n in dataset_columns()}
-    roles = ("m1", "m2", "m3")
     for k, (index, stamp, features, error) in enumerate(frames):
         pair = int(pairing[k])
         run.images += 1
@@ -285,27 +352,13 @@ def label_frames(
             run.unreadable += 1
             seen = ""
         else:
-            seen = " ".join(m for m in roles if raw[FEATURE_NAMES.index(f"{m}_seen")] == 1.0)
+            seen = _markers_seen(raw)
         scan = scans[pair] if pair >= 0 else None
         if pair >= 0:
             run.paired += 1
         else:
             run.unpaired += 1
-        if error:
-            lab = LidarLabel(reason=f"image unreadable: {error}")
-        elif "m2" not in seen.split():
-            run.no_marker2 += 1
-            lab = LidarLabel(reason="marker 2 not detected")
-        elif scan is None:
-            lab = LidarLabel(reason="no scan within the pairing tolerance")
-        else:
-            corners = {
-                m: raw[[FEATURE_NAMES.index(f"{m}_{c}_{a}") for c in ("tl", "tr", "br", "bl") for a in ("u", "v")]]
-                for m in seen.split()
-            }
-            # The side markers' returns seed the face line too (they help when an occluder hides marker 2's).
-            others = [c.reshape(4, 2) for m, c in corners.items() if m != "m2"]
-            lab = label_frame(corners["m2"].reshape(4, 2), scan, camera, robot, other_corners=others)
+        lab = _label_one(raw, seen, error, scan, camera, robot, run)
         if lab.valid:
             run.labelled += 1
         else:
@@ -315,17 +368,8 @@ def label_frames(
         cols["scan_stamp"].append(float(scan.stamp) if scan is not None else math.nan)
         cols["paired"].append(pair >= 0)
         cols["markers_seen"].append(seen)
-        for name, value in zip(FEATURE_NAMES, raw, strict=True):
-            cols[name].append(float(value))
         ref = refined[k] if refined is not None else None
-        ref = ref if ref is not None else np.full(len(REFINED_CORNER_NAMES), np.nan)
-        for name, value in zip(REFINED_CORNER_NAMES, ref, strict=True):
-            cols[name].append(float(value))
-        for name, value in lab.row().items():
-            cols[name].append(value)
-        t = truth[k]
-        for name, value in zip(TRUTH_COLUMNS, t if t is not None else (math.nan,) * 3, strict=True):
-            cols[name].append(value)
+        _append_values(cols, raw, ref, lab, truth[k])
         if on_row is not None:
             on_row(k)
     return cols

@@ -690,7 +690,7 @@ def _bloom(
 
 
 @kernel
-def _fit_edges(t: Any, intensity: Any, w: Any, lim: Any) -> tuple[F32, F32, F32, F32]:  # pragma: no cover - compiled
+def _fit_edges(t: Any, intensity: Any, w: Any, lim: Any) -> tuple[F32, F32, F32, F32]:  # noqa: PLR0915 # pragma: no cover - compiled
     """Fit I(t) = B + (D - B) Phi((t - e) / s) to every profile: edge e, blur sigma s, contrast B - D, RMS.
 
     ``intensity`` (samples, profiles, sides), any real dtype; ``t`` and the weights ``w`` (samples or 1,

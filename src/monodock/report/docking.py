@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from matplotlib.artist import Artist
 from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import FancyArrowPatch, Polygon, Rectangle
 
@@ -39,6 +40,7 @@ from monodock.evaluation.dock_sim import (
 )
 from monodock.report.dock_runs import (
     REVERSE_COLOUR,
+    Phase,
     Variant,
     agreement_table,
     draw_path,
@@ -449,6 +451,114 @@ def trajectory_overview(
     plt.close(fig)
 
 
+_SeriesPanel = tuple[str, np.ndarray, np.ndarray, int | None]  # y label, times, values, tolerance index (or None)
+
+
+def _state_start_dots(ax: Axes, r: TrialResult, t: np.ndarray, ph: Sequence[Phase]) -> None:
+    """A dot on the top view where each state began; states that began at the same spot as concentric rings, the
+    first outermost."""
+    spots = [_uv(*r.path[nearest_index(t, phase.start)][:2]) for phase in ph]
+    clusters: list[list[int]] = []
+    for k, (u, v) in enumerate(spots):
+        near = [c for c in clusters if math.dist(spots[c[0]], (u, v)) < 0.03]
+        if near:
+            near[0].append(k)
+        else:
+            clusters.append([k])
+    for cluster in clusters:
+        for i, k in enumerate(cluster):
+            ax.plot(
+                *spots[k],
+                marker="o",
+                ms=6 + 4 * (len(cluster) - 1 - i),
+                mec="0.15",
+                mew=0.6,
+                color=state_colour(ph[k].state),
+                zorder=6 + 0.01 * i,
+                ls="none",
+            )
+
+
+def _frame_run_top(ax: Axes, r: TrialResult) -> None:
+    """The limits, aspect, labels and grid of a run's top view."""
+    u0, u1, v0, v1 = _limits([r], default=(-0.35, 0.35, -0.5, 0.25))
+    # Equal aspect in a tall panel: widen the narrower side so the panel is filled.
+    span_u, span_v = u1 - u0, v1 - v0
+    if span_u < span_v * 0.62:
+        grow = (span_v * 0.62 - span_u) / 2
+        u0, u1 = u0 - grow, u1 + grow
+    ax.set_aspect("equal")
+    ax.set_xlim(u0, u1)
+    ax.set_ylim(v0, v1)
+    ax.set_xlabel("← left of the axis (m)   |   right →", fontsize=8)
+    ax.set_ylabel("distance along the axis (m); charger face at 0", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.2)
+
+
+def _run_series(r: TrialResult, t: np.ndarray, robot: RobotConfig) -> list[_SeriesPanel]:
+    """The time series of a run: lateral error, gap to the face, heading (at the path's samples) and speed."""
+    p = np.asarray(r.path, dtype=float).reshape(-1, 3)
+    lateral = p[:, 1] * 100
+    gap = (-p[:, 0] - robot.front_offset) * 100
+    heading = np.degrees(p[:, 2])
+    t0, t1, speed = signed_speeds(r)
+    # The speed as steps: constant over each step between samples.
+    ts, speed = np.column_stack([t0, t1]).ravel(), np.repeat(speed, 2)
+    return [
+        ("lateral error, cm\n(+ left)", t, lateral, 0),
+        ("gap to the face, cm", t, gap, 1),
+        ("heading, °", t, heading, 2),
+        ("speed along the\nheading, m/s", ts, speed, None),
+    ]
+
+
+def _draw_run_series(
+    series: Sequence[Axes],
+    data: Sequence[_SeriesPanel],
+    ph: Sequence[Phase],
+    tolerances: tuple[float, float, float] | None,
+) -> None:
+    """Each time series in its panel over the states' shading, reversing filled, with its tolerance band dashed."""
+    for ax, (name, xs, ys, tol) in zip(series, data, strict=True):
+        for phase in ph:
+            ax.axvspan(phase.start, phase.end, color=state_colour(phase.state), alpha=0.35, lw=0, zorder=0)
+            ax.axvline(phase.start, color="0.5", lw=0.5, zorder=1)
+        if tol is None and len(ys):
+            ax.fill_between(xs, ys, 0, where=ys < 0, color=REVERSE_COLOUR, alpha=0.5, lw=0, zorder=2)
+        ax.plot(xs, ys, color="0.15", lw=1.1, zorder=3)
+        ax.axhline(0.0, color="0.4", lw=0.6, zorder=1)
+        if tolerances is not None and tol is not None:
+            band = tolerances[tol]
+            for s in (-1, 1) if tol != 1 else (1,):
+                ax.axhline(s * band, color="0.3", lw=0.7, ls="--", zorder=1)
+        ax.set_ylabel(name, fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.2)
+        if ax is not series[-1]:
+            ax.tick_params(labelbottom=False)
+
+
+def _state_legend(fig: Figure, ph: Sequence[Phase]) -> None:
+    """The states, in the order the run met them, as the legend of the dots and the shading."""
+    seen = list(dict.fromkeys(phase.state for phase in ph))
+    handles: list[Artist] = [Rectangle((0, 0), 1, 1, color=state_colour(s), alpha=0.6) for s in seen]
+    handles.append(Line2D([], [], color=REVERSE_COLOUR, ls=(0, (3, 1.5)), lw=1.8))
+    fig.legend(handles, [*seen, "reversing"], loc="lower center", ncol=min(len(handles), 8), fontsize=8, frameon=False)
+
+
+def _run_title(r: TrialResult, label: str) -> str:
+    """A run plot's title: its start region and executed case, outcome and final errors."""
+    executed = "none (never planned)" if r.classified_case is None else str(r.classified_case)
+    agree = "" if r.classified_case in (None, r.case) else " (not the start region's)"
+    outcome = "docked" if r.success else f"failed{f' ({r.failure})' if r.failure else ''}"
+    return (
+        f"{label}, trial {r.trial}: start region {r.case}, executed case {executed}{agree} — {outcome}; "
+        f"final lateral {r.lateral_cm:+.1f} cm, gap {r.longitudinal_cm:+.1f} cm, heading {r.heading_deg:+.1f}°, "
+        f"{r.time_s:.1f} s, {r.retries} retries"
+    )
+
+
 def run_plot(
     result: TrialResult,
     path: Path,
@@ -480,89 +590,16 @@ def run_plot(
         draw_path(top, r.path, color=colour, lw=1.4, alpha=0.85, arrow_every=0.25, arrow_size=10.0)
         draw_robot(top, Pose2D(*r.path[0]), robot, drive, color="0.35", alpha=0.6)
         draw_robot(top, Pose2D(*r.path[-1]), robot, drive, color="tab:green" if r.success else "tab:red")
-        # A dot where each state began; states that began at the same spot as concentric rings, the first outermost.
-        spots = [_uv(*r.path[nearest_index(t, phase.start)][:2]) for phase in ph]
-        clusters: list[list[int]] = []
-        for k, (u, v) in enumerate(spots):
-            near = [c for c in clusters if math.dist(spots[c[0]], (u, v)) < 0.03]
-            if near:
-                near[0].append(k)
-            else:
-                clusters.append([k])
-        for cluster in clusters:
-            for i, k in enumerate(cluster):
-                top.plot(
-                    *spots[k],
-                    marker="o",
-                    ms=6 + 4 * (len(cluster) - 1 - i),
-                    mec="0.15",
-                    mew=0.6,
-                    color=state_colour(ph[k].state),
-                    zorder=6 + 0.01 * i,
-                    ls="none",
-                )
+        _state_start_dots(top, r, t, ph)
     _mark_point_a(top, r, ms=9.0, label=True)
-    u0, u1, v0, v1 = _limits([r], default=(-0.35, 0.35, -0.5, 0.25))
-    # Equal aspect in a tall panel: widen the narrower side so the panel is filled.
-    span_u, span_v = u1 - u0, v1 - v0
-    if span_u < span_v * 0.62:
-        grow = (span_v * 0.62 - span_u) / 2
-        u0, u1 = u0 - grow, u1 + grow
-    top.set_aspect("equal")
-    top.set_xlim(u0, u1)
-    top.set_ylim(v0, v1)
-    top.set_xlabel("← left of the axis (m)   |   right →", fontsize=8)
-    top.set_ylabel("distance along the axis (m); charger face at 0", fontsize=8)
-    top.tick_params(labelsize=7)
-    top.grid(alpha=0.2)
+    _frame_run_top(top, r)
 
-    p = np.asarray(r.path, dtype=float).reshape(-1, 3)
-    lateral = p[:, 1] * 100
-    gap = (-p[:, 0] - robot.front_offset) * 100
-    heading = np.degrees(p[:, 2])
-    t0, t1, speed = signed_speeds(r)
-    # The speed as steps: constant over each step between samples.
-    ts, speed = np.column_stack([t0, t1]).ravel(), np.repeat(speed, 2)
-    data: list[tuple[str, np.ndarray, np.ndarray, int | None]] = [
-        ("lateral error, cm\n(+ left)", t, lateral, 0),
-        ("gap to the face, cm", t, gap, 1),
-        ("heading, °", t, heading, 2),
-        ("speed along the\nheading, m/s", ts, speed, None),
-    ]
-    for ax, (name, xs, ys, tol) in zip(series, data, strict=True):
-        for phase in ph:
-            ax.axvspan(phase.start, phase.end, color=state_colour(phase.state), alpha=0.35, lw=0, zorder=0)
-            ax.axvline(phase.start, color="0.5", lw=0.5, zorder=1)
-        if tol is None and len(ys):
-            ax.fill_between(xs, ys, 0, where=ys < 0, color=REVERSE_COLOUR, alpha=0.5, lw=0, zorder=2)
-        ax.plot(xs, ys, color="0.15", lw=1.1, zorder=3)
-        ax.axhline(0.0, color="0.4", lw=0.6, zorder=1)
-        if tolerances is not None and tol is not None:
-            band = tolerances[tol]
-            for s in (-1, 1) if tol != 1 else (1,):
-                ax.axhline(s * band, color="0.3", lw=0.7, ls="--", zorder=1)
-        ax.set_ylabel(name, fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.grid(alpha=0.2)
-        if ax is not series[-1]:
-            ax.tick_params(labelbottom=False)
+    _draw_run_series(series, _run_series(r, t, robot), ph, tolerances)
     series[-1].set_xlabel("time since the start, s", fontsize=8)
     if len(t):
         series[0].set_xlim(0.0, max(float(t[-1]), *(phase.end for phase in ph)) if ph else float(t[-1]) or 1.0)
-    # The states, in the order the run met them, as the legend of the dots and the shading.
-    seen = list(dict.fromkeys(phase.state for phase in ph))
-    handles: list[Artist] = [Rectangle((0, 0), 1, 1, color=state_colour(s), alpha=0.6) for s in seen]
-    handles.append(Line2D([], [], color=REVERSE_COLOUR, ls=(0, (3, 1.5)), lw=1.8))
-    fig.legend(handles, [*seen, "reversing"], loc="lower center", ncol=min(len(handles), 8), fontsize=8, frameon=False)
-    executed = "none (never planned)" if r.classified_case is None else str(r.classified_case)
-    agree = "" if r.classified_case in (None, r.case) else " (not the start region's)"
-    outcome = "docked" if r.success else f"failed{f' ({r.failure})' if r.failure else ''}"
-    fig.suptitle(
-        f"{label}, trial {r.trial}: start region {r.case}, executed case {executed}{agree} — {outcome}; "
-        f"final lateral {r.lateral_cm:+.1f} cm, gap {r.longitudinal_cm:+.1f} cm, heading {r.heading_deg:+.1f}°, "
-        f"{r.time_s:.1f} s, {r.retries} retries",
-        fontsize=9.5,
-    )
+    _state_legend(fig, ph)
+    fig.suptitle(_run_title(r, label), fontsize=9.5)
     fig.subplots_adjust(left=0.06, right=0.985, top=0.93, bottom=0.13)
     fig.savefig(path, dpi=100)
     plt.close(fig)

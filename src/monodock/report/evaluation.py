@@ -81,47 +81,62 @@ def headline_table(result: HeldoutResult) -> str:
     return head + "\n".join(lines) + "\n"
 
 
+def _paper_head(samples: PaperSamples, unit: str) -> list[str]:
+    """The column titles of Table 4 or 5: the papers' A-E for the methods that ran, then our extra columns."""
+    est = samples.estimates
+    head = ["idx", f"A: LiDAR ({unit})"]
+    if "regression" in est:
+        head += [f"B: regression ({unit})"]
+    if "pnp" in est:
+        head += [f"C: SolvePnP ({unit})"]
+    if "regression" in est:
+        head += ["D: \\|A-B\\|"]
+    if "pnp" in est:
+        head += ["E: \\|A-C\\|"]
+    if "board" in est:
+        head += [f"board PnP ({unit})"]
+    if samples.truth is not None:
+        head += [f"truth ({unit})"]
+    return head
+
+
+def _paper_row(
+    samples: PaperSamples, k: int, col: int, scale: float, fmt: str, sums: dict[str, list[float]]
+) -> list[str]:
+    """Sample ``k``'s cells in the columns of ``_paper_head``; its |A-B| and |A-C| are added to ``sums``."""
+    est = samples.estimates
+    a = samples.lidar[k, col] * scale
+    cells = [str(k + 1), format(a, fmt)]
+    b = est["regression"][k, col] * scale if "regression" in est else math.nan
+    c = est["pnp"][k, col] * scale if "pnp" in est else math.nan
+    if "regression" in est:
+        cells.append(format(b, fmt))
+    if "pnp" in est:
+        cells.append(format(c, fmt))
+    if "regression" in est:
+        cells.append(format(abs(a - b), fmt))
+        sums["D"].append(abs(a - b))
+    if "pnp" in est:
+        cells.append(format(abs(a - c), fmt))
+        sums["E"].append(abs(a - c))
+    if "board" in est:
+        cells.append(format(est["board"][k, col] * scale, fmt))
+    if samples.truth is not None:
+        cells.append(format(samples.truth[k, col] * scale, fmt))
+    return cells
+
+
 def paper_tables(samples: PaperSamples) -> tuple[str, str]:
     """Tables 4 and 5 of the paper (depth in m, angle in °): LiDAR (A), regression (B), SolvePnP (C), |A-B| (D),
     |A-C| (E), and our extra columns (board PnP, the simulator's truth)."""
     est = samples.estimates
     tables = []
     for col, unit, scale, fmt in ((0, "m", 1.0, ".3f"), (2, "°", math.degrees(1.0), ".2f")):
-        head = ["idx", f"A: LiDAR ({unit})"]
-        if "regression" in est:
-            head += [f"B: regression ({unit})"]
-        if "pnp" in est:
-            head += [f"C: SolvePnP ({unit})"]
-        if "regression" in est:
-            head += ["D: \\|A-B\\|"]
-        if "pnp" in est:
-            head += ["E: \\|A-C\\|"]
-        if "board" in est:
-            head += [f"board PnP ({unit})"]
-        if samples.truth is not None:
-            head += [f"truth ({unit})"]
+        head = _paper_head(samples, unit)
         lines = ["| " + " | ".join(head) + " |", "|" + "---:|" * len(head)]
         sums: dict[str, list[float]] = {"D": [], "E": []}
         for k in range(len(samples.rows)):
-            a = samples.lidar[k, col] * scale
-            cells = [str(k + 1), format(a, fmt)]
-            b = est["regression"][k, col] * scale if "regression" in est else math.nan
-            c = est["pnp"][k, col] * scale if "pnp" in est else math.nan
-            if "regression" in est:
-                cells.append(format(b, fmt))
-            if "pnp" in est:
-                cells.append(format(c, fmt))
-            if "regression" in est:
-                cells.append(format(abs(a - b), fmt))
-                sums["D"].append(abs(a - b))
-            if "pnp" in est:
-                cells.append(format(abs(a - c), fmt))
-                sums["E"].append(abs(a - c))
-            if "board" in est:
-                cells.append(format(est["board"][k, col] * scale, fmt))
-            if samples.truth is not None:
-                cells.append(format(samples.truth[k, col] * scale, fmt))
-            lines.append("| " + " | ".join(cells) + " |")
+            lines.append("| " + " | ".join(_paper_row(samples, k, col, scale, fmt, sums)) + " |")
         mean = ["mean", ""] + [""] * (("regression" in est) + ("pnp" in est))
         if sums["D"]:
             mean.append(format(float(np.mean(sums["D"])), fmt))

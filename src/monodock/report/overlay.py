@@ -28,6 +28,72 @@ def _pt(p: NDArray[np.float64], scale: float) -> tuple[int, int]:
     return int(round((p[0] + 0.5) * scale * 16 - 8)), int(round((p[1] + 0.5) * scale * 16 - 8))
 
 
+def _draw_lidar(
+    out: np.ndarray,
+    shape: tuple[int, ...],
+    lidar_px: NDArray[np.float64],
+    lidar_selected: NDArray[np.bool_] | None,
+    scale: float,
+) -> None:
+    """The LiDAR points inside the (unscaled) image of ``shape``: blue dots, larger magenta ones where selected."""
+    chosen = lidar_selected if lidar_selected is not None else np.zeros(len(lidar_px), bool)
+    h, w = shape
+    for p, sel in zip(lidar_px, chosen, strict=True):
+        if np.all(np.isfinite(p)) and -0.5 <= p[0] < w - 0.5 and -0.5 <= p[1] < h - 0.5:
+            cv2.circle(out, _pt(p, scale), (3 if sel else 2) * 16, _MAGENTA if sel else _BLUE, -1, cv2.LINE_AA, 4)
+
+
+def _draw_truth(out: np.ndarray, truth_corners: Mapping[str, NDArray[np.float64]], scale: float) -> None:
+    """The true corners as red crosses, skipping non-finite ones."""
+    for c in truth_corners.values():
+        for p in c:
+            if np.all(np.isfinite(p)):
+                cv2.drawMarker(out, _pt(p, scale), _RED, cv2.MARKER_CROSS, 9 * 16, 1, cv2.LINE_AA)
+
+
+def _draw_dock_axes(
+    out: np.ndarray,
+    base_T_dock: NDArray[np.float64],
+    layout: DockLayout,
+    camera: CameraModel,
+    robot: RobotConfig,
+    scale: float,
+) -> None:
+    """The estimated dock frame's axes as arrows (x red, y green, z blue), when all are in front of the camera."""
+    optical_T_dock = transforms.invert(robot.base_T_optical()) @ base_T_dock
+    s = layout.marker_size * 1.5
+    pts3 = transforms.apply(optical_T_dock, np.array([[0, 0, 0], [s, 0, 0], [0, s, 0], [0, 0, s]], float))
+    if np.all(pts3[:, 2] > 0.01):
+        px = camera.project(pts3)
+        o = _pt(px[0], scale)
+        for p, colour in zip(px[1:], (_RED, _GREEN, _BLUE), strict=True):
+            cv2.arrowedLine(out, o, _pt(p, scale), colour, 2, cv2.LINE_AA, shift=4, tipLength=0.15)
+
+
+def _caption_lines(detection: Detection, estimate: PoseEstimate | None) -> list[str]:
+    """The caption's text: the estimate (or why there is none) and the ids the detection ignored."""
+    lines = []
+    if estimate is not None:
+        if estimate.pose is not None:
+            p = estimate.pose
+            lines.append(f"{estimate.method}: x {p.x:.3f} m  y {p.y:+.3f} m  yaw {p.yaw_deg:+.2f} deg")
+        else:
+            lines.append(f"{estimate.method}: no estimate ({estimate.reason})")
+    if detection.ignored_ids:
+        lines.append("ignored ids: " + ", ".join(str(i) for i in detection.ignored_ids))
+    return lines
+
+
+def _draw_caption(out: np.ndarray, lines: list[str]) -> None:
+    """``lines`` in white at the bottom of ``out``, over a darkened strip."""
+    if lines:
+        top = out.shape[0] - 12 - 22 * len(lines)
+        out[top:, :] = (out[top:, :] * 0.3).astype(np.uint8)
+    for i, text in enumerate(lines):
+        y = out.shape[0] - 12 - 22 * (len(lines) - 1 - i)
+        cv2.putText(out, text, (10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.6, _WHITE, 1, cv2.LINE_AA)
+
+
 def draw_overlay(
     image: NDArray[np.uint8],
     detection: Detection,
@@ -57,40 +123,12 @@ def draw_overlay(
         label = f"m{layout.marker(role).number} id {obs.marker_id}"
         cv2.putText(out, label, (x, max(12, y - 6)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, _YELLOW, 1, cv2.LINE_AA)
     if lidar_px is not None:
-        chosen = lidar_selected if lidar_selected is not None else np.zeros(len(lidar_px), bool)
-        h, w = image.shape[:2]
-        for p, sel in zip(lidar_px, chosen, strict=True):
-            if np.all(np.isfinite(p)) and -0.5 <= p[0] < w - 0.5 and -0.5 <= p[1] < h - 0.5:
-                cv2.circle(out, _pt(p, scale), (3 if sel else 2) * 16, _MAGENTA if sel else _BLUE, -1, cv2.LINE_AA, 4)
+        _draw_lidar(out, image.shape[:2], lidar_px, lidar_selected, scale)
     if truth_corners:
-        for c in truth_corners.values():
-            for p in c:
-                if np.all(np.isfinite(p)):
-                    cv2.drawMarker(out, _pt(p, scale), _RED, cv2.MARKER_CROSS, 9 * 16, 1, cv2.LINE_AA)
+        _draw_truth(out, truth_corners, scale)
     if estimate is not None and estimate.base_T_dock is not None and camera is not None and robot is not None:
-        optical_T_dock = transforms.invert(robot.base_T_optical()) @ estimate.base_T_dock
-        s = layout.marker_size * 1.5
-        pts3 = transforms.apply(optical_T_dock, np.array([[0, 0, 0], [s, 0, 0], [0, s, 0], [0, 0, s]], float))
-        if np.all(pts3[:, 2] > 0.01):
-            px = camera.project(pts3)
-            o = _pt(px[0], scale)
-            for p, colour in zip(px[1:], (_RED, _GREEN, _BLUE), strict=True):
-                cv2.arrowedLine(out, o, _pt(p, scale), colour, 2, cv2.LINE_AA, shift=4, tipLength=0.15)
-    lines = []
-    if estimate is not None:
-        if estimate.pose is not None:
-            p = estimate.pose
-            lines.append(f"{estimate.method}: x {p.x:.3f} m  y {p.y:+.3f} m  yaw {p.yaw_deg:+.2f} deg")
-        else:
-            lines.append(f"{estimate.method}: no estimate ({estimate.reason})")
-    if detection.ignored_ids:
-        lines.append("ignored ids: " + ", ".join(str(i) for i in detection.ignored_ids))
-    if lines:
-        top = out.shape[0] - 12 - 22 * len(lines)
-        out[top:, :] = (out[top:, :] * 0.3).astype(np.uint8)
-    for i, text in enumerate(lines):
-        y = out.shape[0] - 12 - 22 * (len(lines) - 1 - i)
-        cv2.putText(out, text, (10, y), cv2.FONT_HERSHEY_SIMPLEX, 0.6, _WHITE, 1, cv2.LINE_AA)
+        _draw_dock_axes(out, estimate.base_T_dock, layout, camera, robot, scale)
+    _draw_caption(out, _caption_lines(detection, estimate))
     return np.asarray(out, dtype=np.uint8)
 
 

@@ -478,7 +478,7 @@ def frame_geometry(
 
 
 @kernel
-def tile_candidates(
+def tile_candidates(  # noqa: PLR0912 - a compiled kernel
     polys: NDArray[np.float64], poly_counts: NDArray[np.int64], patch_polys: NDArray[np.float64],
     patch_counts: NDArray[np.int64], patch_surface: NDArray[np.int64], surf: NDArray[np.float64],
     tile_boxes: NDArray[np.float64],
@@ -607,7 +607,7 @@ def _sample(
 
 
 @kernel
-def _by_area(
+def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
     r: int, c: int, rays: NDArray[np.float64], surf: NDArray[np.float64], patch_start: NDArray[np.int64],
     patches: NDArray[np.float64], cells: NDArray[np.float64], no_hit: float, polys: NDArray[np.float64],
     poly_counts: NDArray[np.int64], boxes: NDArray[np.float64], candidates: NDArray[np.int64], tile: int,
