@@ -364,6 +364,16 @@ def _lens_problem(camera: CameraModel) -> str | None:
         # 0.4 m or 46 m too far).
         spread = np.ptp(rays[: len(border)], axis=0)
         scale = spread * np.array([camera.fx / w, camera.fy / h])
+        # Each side on its own too: a decentred lens (a tangential term of 0.15) can keep the whole field's width
+        # and still push one side 2.3 times out, where markers would be read at the wrong bearing.
+        edge = rays[: len(border)]
+        lens_sides = np.array([edge[:, 0].min(), edge[:, 0].max(), edge[:, 1].min(), edge[:, 1].max()])
+        left, right = (-0.5 - camera.cx) / camera.fx, (w - 0.5 - camera.cx) / camera.fx
+        top, bottom = (-0.5 - camera.cy) / camera.fy, (h - 0.5 - camera.cy) / camera.fy
+        pinhole = np.array([left, right, top, bottom])
+        informative = np.abs(pinhole) > 0.05  # a side the principal point sits on says nothing
+        sides = (lens_sides / np.where(informative, pinhole, 1.0))[informative]
+        scale = np.concatenate([scale, sides])
         if not np.all((scale >= FIELD_SCALE_RANGE[0]) & (scale <= FIELD_SCALE_RANGE[1])):
             worst_scale = float(scale[np.argmax(np.abs(np.log(np.maximum(scale, 1e-300))))])
             return (
