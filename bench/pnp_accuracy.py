@@ -46,7 +46,7 @@ CHUNK = 20
 PAPERS_NOTE = (
     "For reference, the papers' headline (Oh & Kim, Sensors 2025), mean errors over their test set: "
     "SolvePnP 58.54 cm depth, 6.64° angle; their regression 1.18 cm depth, 3.11° angle "
-    "(their SolvePnP was given a wrong calibration, see DESIGN.md; here every method has the true one)."
+    "(their SolvePnP was given a wrong calibration, see docs/benchmarks.md; here every method has the true one)."
 )
 
 

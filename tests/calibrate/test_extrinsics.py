@@ -172,7 +172,7 @@ def test_dock_recording_recovers_x_y_yaw_and_labels(dock_recording: Path) -> Non
     assert len(dx) >= 8
     # Depth from the face line: less than the ~1 cm depth label noise. The papers' nearest-point depth and the
     # yaw over one marker's width hang on which few points fall across the marker (~8 deg a frame for yaw,
-    # DESIGN.md): a mount a fraction of a degree off can swap the nearest point for its neighbour, and that
+    # docs/benchmarks.md): a mount a fraction of a degree off can swap the nearest point for its neighbour, and that
     # frame moves by up to the neighbour's range difference; typically it moves by the mount's own error.
     # (Over 10 recordings of this drive, seeds 4-13, the largest nearest-point move of 12 frames was
     # 0.27-2.86 cm with the numpy renderer and 0.50-2.84 cm with the compiled one; its median 0.23-0.29 cm

@@ -1,6 +1,6 @@
 """The files a user touches (camera, dock layout, robot) and the frame conventions behind them.
 
-Ground truth: the literal file formats of ROS camera_calibration_parsers, OpenCV FileStorage and DESIGN.md,
+Ground truth: the literal file formats of ROS camera_calibration_parsers, OpenCV FileStorage and docs/user-guide.md,
 the URDF roll/pitch/yaw convention and the REP 103 optical frame, written out independently here.
 """
 
@@ -192,7 +192,7 @@ def test_camera_filestorage_without_camera_matrix_raises(tmp_path: Path) -> None
 
 # --- dock layout --------------------------------------------------------------------------------
 
-DESIGN_LAYOUT_YAML = """\
+GUIDE_LAYOUT_YAML = """\
 dictionary: DICT_4X4_50
 marker_size: 0.10
 markers:
@@ -209,8 +209,8 @@ def _write(tmp_path: Path, name: str, text: str) -> Path:
 
 
 def test_layout_design_example_loads(tmp_path: Path) -> None:
-    """DESIGN.md's layout YAML gives the stated dictionary, size, ids and marker centres."""
-    layout = DockLayout.load(_write(tmp_path, "layout.yaml", DESIGN_LAYOUT_YAML))
+    """The user guide's layout YAML gives the stated dictionary, size, ids and marker centres."""
+    layout = DockLayout.load(_write(tmp_path, "layout.yaml", GUIDE_LAYOUT_YAML))
 
     assert layout.dictionary == "DICT_4X4_50"
     assert layout.marker_size == pytest.approx(0.10)
@@ -236,8 +236,8 @@ def test_layout_design_example_loads(tmp_path: Path) -> None:
 )
 def test_layout_errors_name_the_problem(tmp_path: Path, old: str, new: str, pattern: str) -> None:
     """Each broken layout raises ConfigError whose message names the problem."""
-    assert old in DESIGN_LAYOUT_YAML
-    path = _write(tmp_path, "bad.yaml", DESIGN_LAYOUT_YAML.replace(old, new, 1))
+    assert old in GUIDE_LAYOUT_YAML
+    path = _write(tmp_path, "bad.yaml", GUIDE_LAYOUT_YAML.replace(old, new, 1))
 
     with pytest.raises(ConfigError, match=pattern):
         DockLayout.load(path)
@@ -268,7 +268,7 @@ def test_layout_dict_round_trip() -> None:
 
 # --- robot --------------------------------------------------------------------------------------
 
-DESIGN_ROBOT_YAML = """\
+GUIDE_ROBOT_YAML = """\
 camera_mount: {x: 0.17, y: 0.0, z: 0.25, roll: 0.0, pitch: 0.0, yaw: 0.0}
 laser_mount:  {x: 0.17, y: 0.0, z: 0.20, roll: 0.0, pitch: 0.0, yaw: 0.0}
 front_offset: 0.34
@@ -276,8 +276,8 @@ front_offset: 0.34
 
 
 def test_robot_design_example_loads(tmp_path: Path) -> None:
-    """DESIGN.md's robot YAML gives the stated mounts and front_offset."""
-    robot = RobotConfig.load(_write(tmp_path, "robot.yaml", DESIGN_ROBOT_YAML))
+    """The user guide's robot YAML gives the stated mounts and front_offset."""
+    robot = RobotConfig.load(_write(tmp_path, "robot.yaml", GUIDE_ROBOT_YAML))
 
     assert robot.camera_mount == Mount(0.17, 0.0, 0.25, 0.0, 0.0, 0.0)
     assert robot.laser_mount == Mount(0.17, 0.0, 0.20, 0.0, 0.0, 0.0)
@@ -288,7 +288,7 @@ def test_robot_design_example_loads(tmp_path: Path) -> None:
 
 def test_robot_without_front_offset_raises(tmp_path: Path) -> None:
     """A robot file missing front_offset is a ConfigError naming the field."""
-    text = DESIGN_ROBOT_YAML.replace("front_offset: 0.34\n", "")
+    text = GUIDE_ROBOT_YAML.replace("front_offset: 0.34\n", "")
     with pytest.raises(ConfigError, match="front_offset"):
         RobotConfig.load(_write(tmp_path, "robot.yaml", text))
 

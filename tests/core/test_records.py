@@ -91,7 +91,9 @@ def test_a_file_written_before_a_field_existed_reads_with_its_default() -> None:
         (lambda r: r["inner"].update(a="1.5"), "Outer.inner.a: expected a number, got '1.5'"),
         (lambda r: r.update(flag=1), "Outer.flag: expected true or false, got 1"),
         (lambda r: r["counts"].update(total=True), "Outer.counts.total: expected an integer, got True"),
-        (lambda r: r.update(by_case={"three": {"a": 1.0, "b": None}}), "Outer.by_case: expected an integer"),
+        (lambda r: r.update(by_case={"three": {"a": 1.0, "b": None}}), "Outer.by_case: expected an integer key"),
+        (lambda r: r.update(by_case={"3": {"a": 1.0, "b": None}, "4": {"a": "x", "b": None}}), "Outer.by_case.4.a:"),
+        (lambda r: r["counts"].update(total="4"), "Outer.counts.total: expected an integer, got '4'"),
         (lambda r: r.update(inner=[1.0]), "Outer.inner: expected a mapping, got list"),
     ],
 )
@@ -157,3 +159,43 @@ def test_a_dock_sim_summary_from_before_issue_16_reads_with_zero_counts() -> Non
     assert summary.settings.planner == "monodock"
     assert summary.filter["board"].all.nees_mean == 3.1
     assert summary.filter["board"].bands[0].depth_cm == (25, 50)
+
+
+class Side(enum.Enum):
+    LEFT = "left"
+    RIGHT = "right"
+
+
+@dataclass(frozen=True)
+class Keyed:
+    by_side: Mapping[Side, int]
+    count: int
+    ratio: float
+
+
+def test_enum_keys_whole_floats_and_nan_round_trip() -> None:
+    """Enum keys are written by value; an integer written as 2.0 by another tool reads; NaN is null and back."""
+    keyed = Keyed({Side.LEFT: 1, Side.RIGHT: 2}, 3, float("nan"))
+    record = to_record(keyed)
+    assert record["by_side"] == {"left": 1, "right": 2}
+    from monodock.core.config import json_text
+
+    back = from_record(Keyed, json.loads(json_text({**record, "count": 3.0})))
+    assert back.by_side == keyed.by_side
+    assert back.count == 3
+    assert back.ratio != back.ratio  # NaN
+
+
+def test_a_type_the_converter_does_not_know_is_a_programming_error() -> None:
+    @dataclass(frozen=True)
+    class Odd:
+        either: int | str
+
+    @dataclass(frozen=True)
+    class Spread:
+        rest: Mapping[str, int] = field(metadata=file_key(""))
+
+    with pytest.raises(TypeError):
+        from_record(Odd, {"either": 1})
+    with pytest.raises(TypeError):
+        from_record(Spread, {"a": 1})

@@ -152,8 +152,9 @@ def plausible_camera(data: dict[str, Any]) -> bool:
         cam = CameraModel.from_ros_dict(data)
     except Exception:
         return False
-    # Invertible over the image, as the loader promises: every pixel corner's ray projects back onto it within
-    # 0.1 px (a strong real lens: ~0.01 px). Not the renderer's 1e-6 px, which only the simulator needs.
+    # Invertible over the image to the loader's 0.1 px (a strong real lens: ~0.01 px), here at every pixel corner
+    # where the loader samples the border and a grid: a lens that fails between its samples is a finding. Not the
+    # renderer's 1e-6 px, which only the simulator needs.
     u, v = np.meshgrid(np.arange(w + 1) - 0.5, np.arange(h + 1) - 0.5)
     corners = np.stack([u.ravel(), v.ravel()], axis=1)
     with np.errstate(all="ignore"):

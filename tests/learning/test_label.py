@@ -57,7 +57,7 @@ def test_labels_match_truth_within_lidar_noise() -> None:
     assert np.mean(np.abs(dym)) < 0.004
     assert np.mean(np.abs(dxl)) < 0.003
     assert np.mean(np.abs(dy)) < 0.002
-    # The marker-2 line: unbiased, but several degrees off a frame over one marker's width (DESIGN.md).
+    # The marker-2 line: unbiased, but several degrees off a frame over one marker's width (docs/benchmarks.md).
     assert abs(np.mean(dyaw_marker)) < 2.5
     assert 2.0 < np.mean(np.abs(dyaw_marker)) < 12.0
     # The face line: ~0.4 degrees.
@@ -145,7 +145,7 @@ def _dock_points(sim: Simulator, pose: DockPose, ranges: np.ndarray, angles: np.
 
 
 def test_face_line_angle_is_several_times_better_than_the_marker_line_at_1_to_2_m() -> None:
-    """DESIGN.md: a line over one marker is ~8 degrees off, over the 60 cm face ~0.4; against truth."""
+    """A line over one marker is ~8 degrees off, over the 60 cm face ~0.4; against truth."""
     sim = Simulator(seed=31)  # the default LiDAR: 1 cm range noise, 0.5 degree beams, 1 % dropouts
     poses = [sim.sample_pose(PoseDistribution(depth=(1.0, 2.0))) for _ in range(80)]
     rows = [(p, _scan_label(sim, p, i)) for i, p in enumerate(poses)]

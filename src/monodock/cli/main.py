@@ -1,4 +1,4 @@
-"""The ``monodock`` command line: sub-commands that mirror the pipeline (DESIGN.md), one module each."""
+"""The ``monodock`` command line: sub-commands that mirror the pipeline (docs/architecture.md), one module each."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The dock layout: which ArUco markers the charger carries, how big, and where (DESIGN.md).
+"""The dock layout: which ArUco markers the charger carries, how big, and where (docs/architecture.md).
 
 Marker corners follow OpenCV's ArUco order as seen by a robot facing the charger: top-left, top-right,
 bottom-right, bottom-left. In the ``dock`` frame (x into the charger, y left, z up) a marker centred at
@@ -99,7 +99,7 @@ class DockLayout:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], source: str = "layout") -> DockLayout:
-        """Build from the YAML mapping of DESIGN.md; errors name the field."""
+        """Build from the layout YAML mapping (docs/user-guide.md); errors name the field."""
         f = Fields(data, source)
         dictionary = f.string("dictionary")
         if not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
@@ -130,7 +130,7 @@ class DockLayout:
         return cls.from_dict(load_yaml(path, "layout"), str(path))
 
     def to_dict(self) -> dict[str, Any]:
-        """The YAML mapping of DESIGN.md."""
+        """The layout YAML mapping (docs/user-guide.md)."""
         out: dict[str, Any] = {"dictionary": self.dictionary, "marker_size": self.marker_size}
         out["markers"] = {m.role: {"id": m.id, "y": m.y, "z": m.z} for m in self.markers}
         return out

@@ -20,7 +20,7 @@ def wrap_angle(angle: float) -> float:
 
 @dataclass(frozen=True)
 class DockPose:
-    """Pose of the ``dock`` frame in ``base_link`` on the floor (DESIGN.md).
+    """Pose of the ``dock`` frame in ``base_link`` on the floor (docs/architecture.md, frames and contracts).
 
     Attributes:
         x: the papers' depth D in metres: how far ahead of base_link the docking point is.

@@ -2,11 +2,14 @@
 
 The result types (dock-sim's summary, the robustness sweep's) are dataclasses; their files are JSON. Instead of a
 hand-written ``to_dict``/``from_dict`` per type, ``to_record`` and ``from_record`` walk the fields by their type
-hints: numbers, strings, booleans, None, enums (by value), tuples, lists, mappings (int or str keys; JSON keys
-are strings) and nested dataclasses. A field's file key is its name, or ``field(metadata=file_key("a.b"))``: a dotted
-key nests it (``retries.total``), an empty key spreads a nested dataclass's keys into its parent's. A key absent
-from a file takes the field's default (files written before the field existed stay readable); one without a
-default is an error naming the key.
+hints: numbers, strings, booleans, None, enums (by value), tuples, lists, mappings (str, int or enum keys; JSON
+keys are strings) and nested dataclasses. A ``float`` written as NaN or ±inf is null in the file (``json_text``)
+and reads back as NaN; a ``float | None`` reads null as None. A field's file key is its name, or
+``field(metadata=file_key("a.b"))``: a dotted key nests it (``retries.total``; a key cannot hold a dot), an empty
+key spreads a nested dataclass's keys into its parent's (a spread mapping, e.g. one entry per method, can be
+written but not read back: its keys cannot be told from the parent's). A key absent from a file takes the field's
+default (files written before the field existed stay readable); one without a default is an error naming the key.
+A type the converter does not know is a TypeError (a programming error), never a user's one-line error.
 """
 
 from __future__ import annotations
@@ -56,7 +59,7 @@ def to_record(value: Any) -> Any:
     if isinstance(value, enum.Enum):
         return value.value
     if isinstance(value, Mapping):
-        return {str(k): to_record(v) for k, v in value.items()}
+        return {str(k.value if isinstance(k, enum.Enum) else k): to_record(v) for k, v in value.items()}
     if isinstance(value, (tuple, list)):
         return [to_record(v) for v in value]
     return value
@@ -102,6 +105,8 @@ def _dataclass(cls: type[Any], data: Any, where: str) -> Any:
         if not f.init:
             continue
         name = _key_of(f)
+        if name == "" and typing.get_origin(hints[f.name]) in (dict, Mapping):
+            raise TypeError(f"{cls.__name__}.{f.name}: a spread mapping cannot be read back")
         raw = data if name == "" else _lookup(data, name)
         if raw is _MISSING:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
@@ -117,8 +122,10 @@ def _convert(tp: Any, data: Any, where: str) -> Any:
         options = typing.get_args(tp)
         if data is None and type(None) in options:
             return None
-        (inner,) = [o for o in options if o is not type(None)]
-        return _convert(inner, data, where)
+        inner = [o for o in options if o is not type(None)]
+        if len(inner) != 1:
+            raise TypeError(f"{where}: only X | None unions are supported, not {tp!r}")
+        return _convert(inner[0], data, where)
     if dataclasses.is_dataclass(tp):
         return _dataclass(typing.cast(type[Any], tp), data, where)
     if isinstance(tp, type) and issubclass(tp, enum.Enum):
@@ -141,8 +148,18 @@ def _convert(tp: Any, data: Any, where: str) -> Any:
         if not isinstance(data, Mapping):
             raise InputError(f"{where}: expected a mapping, got {type(data).__name__}")
         k_tp, v_tp = typing.get_args(tp) or (str, Any)
-        return {_convert(k_tp, k, where): _convert(v_tp, v, f"{where}.{k}") for k, v in data.items()}
+        return {_mapping_key(k_tp, k, where): _convert(v_tp, v, f"{where}.{k}") for k, v in data.items()}
     return _scalar(tp, data, where)
+
+
+def _mapping_key(tp: Any, data: Any, where: str) -> Any:
+    """A mapping's key from its JSON text: an int key is written as its digits."""
+    if tp is int and isinstance(data, str):
+        try:
+            return int(data)
+        except ValueError:
+            raise InputError(f"{where}: expected an integer key, got {data!r}") from None
+    return _convert(tp, data, where)
 
 
 def _scalar(tp: Any, data: Any, where: str) -> Any:
@@ -153,12 +170,10 @@ def _scalar(tp: Any, data: Any, where: str) -> Any:
             raise InputError(f"{where}: expected true or false, got {data!r}")
         return data
     if tp is int:
-        if isinstance(data, bool) or not isinstance(data, (int, str)):
+        whole = isinstance(data, float) and data.is_integer()  # 2.0: an integer another writer wrote as a float
+        if isinstance(data, bool) or not (isinstance(data, int) or whole):
             raise InputError(f"{where}: expected an integer, got {data!r}")
-        try:
-            return int(data)  # mapping keys come back from JSON as strings
-        except ValueError:
-            raise InputError(f"{where}: expected an integer, got {data!r}") from None
+        return int(data)
     if tp is float:
         if data is None:
             return math.nan
@@ -169,4 +184,4 @@ def _scalar(tp: Any, data: Any, where: str) -> Any:
         if not isinstance(data, str):
             raise InputError(f"{where}: expected a string, got {data!r}")
         return data
-    raise InputError(f"{where}: cannot read a {tp!r}")  # pragma: no cover - a result type the converter lacks
+    raise TypeError(f"{where}: the converter cannot read a {tp!r}")

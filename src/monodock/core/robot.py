@@ -90,7 +90,7 @@ class RobotConfig:
 
     @classmethod
     def default(cls) -> RobotConfig:
-        """The papers' robot: camera 17 cm behind the front edge (DESIGN.md's example)."""
+        """The papers' robot: camera 17 cm behind the front edge (the robot file's example, docs/user-guide.md)."""
         return cls()
 
     def base_T_camera_link(self) -> NDArray[np.float64]:
@@ -109,7 +109,7 @@ class RobotConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], source: str = "robot") -> RobotConfig:
-        """Build from the YAML mapping of DESIGN.md; errors name the field."""
+        """Build from the robot YAML mapping (docs/user-guide.md); errors name the field."""
         f = Fields(data, source)
         d = cls()
         try:
@@ -141,7 +141,7 @@ class RobotConfig:
         return cls.from_dict(load_yaml(path, "robot"), str(path))
 
     def to_dict(self) -> dict[str, Any]:
-        """The YAML mapping of DESIGN.md."""
+        """The robot YAML mapping (docs/user-guide.md)."""
         return {
             "camera_mount": self.camera_mount.to_dict(),
             "laser_mount": self.laser_mount.to_dict(),

@@ -1,6 +1,6 @@
 """The papers' eight docking cases, Point A, and the manoeuvre each planner makes of them.
 
-Everything here lives in the ``dock`` frame (DESIGN.md): x normal to the charger face and pointing into it,
+Everything here lives in the ``dock`` frame (docs/architecture.md): x normal to the charger face and pointing into it,
 y to the left, the face at x = 0. The robot approaches from x < 0 and is docked at (-front_offset, 0, 0).
 
 The stand-off Point A is the base_link position on the approach axis (y = 0) that stands ``standoff`` metres of

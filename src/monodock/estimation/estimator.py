@@ -15,7 +15,15 @@ from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.consistency import ScaleCheck
-from monodock.estimation.methods import NEEDS_BUNDLE, MethodFrame, MethodSetup, PoseMethod, build_methods
+from monodock.estimation.methods import (
+    METHOD_NAMES,
+    NEEDS_BUNDLE,
+    MethodFrame,
+    MethodSetup,
+    PoseMethod,
+    build_methods,
+    run_methods,
+)
 from monodock.estimation.pnp import PoseEstimate
 from monodock.perception.detect import Detection, MarkerDetector, as_gray
 from monodock.perception.synthetic import synthetic_view
@@ -55,6 +63,10 @@ class Estimator:
         if isinstance(methods, Mapping):
             built = dict(methods)
         else:
+            unknown = [m for m in methods if m not in METHOD_NAMES]
+            if unknown:
+                geometric = ", ".join(m for m in METHOD_NAMES if m not in NEEDS_BUNDLE)
+                raise InputError(f"unknown method '{unknown[0]}' (available: {geometric})")
             learnt = [m for m in methods if m in NEEDS_BUNDLE]
             if learnt:
                 raise InputError(f"the {learnt[0]} method needs a model bundle (make_estimator builds it)")
@@ -84,12 +96,10 @@ class Estimator:
         self, name: str, stamp: float, gray: NDArray[np.uint8], detection: Detection
     ) -> FrameEstimates:
         """Every method's estimate from a detection already made on the (mono8) image."""
-        frame = MethodFrame(detection, self.camera, gray=gray, modules=self.modules)
-        for m, method in self.pose_methods.items():
-            frame.earlier[m] = method.estimate(frame)
+        estimates = run_methods(self.pose_methods, MethodFrame(detection, self.camera, self.modules, gray=gray))
         if self.check is not None and not self.check.done:
-            self.check.add(detection, frame.earlier)
-        return FrameEstimates(name, stamp, detection, frame.earlier)
+            self.check.add(detection, estimates)
+        return FrameEstimates(name, stamp, detection, estimates)
 
     @property
     def method(self) -> str:

@@ -70,12 +70,13 @@ def bundle_calibration(
     camera: CameraModel | PathLike | None = None,
     layout: DockLayout | PathLike | None = None,
     robot: RobotConfig | PathLike | None = None,
+    warn_camera: bool = True,
 ) -> tuple[CameraModel, DockLayout, RobotConfig]:
     """The bundle's camera, layout and mounts; a camera or robot given overrides the bundle's (with a warning when
-    it is not the bundle's camera), a layout must match."""
+    it is not the bundle's camera, unless ``warn_camera`` is False), a layout must match."""
     dock = _bundle_layout(bundle, layout)
     cam = _camera(camera) if camera is not None else bundle.camera()
-    if camera is not None:
+    if camera is not None and warn_camera:
         said = camera_disagreement(bundle.camera(), cam, str(bundle.path), _source(camera))
         if said is not None:
             _log.warning(said)
@@ -97,6 +98,7 @@ def make_estimator(
     robot: RobotConfig | PathLike | None = None,
     refinement: str = "subpix",
     check_scale: bool = False,
+    warn_camera: bool = True,
 ) -> Estimator:
     """The Estimator for ``method`` (its ``method`` attribute), or for several ``methods`` at once, from a bundle
     or the calibration. The one way to build an estimator: the command line, the ROS 2 nodes, dock-sim, the demo
@@ -114,6 +116,8 @@ def make_estimator(
         check_scale: with a bundle and a geometric method, watch the method's depths against the regression's
             (with the bundle's own camera) over the first frames and warn once when a calibration scales them
             (``consistency.ScaleCheck``); costs one regression per frame while it watches.
+        warn_camera: warn when the camera given is not the bundle's (False: the caller has said so once already,
+            as dock-sim does before its worker processes build their estimators).
 
     Raises:
         InputError: an unknown method or refinement, a method that needs a bundle without one, missing
@@ -144,7 +148,7 @@ def make_estimator(
         built = build_methods(names or ("board",), setup)
         return Estimator(cam, dock, mounts, built, refinement=refinement)
     loaded = bundle if isinstance(bundle, Bundle) else load_bundle(Path(bundle))
-    cam, dock, mounts = bundle_calibration(loaded, camera=camera, layout=layout, robot=robot)
+    cam, dock, mounts = bundle_calibration(loaded, camera=camera, layout=layout, robot=robot, warn_camera=warn_camera)
     names = names or ("regression",)
     check = None
     if check_scale and names[0] in GEOMETRIC and loaded.camera().size == cam.size:

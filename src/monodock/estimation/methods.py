@@ -13,7 +13,7 @@ stores them; the papers' raw features as a dataset stores them), plus the answer
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
@@ -41,6 +41,7 @@ __all__ = [
     "MethodSetup",
     "PoseMethod",
     "build_methods",
+    "run_methods",
 ]
 
 
@@ -51,9 +52,10 @@ class MethodFrame:
     Args:
         detection: OpenCV's markers.
         camera: the calibrated camera the corners are refined through.
-        gray: the mono8 image, from which ``refined`` is made on first use; None when ``refined`` is given.
         modules: the markers' cells across, border included (``DockLayout.modules``).
-        refined: the bias-free corners when known already (a dataset stores them).
+        gray: the mono8 image, from which ``refined`` is made on first use; None when ``refined_corners`` is
+            given.
+        refined_corners: the bias-free corners when known already (a dataset stores them).
         raw: the papers' raw features (FEATURE_NAMES order) as a dataset stores them; None: each method computes
             them from the detection through its own camera.
         earlier: the answers of the methods run before this one on the frame, by name.
@@ -61,8 +63,8 @@ class MethodFrame:
 
     detection: Detection
     camera: CameraModel
+    modules: int
     gray: NDArray[np.uint8] | None = None
-    modules: int = 6
     refined_corners: Detection | None = None
     raw: NDArray[np.float64] | None = None
     earlier: dict[str, PoseEstimate] = field(default_factory=dict)
@@ -75,6 +77,13 @@ class MethodFrame:
                 raise ValueError("a MethodFrame needs the image or the refined corners")
             self.refined_corners = refine_detection(self.gray, self.detection, self.camera, modules=self.modules)
         return self.refined_corners
+
+
+def run_methods(methods: Mapping[str, PoseMethod], frame: MethodFrame) -> dict[str, PoseEstimate]:
+    """Every method on the frame, in order, each seeing the answers of those before it (``frame.earlier``)."""
+    for name, method in methods.items():
+        frame.earlier[name] = method.estimate(frame)
+    return frame.earlier
 
 
 class PoseMethod(Protocol):
@@ -95,8 +104,8 @@ class MethodSetup:
     """What the methods are built from: the calibration, and for the learnt methods a model bundle.
 
     ``tables`` replaces the bundle's fusion tables (the robustness sweep's tables learnt on another calibration);
-    without a bundle it gives the fused method on geometry alone (no regression), as ``estimate --method fused``
-    runs without ``--model``.
+    without a bundle it gives the fused method on geometry alone, with no regression (the warm-up, the tests and
+    the benchmarks use it; the command line and ``make_estimator`` ask for a bundle).
     """
 
     camera: CameraModel

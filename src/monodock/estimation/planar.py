@@ -761,10 +761,10 @@ def _solve4(
         return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles, *_offsets(th[3], axis))
     cost, _, _, X, N = current
     offsets = _offsets(th[3], axis)
-    return _fit4(pose, cost, X, N, len(parts.obj), info, pitch_info, iterations, converged, roles, offsets)
+    return _planar_fit_result(pose, cost, X, N, len(parts.obj), info, pitch_info, iterations, converged, roles, offsets)
 
 
-def _fit4(
+def _planar_fit_result(
     pose: DockPose,
     cost: float,
     X: NDArray[np.float64],

@@ -11,6 +11,7 @@ the frame's exposure), the frame's own estimate and the truth, for the filtered-
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 from collections.abc import Sequence
@@ -41,6 +42,7 @@ from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise, OdometryNoise
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
+from monodock.estimation.consistency import camera_disagreement
 from monodock.estimation.factory import make_estimator
 from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE
 from monodock.evaluation.dock_results import (
@@ -222,8 +224,10 @@ def _environment(config: DockSimConfig) -> _Environment:
     if key not in _ENV:
         _ENV.clear()
         sim = config.simulator()
-        bundle = load_bundle(config.bundle) if config.bundle is not None else None
+        learnt = any(m in BUNDLE_METHODS for m in config.methods)
+        bundle = load_bundle(config.bundle) if learnt and config.bundle is not None else None
         # One estimator per method, so that a frame costs only its own method; built as the robot builds its own.
+        # The camera was checked against the bundle's once, by run_dock_sim: not again in every worker.
         perceive = {
             m: make_perceive(
                 make_estimator(
@@ -232,6 +236,7 @@ def _environment(config: DockSimConfig) -> _Environment:
                     camera=sim.camera,
                     layout=sim.layout,
                     robot=sim.robot,
+                    warn_camera=False,
                 ),
                 m,
             )
@@ -463,9 +468,15 @@ def _filter_frame(mission: DockingMission, robot: SimulatedRobot, observation: O
 
 def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialResult]:
     """Every case × trial × method, in ``config.jobs`` worker processes; results in a fixed order."""
-    if any(m in BUNDLE_METHODS for m in config.methods) and config.bundle is None:
+    learnt = any(m in BUNDLE_METHODS for m in config.methods)
+    if learnt and config.bundle is None:
         raise InputError("the regression and fused methods need a model bundle")
     sim = config.simulator(config.seed)
+    if learnt:
+        assert config.bundle is not None
+        said = camera_disagreement(load_bundle(config.bundle).camera(), sim.camera, str(config.bundle), "simulated")
+        if said is not None:
+            logging.getLogger("monodock.input").warning(said)
     planner = config.mission.planner
     tasks: list[_Task] = []
     for case in config.cases:

@@ -26,7 +26,7 @@ from monodock.core.config import json_text
 from monodock.core.layout import DockLayout
 from monodock.core.records import to_record
 from monodock.core.robot import RobotConfig
-from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods
+from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods, run_methods
 from monodock.estimation.pnp import PoseEstimate
 from monodock.evaluation.dock_sim import RunGroup
 from monodock.evaluation.limit import PhysicalLimit, physical_limit
@@ -142,13 +142,14 @@ def estimate_dataset(
     """Run every method, in order, on every row of a dataset, from the corners and raw features the dataset
     stores (``rows``: its ``dataset_rows``, when already built)."""
     rows = dataset_rows(dataset) if rows is None else rows
-    camera = dataset.camera()
+    camera, modules = dataset.camera(), dataset.layout().modules
     answers: dict[str, list[PoseEstimate]] = {name: [] for name in methods}
     for row in rows:
-        frame = MethodFrame(row.detection, camera, refined_corners=row.refined, raw=row.raw)
-        for name, method in methods.items():
-            frame.earlier[name] = method.estimate(frame)
-            answers[name].append(frame.earlier[name])
+        found = run_methods(
+            methods, MethodFrame(row.detection, camera, modules, refined_corners=row.refined, raw=row.raw)
+        )
+        for name, estimate in found.items():
+            answers[name].append(estimate)
     return {name: _collect(name, found) for name, found in answers.items()}
 
 
@@ -469,7 +470,7 @@ def evaluate_heldout(
     methods: dict[str, PoseMethod] = {k: learnt[k] for k in ("regression",) if k in learnt}
     methods.update(geometric_methods(camera, layout, robot))
     methods.update({k: v for k, v in learnt.items() if k not in methods})
-    fused = "fused" in learnt
+    has_fused = "fused" in learnt
     rows = dataset_rows(dataset)
     results = estimate_dataset(dataset, methods, rows=rows)
     refs = reference_poses(dataset)
@@ -477,7 +478,7 @@ def evaluate_heldout(
     depth = best[:, 0] - robot.camera_mount.x
     # The truth first when known: it is the headline's reference.
     bands = {r: tuple(band_rows(depth, refs[r], results)) for r in (Reference.TRUTH, Reference.LIDAR) if r in refs}
-    studied = Reference.TRUTH in refs and fused
+    studied = Reference.TRUTH in refs and has_fused
     limit = physical_limit(dataset, {m: r.poses for m, r in results.items()}) if studied else None
     samples = paper_samples(refs[Reference.LIDAR], results, truth=refs.get(Reference.TRUTH))
     study = miscalibration_study(dataset, best, regression=miscalibrated, correct=results, rows=rows)

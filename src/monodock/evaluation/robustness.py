@@ -41,7 +41,7 @@ from monodock.core.scan import LaserScan
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.fused import FusionTables
-from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods
+from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods, run_methods
 from monodock.estimation.pnp import PoseEstimate
 from monodock.evaluation.robustness_results import (
     GOOD_ENOUGH,
@@ -425,10 +425,8 @@ def _run_methods(
     if ck not in refined_by_camera:
         # The refinement straightens the sides through the lens model of the file it is given.
         refined_by_camera[ck] = refine_detection(image, det, cal.camera, modules=cal.layout.modules)
-    frame = MethodFrame(det, cal.camera, refined_corners=refined_by_camera[ck])
-    for name, method in plain.items():
-        frame.earlier[name] = method.estimate(frame)
-    out = {name: _row(e) for name, e in frame.earlier.items()}
+    frame = MethodFrame(det, cal.camera, cal.layout.modules, refined_corners=refined_by_camera[ck])
+    out = {name: _row(e) for name, e in run_methods(plain, frame).items()}
     out[STALE] = _row(stale.estimate(frame))
     if relearned and fused is not None:
         out["fused"] = _row(fused.estimate(frame))

@@ -1,4 +1,4 @@
-"""EST.csv and its streamed forms: one row per frame and method (DESIGN.md "Estimates"), as CSV or JSON lines."""
+"""EST.csv and its streamed forms: one row per frame and method (docs/user-guide.md, EST.csv), as CSV or JSON lines."""
 
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ def _cells(result: FrameEstimates, method: str) -> list[str]:
 
 
 def estimates_csv(results: Iterable[FrameEstimates]) -> str:
-    """The EST.csv text of DESIGN.md: a header and one row per frame and method."""
+    """The EST.csv text (docs/user-guide.md): a header and one row per frame and method."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CSV_COLUMNS)

@@ -1,6 +1,6 @@
 """The training dataset: one row per camera frame of a recording, with its features, LiDAR label and truth.
 
-A Parquet file (DESIGN.md "Dataset"). Columns, in order (``dataset_columns()``):
+A Parquet file (docs/user-guide.md, Dataset). Columns, in order (``dataset_columns()``):
 
 - ``frame`` (int): the image's index in the recording; ``image_stamp`` (s); ``scan_stamp`` (s, NaN when no scan
   was within the pairing tolerance); ``paired`` (bool); ``markers_seen`` ("m1 m2 m3").

@@ -6,7 +6,7 @@ that edge's extension down to the scan plane, so a scan point lies "across" the 
 the planes of the left and right edges. The point nearest the plane through the marker's centre gives the
 papers' depth label; the papers' angle comes from the leftmost and rightmost point across the marker.
 
-One 8–10 cm marker holds only a handful of returns, so a line through them is degrees off (DESIGN.md).
+One 8–10 cm marker holds only a handful of returns, so a line through them is degrees off (docs/benchmarks.md).
 The angle label, and the lateral and line depth at marker 2's centre plane, come instead from a line over
 the whole charger face. The label does not know the charger's width: it finds the face segment in the
 scan. The points across the marker (and across markers 1 and 3 when given) seed a line; the segment grows

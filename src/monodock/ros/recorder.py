@@ -60,7 +60,7 @@ __all__ = [
 
 NODE_NAME = "monodock_recorder"
 
-# What a docking run on the graph is made of (DESIGN.md "ROS 2 interface"); relative names resolve in the
+# What a docking run on the graph is made of (docs/ros2.md, the contract); relative names resolve in the
 # recorder's namespace, as the nodes' do in theirs.
 DEFAULT_TOPICS = (
     "image",

@@ -1,4 +1,4 @@
-"""The simulator: an exact camera and 2D LiDAR view of the charger, with ground truth (DESIGN.md)."""
+"""The simulator: an exact camera and 2D LiDAR view of the charger, with ground truth."""
 
 from __future__ import annotations
 

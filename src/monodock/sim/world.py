@@ -1,6 +1,6 @@
 """The simulated world: textured planar rectangles (charger box, markers, walls, floor) and ray casting.
 
-World coordinates are the ``dock`` frame of DESIGN.md: origin on the floor below marker 2's centre on the
+World coordinates are the ``dock`` frame (docs/architecture.md): origin on the floor below marker 2's centre on the
 charger's front face, x into the charger, y left, z up. Both the camera renderer and the LiDAR cast rays
 into the same surfaces, so what one sensor sees the other sees too.
 """

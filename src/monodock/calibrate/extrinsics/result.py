@@ -7,7 +7,7 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,10 +15,6 @@ from numpy.typing import NDArray
 from monodock.core.atomic import write_text_atomic
 from monodock.core.config import yaml_text
 from monodock.core.robot import Mount, RobotConfig
-
-if TYPE_CHECKING:
-    pass
-
 
 PAIRING_TOLERANCE_S = 0.05
 # A LiDAR segment on a flat face (the charger's, a target's edge) is this straight at most (RMS, metres).
