@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import struct
@@ -16,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -124,6 +126,25 @@ def _num(v: Any) -> float | None:
     return f if math.isfinite(f) else None
 
 
+@functools.lru_cache(maxsize=16)  # the fuzzers vary other fields far more often than the camera
+def _corner_rays(cam: CameraModel) -> NDArray[np.float64] | None:
+    """Every pixel corner's ray, (H + 1, W + 1, 2); None unless each projects back within the loader's 0.1 px.
+
+    The loader checks its 0.1 px (a strong real lens: ~0.01 px) on the border and a grid; this checks every pixel
+    corner, so a lens that fails between the loader's samples is a finding. Not the renderer's 1e-6 px, which only
+    the simulator needs.
+    """
+    w, h = cam.width, cam.height
+    u, v = np.meshgrid(np.arange(w + 1) - 0.5, np.arange(h + 1) - 0.5)
+    corners = np.stack([u.ravel(), v.ravel()], axis=1)
+    with np.errstate(all="ignore"):
+        flat = cam.normalize(corners)
+        back = cam.project(np.c_[flat, np.ones(len(flat))])
+    if not np.all(np.abs(back - corners) < 0.1):
+        return None
+    return flat.reshape(h + 1, w + 1, 2)
+
+
 def plausible_camera(data: dict[str, Any]) -> bool:
     """Whether a camera_info mapping (ROS spelling of ``CameraModel.to_ros_dict``) is physically plausible."""
     try:
@@ -152,17 +173,9 @@ def plausible_camera(data: dict[str, Any]) -> bool:
         cam = CameraModel.from_ros_dict(data)
     except Exception:
         return False
-    # Invertible over the image to the loader's 0.1 px (a strong real lens: ~0.01 px), here at every pixel corner
-    # where the loader samples the border and a grid: a lens that fails between its samples is a finding. Not the
-    # renderer's 1e-6 px, which only the simulator needs.
-    u, v = np.meshgrid(np.arange(w + 1) - 0.5, np.arange(h + 1) - 0.5)
-    corners = np.stack([u.ravel(), v.ravel()], axis=1)
-    with np.errstate(all="ignore"):
-        flat = cam.normalize(corners)
-        back = cam.project(np.c_[flat, np.ones(len(flat))])
-    if not np.all(np.abs(back - corners) < 0.1):
+    rays = _corner_rays(cam)
+    if rays is None:
         return False
-    rays = flat.reshape(h + 1, w + 1, 2)
     # Invertible is not enough (k1 = 1e6 is monotonic, so invertible, and shrinks the field of view 100-fold): the
     # lens may bend the image's border at most 2x in or out of where the pinhole alone would put it.
     pinhole = np.array(
