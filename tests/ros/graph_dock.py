@@ -240,9 +240,11 @@ for process in (dock, sim):
         process.send_signal(signal.SIGINT)
 for process in (dock, sim):
     try:
-        process.wait(timeout=20)
+        # Generous: on a starved CI host a node's DDS teardown after SIGINT took over 20 s once (stop 33's CI).
+        process.wait(timeout=60)
     except subprocess.TimeoutExpired:
         process.kill()
+        process.wait()  # a killed node's exit code is -9, not None
 emit("end", dock=dock.returncode, sim=sim.returncode, recorder=recorded)
 node.destroy_node()
 rclpy.shutdown()
