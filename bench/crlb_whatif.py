@@ -58,7 +58,8 @@ from monodock.estimation.corner_noise import (  # noqa: E402
     CornerNoise,
     corner_sides_px,
 )
-from monodock.estimation.planar import planar_candidates, solve_planar  # noqa: E402
+from monodock.estimation.planar import solve_planar  # noqa: E402
+from monodock.estimation.planar_starts import planar_candidates  # noqa: E402
 from monodock.evaluation.what_if import WhatIfResult, what_if  # noqa: E402
 from monodock.perception.detect import MarkerDetector  # noqa: E402
 from monodock.sim import PoseDistribution, Simulator  # noqa: E402

@@ -13,14 +13,8 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.crlb import crlb, visible_roles
-from monodock.estimation.planar import (
-    PlanarFit,
-    PosePrior,
-    planar_candidates,
-    planar_model,
-    pose_information,
-    solve_planar,
-)
+from monodock.estimation.planar import PlanarFit, PosePrior, planar_model, pose_information, solve_planar
+from monodock.estimation.planar_starts import planar_candidates
 from monodock.sim import Simulator
 from shared import pose_at
 
@@ -397,7 +391,7 @@ def test_pitch_prior_as_strong_as_the_corners_lands_half_way() -> None:
 
 @pytest.mark.parametrize("roles", ROLE_SETS, ids=["1 marker", "2 markers", "3 markers"])
 def test_board_start_is_near_the_truth_and_the_fit_from_it_reaches_it(sim: Simulator, roles: tuple[str, ...]) -> None:
-    from monodock.estimation.planar import board_start
+    from monodock.estimation.planar_starts import board_start
 
     truth = pose_at(1.6, -0.1, 15.0)
     corners = {r: c for r, c in sim.true_corners(truth).items() if r in roles}
@@ -423,7 +417,7 @@ def test_the_floor_start_is_the_truth_on_exact_corners(
     linear equations exactly at the true pose, so it is the truth (1e-6 m and rad), and the fit from it stays there;
     ``board_fit_stacked`` (the fused method's call) gives what ``board_fit`` gives."""
     from monodock.core.lens import lens_of
-    from monodock.estimation.planar import _floor_start, board_fit, board_fit_stacked
+    from monodock.estimation.planar_starts import _floor_start, board_fit, board_fit_stacked
 
     s = sim if lens == "default" else strong_sim
     corners = {r: c for r, c in s.true_corners(truth).items() if r in roles}
@@ -446,7 +440,7 @@ def test_the_board_fit_from_the_floor_start_finds_the_ippe_starts_minimum(sim: S
     """Noisy corners (0.3 px): the fit from the floor start and the fit from the board's IPPE solution (the start it
     replaced) land on the same minimum, to a hundredth of its standard deviation (each stops within ~1e-3 of it), on
     40 random poses."""
-    from monodock.estimation.planar import board_fit, board_start
+    from monodock.estimation.planar_starts import board_fit, board_start
 
     rng = np.random.default_rng(11)
     done = 0

@@ -39,16 +39,8 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.corner_noise import CornerNoise
-from monodock.estimation.planar import (
-    FIT_ITERATIONS,
-    FIT_TOLERANCE,
-    _board_lm,
-    board_fit,
-    board_fit_stacked,
-    planar_candidates,
-    planar_model,
-    solve_planar,
-)
+from monodock.estimation.planar import FIT_ITERATIONS, FIT_TOLERANCE, planar_model, solve_planar
+from monodock.estimation.planar_starts import _board_lm, board_fit, board_fit_stacked, planar_candidates
 from monodock.estimation.pnp import PoseEstimate
 from monodock.perception.detect import Detection
 from monodock.perception.features import choose_marker_set, side_lengths
@@ -366,7 +358,7 @@ def _board_answer(
     corners: Any, factor: Any, law: Any, Z: Any, T: Any, lens: Any, correction: Any, scales: Any
 ) -> tuple[int, Any, Any, float]:  # pragma: no cover - compiled
     """``FusedEstimator._quick_board``: the corner sigmas (``_corner_sigma``), the board fit
-    (``planar.board_fit_stacked``), its clean check, the correction (``Correction.apply``, its Jacobian) and the
+    (``planar_starts.board_fit_stacked``), its clean check, the correction (``Correction.apply``, its Jacobian) and the
     covariance scaled by its band's ``scales`` and floored (``psd_floor``). Returns a status (_QUICK_*), the
     corrected (x, y, yaw), its covariance and the RMS residual (px)."""
     nan3 = np.full(3, np.nan)
@@ -604,11 +596,11 @@ class FusedEstimator:
         return _NOT_CLEAN if status == _QUICK_NOT_CLEAN else None
 
     def _board_fit(self, detection: Detection, refined: Detection | None) -> PlanarFit | None:
-        """The planar fit of two or more markers (``planar.board_fit``), if it is clean (converged, its residuals
+        """The planar fit of two or more markers (``planar_starts.board_fit``), if it is clean (converged, its residuals
         within 3x the corner noise); None for a lone marker (its yaw sign needs the regression).
 
         Every frame with two or more markers ends here: the corners are stacked once, their sides measured in
-        one compiled call, and the fit gets them as arrays (``planar.board_fit_stacked``).
+        one compiled call, and the fit gets them as arrays (``planar_starts.board_fit_stacked``).
         """
         stack = _stacked_corners(detection, refined)
         if stack is None:

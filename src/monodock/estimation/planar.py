@@ -10,7 +10,9 @@ and at pixel π(P) through the lens. ``cv2.projectPoints(P, 0, 0, K, dist)`` ret
 which with a zero pose is dπ/dP; the chain rule with dP/d(x, y, yaw) gives the analytic Jacobian.
 
 A lone small marker seen from afar has two planar minima (the yaw sign ambiguity of weak perspective):
-``planar_candidates`` starts from both IPPE solutions and returns every distinct local minimum with its cost.
+``planar_starts.planar_candidates`` starts from both IPPE solutions and returns every distinct local minimum
+with its cost; ``planar_starts`` also holds the starts and fits of two or more markers (``board_fit``).
+The Levenberg–Marquardt loop, shared by the fit with and without a camera turn, is ``levenberg``'s.
 
 The 3-DoF model trusts the mount: a pitch 1° off moves every corner ~10 px vertically at f = 600 px, which
 it can only explain by moving the dock in depth (~30 cm) and yaw (~20°). With ``pitch_sd`` the fit also
@@ -24,7 +26,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,16 +42,21 @@ from monodock.core.lens import lens_of, project
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
+from monodock.estimation.levenberg import (
+    compiled_levenberg_marquardt,
+    inverse3,
+    levenberg_marquardt,
+    marginal3,
+    marginal4,
+    step3,
+    step4,
+)
 
 __all__ = [
     "DEFAULT_CORNER_SIGMA_PX",
     "PlanarFit",
     "PlanarModel",
     "PosePrior",
-    "board_fit",
-    "board_fit_stacked",
-    "board_start",
-    "planar_candidates",
     "planar_model",
     "pose_information",
     "solve_planar",
@@ -65,16 +72,10 @@ DEFAULT_CORNER_SIGMA_PX = 0.3
 # Points closer to the camera plane than this (metres, optical z) make a pose invalid.
 _MIN_DEPTH = 1e-3
 _ZERO3 = np.zeros(3)
-# Converged when the next step would lower the cost (χ²) by less than this: a step of 1e-3 standard deviations.
-_CHI2_TOLERANCE = 1e-6
 # Default cap on the projections a fit evaluates, and the step (m, rad) below which it has converged in any case.
 _MAX_ITERATIONS = 20
 _TOLERANCE = 1e-9
 FIT_ITERATIONS, FIT_TOLERANCE = _MAX_ITERATIONS, _TOLERANCE  # the board fit's, for a caller's compiled copy of it
-# Two starts closer than this (metres and radians) are one.
-_SAME_START = 0.01
-# Two converged minima closer than this (metres and radians) are the same one.
-_SAME_MINIMUM = 1e-4
 
 
 @dataclass(frozen=True)
@@ -417,9 +418,7 @@ def solve_planar(
     parts = model.parts(roles)
     white = _whitening(corner_sigma, len(parts.obj))
     nuisance = _nuisance(pitch_sd, roll_sd)
-    if nuisance is None:
-        return _solve(model, roles, parts, img, white, _theta(start), prior, max_iterations, tolerance)
-    return _solve4(model, roles, parts, img, white, _theta(start), prior, *nuisance, max_iterations, tolerance)
+    return _solve(model, roles, parts, img, white, _theta(start), prior, nuisance, max_iterations, tolerance)
 
 
 def _nuisance(pitch_sd: float | None, roll_sd: float | None) -> tuple[float, int] | None:
@@ -444,15 +443,6 @@ def _pitch_information(pitch_sd: float) -> float:
     return 1.0 / (sd * sd)
 
 
-def _solve3(A: list[list[float]], b: list[float]) -> tuple[float, float, float] | None:
-    """x with A x = b for a 3x3 system (``_solve3_into``), None when A is singular."""
-    out = np.empty(3)
-    if not _solve3_into(np.array(A, dtype=np.float64), np.array(b, dtype=np.float64), out):
-        return None
-    x0, x1, x2 = out.tolist()
-    return x0, x1, x2
-
-
 def _solve(
     model: PlanarModel,
     roles: tuple[str, ...],
@@ -461,12 +451,26 @@ def _solve(
     white: _Whitening,
     theta: NDArray[np.float64],
     prior: PosePrior | None,
+    nuisance: tuple[float, int] | None,
     max_iterations: int,
     tolerance: float,
 ) -> PlanarFit:
-    """Levenberg–Marquardt (``_lm3``, compiled) from ``theta``."""
-    problem = _problem(model, parts, img, white, prior)
-    return _planar_fit(roles, *_lm3(problem, np.array(theta, dtype=np.float64), max_iterations, tolerance))
+    """Levenberg–Marquardt from ``theta``: over (x, y, yaw), compiled (``_lm3``); with ``nuisance`` (1/σ², axis, as
+    ``_nuisance`` gives it) over (x, y, yaw, δ), δ a turn of the camera about that optical axis under the prior
+    δ ~ N(0, σ²), from δ = 0 (``_evaluate4``)."""
+    if nuisance is None:
+        problem = _problem(model, parts, img, white, prior)
+        return _planar_fit(roles, *_lm3(problem, np.array(theta, dtype=np.float64), max_iterations, tolerance))
+    problem4, prior_information = _problem4(model, parts, img, white, prior, *nuisance)
+    start = np.array([theta[0], theta[1], theta[2], 0.0])
+    th, ok, cost, cov, cov_res, scale, X, iterations, converged = levenberg_marquardt(
+        problem4, start, prior_information, max_iterations, tolerance, _evaluate4, step4, marginal4
+    )
+    # The squares summed by BLAS, as this fit always has (``_lm3`` adds them one by one: another last bit).
+    r = X[:, :, 4].ravel()
+    rms = math.sqrt(float(r @ r) / len(parts.obj)) if ok else math.inf
+    offsets = _offsets(float(th[3]), nuisance[1])
+    return _planar_fit(roles, th[:3], ok, cost, cov, cov_res, scale, rms, iterations, converged, offsets)
 
 
 def _problem(
@@ -504,14 +508,15 @@ def _planar_fit(
     rms: float,
     iterations: int,
     converged: bool,
+    offsets: tuple[float, float] = (0.0, 0.0),
 ) -> PlanarFit:
-    """The PlanarFit of ``_lm3``'s results."""
+    """The PlanarFit of a fit's results (``_lm3``'s, with the camera's (pitch, roll) offsets)."""
     x, y, yaw = th_.tolist()
     pose = DockPose(x, y, wrap_angle(yaw))
     if not ok:
         inf = np.full((3, 3), np.inf)
-        return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles)
-    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles)
+        return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles, *offsets)
+    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles, *offsets)
 
 
 _ZERO33 = np.zeros((3, 3))
@@ -523,59 +528,18 @@ _NO_BLOCKS = np.zeros((0, 2, 2))
 def _lm3(
     problem: tuple[Any, ...], theta: Any, max_iterations: int, tolerance: float
 ) -> tuple[Any, bool, float, Any, Any, float, float, int, bool]:  # pragma: no cover - compiled
-    """Levenberg–Marquardt over (x, y, yaw) from ``theta``, one projection (with Jacobian) per iteration.
+    """``levenberg_marquardt`` over (x, y, yaw) from ``theta``, compiled, with the model ``_evaluate``.
 
-    ``problem``: the fit's fixed inputs, as ``_evaluate`` reads them. Stops when the next step is below a
-    thousandth of the estimate's standard deviation (δᵀHδ < ``_CHI2_TOLERANCE``) or below ``tolerance``.
-    Returns the pose, whether any pose could be evaluated, and, from the last accepted evaluation, the cost
-    (prior included), the covariance (F + Λ)⁻¹ and the residual-scaled one s²(F + s²Λ)⁻¹ (F the Fisher
-    information at unit corner sigma, s the noise scale √(χ²/dof)), s and the RMS residual (px); then the
-    projections evaluated and whether it converged.
+    ``problem``: the fit's fixed inputs, as ``_evaluate`` reads them. Returns the pose, whether any pose could be
+    evaluated, and, from the last accepted evaluation, the cost (prior included), the covariance (F + Λ)⁻¹, the
+    residual-scaled one s²(F + s²Λ)⁻¹, the noise scale s and the RMS residual (px); then the projections evaluated
+    and whether it converged.
     """
-    n = problem[1].shape[0]
-    X, Xt = np.empty((n, 2, 4)), np.empty((n, 2, 4))
-    N, Nt = np.empty((4, 4)), np.empty((4, 4))
-    H, Ht = np.empty((3, 3)), np.empty((3, 3))
-    g, gt = np.empty(3), np.empty(3)
-    th = theta.copy()
-    ok, cost = _evaluate(th, problem, X, N, H, g)
-    iterations, converged, lam = 1, False, 1e-4
-    damped, step, trial = np.empty((3, 3)), np.empty(3), np.empty(3)
-    while ok and iterations < max_iterations:
-        damped[:] = H
-        for k in range(3):
-            damped[k, k] *= 1.0 + lam
-        if not _solve3_into(damped, -g, step):
-            break
-        # The step's size in standard deviations of the estimate (δᵀHδ, the cost it would remove): once
-        # it is a thousandth of one, further steps change nothing that the noise lets anyone measure.
-        # With noise, Gauss–Newton converges linearly (rate ~ residual size), so this saves iterations.
-        decrease = 0.0
-        for k in range(3):
-            decrease += step[k] * (H[k, 0] * step[0] + H[k, 1] * step[1] + H[k, 2] * step[2])
-        if decrease < _CHI2_TOLERANCE or max(abs(step[0]), abs(step[1]), abs(step[2])) < tolerance:
-            th += step
-            converged = True
-            break
-        trial[:] = th + step
-        ok_t, cost_t = _evaluate(trial, problem, Xt, Nt, Ht, gt)
-        iterations += 1
-        if ok_t and cost_t <= cost:
-            th[:], X[:], N[:], H[:], g[:], cost = trial, Xt, Nt, Ht, gt, cost_t
-            lam = max(lam * 0.1, 1e-12)
-        else:
-            lam *= 10.0
-            if lam > 1e12:
-                break
-    if not ok:
-        return th, ok, np.inf, N, N, np.nan, np.inf, iterations, False
-    n_dof = 2 * n - 3
-    scale = np.sqrt(N[3, 3] / n_dof) if n_dof > 0 else np.nan
-    lam_ = problem[9] if problem[8] else np.zeros((3, 3))
-    cov = _inverse3(N[:3, :3] + lam_, 1.0)
-    # (F/s² + Λ)⁻¹ written as s²(F + s²Λ)⁻¹, which stays finite for exact corners (s = 0).
-    cov_res = _inverse3(N[:3, :3] + scale * scale * lam_, scale * scale)
-    rms = np.sqrt(np.sum(X[:, :, 3] ** 2) / n)
+    prior_information = problem[9] if problem[8] else np.zeros((3, 3))
+    th, ok, cost, cov, cov_res, scale, X, iterations, converged = compiled_levenberg_marquardt(
+        problem, theta, prior_information, max_iterations, tolerance, _evaluate, step3, inverse3
+    )
+    rms = np.sqrt(np.sum(X[:, :, 3] ** 2) / X.shape[0]) if ok else np.inf
     return th, ok, cost, cov, cov_res, scale, rms, iterations, converged
 
 
@@ -643,194 +607,70 @@ def _evaluate(  # noqa: PLR0912 - a compiled kernel
     return bool(np.isfinite(cost)), cost
 
 
-@kernel
-def _solve3_into(A: Any, b: Any, out: Any) -> bool:  # pragma: no cover - compiled
-    """out = x with A x = b for a 3x3 system, by cofactors; False when A is singular."""
-    a, b_, c = A[0, 0], A[0, 1], A[0, 2]
-    d, e, f = A[1, 0], A[1, 1], A[1, 2]
-    g, h, i = A[2, 0], A[2, 1], A[2, 2]
-    c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * c0 + b_ * c1 + c * c2
-    if det == 0.0 or not np.isfinite(det):
-        return False
-    r0, r1, r2 = b[0], b[1], b[2]
-    out[0] = (r0 * c0 + r1 * (c * h - b_ * i) + r2 * (b_ * f - c * e)) / det
-    out[1] = (r0 * c1 + r1 * (a * i - c * g) + r2 * (c * d - a * f)) / det
-    out[2] = (r0 * c2 + r1 * (b_ * g - a * h) + r2 * (a * e - b_ * d)) / det
-    return True
+# --- the model with a camera turn ------------------------------------------------------------------------
 
 
-@kernel
-def _inverse3(m: NDArray[np.float64], factor: float) -> NDArray[np.float64]:  # pragma: no cover - compiled
-    """factor · m⁻¹ for a 3x3 information matrix; infinite where it is singular (the pose is unobservable)."""
-    out = np.empty((3, 3))
-    a, b, c = m[0, 0], m[0, 1], m[0, 2]
-    d, e, f = m[1, 0], m[1, 1], m[1, 2]
-    g, h, i = m[2, 0], m[2, 1], m[2, 2]
-    c0, c1, c2 = e * i - f * h, f * g - d * i, d * h - e * g
-    det = a * c0 + b * c1 + c * c2
-    if det == 0.0 or not np.isfinite(det) or not np.isfinite(factor):
-        out[:] = np.inf if np.isfinite(factor) else np.nan
-        return out
-    k = factor / det
-    out[0, 0], out[0, 1], out[0, 2] = c0 * k, (c * h - b * i) * k, (b * f - c * e) * k
-    out[1, 0], out[1, 1], out[1, 2] = c1 * k, (a * i - c * g) * k, (c * d - a * f) * k
-    out[2, 0], out[2, 1], out[2, 2] = c2 * k, (b * g - a * h) * k, (a * e - b * d) * k
-    return out
-
-
-# --- the solver with the camera's pitch offset ------------------------------------------------------------
-
-
-def _solve4(
+def _problem4(
     model: PlanarModel,
-    roles: tuple[str, ...],
     parts: _Parts,
     img: NDArray[np.float64],
     white: _Whitening,
-    theta: NDArray[np.float64],
     prior: PosePrior | None,
-    pitch_info: float,
+    turn_information: float,
     axis: int,
-    max_iterations: int,
-    tolerance: float,
-) -> PlanarFit:
-    """``_solve`` over (x, y, yaw, δ) with the prior δ ~ N(0, 1/pitch_info): the same loop, a 4x4 system.
-    δ turns the camera about its optical ``axis`` (PITCH_AXIS or ROLL_AXIS)."""
-    info = prior.information().tolist() if prior is not None else None
+) -> tuple[tuple[Any, ...], NDArray[np.float64]]:
+    """The fixed inputs of the fit with a camera turn δ about the optical ``axis`` (PITCH_AXIS or ROLL_AXIS), as
+    ``_evaluate4`` reads them, and the priors' 4x4 information: the pose prior's and 1/σ² of δ's."""
+    info = prior.information() if prior is not None else None
     mu = (prior.mean.x, prior.mean.y, prior.mean.yaw) if prior is not None else (0.0, 0.0, 0.0)
-    target = img.reshape(-1, 2)
-    Evaluation = tuple[float, list[list[float]], list[float], NDArray[np.float64], list[list[float]]]
-
-    def evaluate(th: list[float]) -> Evaluation | None:
-        """Cost, H = JᵀWJ + priors, gradient, the design [J | r] and [J | r]ᵀW[J | r] at (x, y, yaw, δ)."""
-        X = model._design4(th[0], th[1], th[2], th[3], parts, target, axis)
-        if X is None:
-            return None
-        N = white.normal(X)
-        H = [N[0][:4], N[1][:4], N[2][:4], N[3][:4]]
-        g = [N[0][4], N[1][4], N[2][4], N[3][4]]
-        cost = N[4][4]
-        H[3][3] += pitch_info
-        g[3] += pitch_info * th[3]
-        cost += pitch_info * th[3] * th[3]
-        if info is not None:
-            e = (th[0] - mu[0], th[1] - mu[1], wrap_angle(th[2] - mu[2]))
-            for k in range(3):
-                ie = info[k][0] * e[0] + info[k][1] * e[1] + info[k][2] * e[2]
-                g[k] += ie
-                cost += e[k] * ie
-                for m in range(3):
-                    H[k][m] += info[k][m]
-        if not math.isfinite(cost):
-            return None
-        return cost, H, g, X, N
-
-    th = [float(theta[0]), float(theta[1]), float(theta[2]), 0.0]
-    current = evaluate(th)
-    iterations = 1
-    converged = False
-    lam = 1e-4
-    while current is not None and iterations < max_iterations:
-        cost, H, g, _, _ = current
-        damped = [[H[k][m] * (1.0 + lam) if k == m else H[k][m] for m in range(4)] for k in range(4)]
-        step = _solve4x4(damped, g)
-        if step is None:
-            break
-        # δᵀHδ = −δᵀg − λ Σ H_kk δ_k² for the damped step: no second product needed.
-        decrease = -(step[0] * g[0] + step[1] * g[1] + step[2] * g[2] + step[3] * g[3]) - lam * (
-            H[0][0] * step[0] ** 2 + H[1][1] * step[1] ** 2 + H[2][2] * step[2] ** 2 + H[3][3] * step[3] ** 2
-        )
-        trial_th = [th[0] + step[0], th[1] + step[1], th[2] + step[2], th[3] + step[3]]
-        if decrease < _CHI2_TOLERANCE or max(abs(d) for d in step) < tolerance:
-            th = trial_th
-            converged = True
-            break
-        trial = evaluate(trial_th)
-        iterations += 1
-        if trial is not None and trial[0] <= cost:
-            current, th = trial, trial_th
-            lam = max(lam * 0.1, 1e-12)
-        else:
-            lam *= 10.0
-            if lam > 1e12:
-                break
-    pose = DockPose(th[0], th[1], wrap_angle(th[2]))
-    if current is None:
-        inf = np.full((3, 3), np.inf)
-        return PlanarFit(pose, inf, inf, math.nan, math.inf, math.inf, iterations, False, roles, *_offsets(th[3], axis))
-    cost, _, _, X, N = current
-    offsets = _offsets(th[3], axis)
-    return _planar_fit_result(pose, cost, X, N, len(parts.obj), info, pitch_info, iterations, converged, roles, offsets)
-
-
-def _planar_fit_result(
-    pose: DockPose,
-    cost: float,
-    X: NDArray[np.float64],
-    N: list[list[float]],
-    n: int,
-    info: list[list[float]] | None,
-    pitch_info: float,
-    iterations: int,
-    converged: bool,
-    roles: tuple[str, ...],
-    offsets: tuple[float, float],
-) -> PlanarFit:
-    """``_solve4``'s answer at its last evaluation: the (x, y, yaw) covariances with δ marginalised, by the
-    corners' noise model and by the residuals, the scale and the RMS."""
-    dof = 2 * n - 4
-    chi2 = N[4][4]
-    scale = math.sqrt(chi2 / dof) if dof > 0 else math.nan
-    lam4 = [[0.0] * 4 for _ in range(4)]
-    lam4[3][3] = pitch_info
+    prior_information = np.zeros((4, 4))
+    prior_information[3, 3] = turn_information
     if info is not None:
+        prior_information[:3, :3] = info
+    info_rows = info.tolist() if info is not None else None
+    return (model, parts, img.reshape(-1, 2), white, axis, turn_information, info_rows, mu), prior_information
+
+
+def _evaluate4(
+    th: NDArray[np.float64],
+    problem: tuple[Any, ...],
+    X: NDArray[np.float64],
+    N: NDArray[np.float64],
+    H: NDArray[np.float64],
+    g: NDArray[np.float64],
+) -> tuple[bool, float]:
+    """``_evaluate`` at (x, y, yaw, δ) through OpenCV (``PlanarModel._design4``), with the prior on δ: fills
+    X = [J | r] (N, 2, 5), N = XᵀWX, H = JᵀWJ + priors and g = JᵀWr + priors, and returns whether the pose is valid
+    and the cost."""
+    model, parts, target, white, axis, turn_information, info, mu = problem
+    x, y, yaw, delta = th.tolist()
+    design = model._design4(x, y, yaw, delta, parts, target, axis)
+    if design is None:
+        return False, math.inf
+    normal = white.normal(design)
+    h = [normal[0][:4], normal[1][:4], normal[2][:4], normal[3][:4]]
+    grad = [normal[0][4], normal[1][4], normal[2][4], normal[3][4]]
+    cost = normal[4][4]
+    h[3][3] += turn_information
+    grad[3] += turn_information * delta
+    cost += turn_information * delta * delta
+    if info is not None:
+        e = (x - mu[0], y - mu[1], wrap_angle(yaw - mu[2]))
         for k in range(3):
-            lam4[k][:3] = info[k]
-    cov = _marginal3([[N[k][m] + lam4[k][m] for m in range(4)] for k in range(4)], 1.0)
-    # (F/s² + Λ)⁻¹ = s²(F + s²Λ)⁻¹, finite for exact corners (s = 0) as in ``_solve``.
-    s2 = scale * scale
-    cov_res = _marginal3([[N[k][m] + s2 * lam4[k][m] for m in range(4)] for k in range(4)], s2)
-    r = X[:, :, 4].ravel()
-    rms = math.sqrt(float(r @ r) / n)
-    return PlanarFit(pose, cov, cov_res, scale, rms, cost, iterations, converged, roles, *offsets)
+            ie = info[k][0] * e[0] + info[k][1] * e[1] + info[k][2] * e[2]
+            grad[k] += ie
+            cost += e[k] * ie
+            for m in range(3):
+                h[k][m] += info[k][m]
+    if not math.isfinite(cost):
+        return False, cost
+    X[:], N[:], H[:], g[:] = design, normal, h, grad
+    return True, cost
 
 
 def _offsets(delta: float, axis: int) -> tuple[float, float]:
     """(pitch_offset, roll_offset) of a fitted turn δ about ``axis``."""
     return (delta, 0.0) if axis == PITCH_AXIS else (0.0, delta)
-
-
-def _schur(H: list[list[float]]) -> tuple[list[list[float]], list[float], float] | None:
-    """δ eliminated from a 4x4 information matrix: (A − b bᵀ/d, b, d) with H = [[A, b], [bᵀ, d]]; None if d ≤ 0.
-
-    A − b bᵀ/d is the information of (x, y, yaw) with δ marginalised, so its inverse is their covariance.
-    """
-    d = H[3][3]
-    if not d > 0.0 or not math.isfinite(d):
-        return None
-    b = [H[0][3], H[1][3], H[2][3]]
-    return [[H[k][m] - b[k] * b[m] / d for m in range(3)] for k in range(3)], b, d
-
-
-def _solve4x4(H: list[list[float]], g: list[float]) -> list[float] | None:
-    """The step x with H x = −g for the 4x4 (x, y, yaw, δ) system, by the Schur complement on δ."""
-    reduced = _schur(H)
-    if reduced is None:
-        return None
-    A, b, d = reduced
-    s = _solve3(A, [-g[k] + b[k] * g[3] / d for k in range(3)])
-    if s is None:
-        return None
-    return [s[0], s[1], s[2], (-g[3] - b[0] * s[0] - b[1] * s[1] - b[2] * s[2]) / d]
-
-
-def _marginal3(information: list[list[float]], factor: float) -> NDArray[np.float64]:
-    """The (x, y, yaw) block of factor · information⁻¹ for a 4x4 information; infinite where it is singular."""
-    reduced = _schur(information)
-    if reduced is None:
-        return np.full((3, 3), np.inf if math.isfinite(factor) else np.nan)
-    return _inverse3(np.array(reduced[0]), factor)
 
 
 def pose_information(
@@ -870,298 +710,6 @@ def pose_information(
         raise InputError("a marker corner is behind the camera at this pose")
     F = [row[:4] for row in white.normal(X)[:4]]
     if pitch_info is None:
-        return _inverse3(np.array([row[:3] for row in F[:3]]), 1.0)
+        return inverse3(np.array([row[:3] for row in F[:3]]), 1.0)
     F[3][3] += pitch_info
-    return _marginal3(F, 1.0)
-
-
-# --- candidate starts -------------------------------------------------------------------------------------
-
-
-def _planar_start(
-    rvec: ArrayLike, tvec: ArrayLike, base_T_optical: NDArray[np.float64], obj_T_dock: NDArray[np.float64]
-) -> NDArray[np.float64] | None:
-    """The planar pose (x, y, yaw) of one solvePnP solution (z, roll and pitch dropped), None if not finite."""
-    R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))
-    optical_T_obj = transforms.transform(R, np.asarray(tvec, dtype=np.float64).ravel())
-    base_T_dock = base_T_optical @ optical_T_obj @ obj_T_dock
-    return _theta(DockPose.from_matrix(base_T_dock)) if np.all(np.isfinite(base_T_dock)) else None
-
-
-def board_start(
-    corners: Mapping[str, ArrayLike], camera: CameraModel, layout: DockLayout, robot: RobotConfig
-) -> DockPose | None:
-    """A start for ``solve_planar`` from two or more markers: the board's better IPPE solution, as a planar pose.
-
-    With two or more markers the board is wide enough that its IPPE solutions rarely fit alike (a lone
-    far marker's do: use ``planar_candidates`` there). None for fewer than two markers or when IPPE fails.
-    """
-    roles, img = _stack_corners(corners)
-    th = _board_theta(planar_model(camera, layout, robot), roles, img)
-    return DockPose(float(th[0]), float(th[1]), float(th[2])) if th is not None else None
-
-
-def board_fit(
-    corners: Mapping[str, ArrayLike],
-    camera: CameraModel,
-    layout: DockLayout,
-    robot: RobotConfig,
-    *,
-    corner_sigma: float | ArrayLike = DEFAULT_CORNER_SIGMA_PX,
-) -> PlanarFit | None:
-    """``solve_planar`` from a start for two or more markers (``board_fit_stacked``); None for fewer, or where
-    neither start can be found."""
-    roles, img = _stack_corners(corners)
-    if len(roles) < 2:
-        return None
-    model = planar_model(camera, layout, robot)
-    return _board_fit(model, roles, img, _whitening(corner_sigma, 4 * len(roles)))
-
-
-def board_fit_stacked(
-    model: PlanarModel, roles: tuple[str, ...], corners: NDArray[np.float64], corner_sigma: NDArray[np.float64]
-) -> PlanarFit | None:
-    """``board_fit`` for a caller that has checked and stacked its inputs already (the fused method, per frame).
-
-    Args:
-        model: ``planar_model`` of the set-up.
-        roles: the markers, in the layout's order.
-        corners: their corner pixels stacked, shape (4R, 2), finite.
-        corner_sigma: one positive finite sigma (px) per corner, shape (4R,).
-    """
-    if len(roles) < 2:
-        return None
-    rows = np.repeat(1.0 / corner_sigma, 2)
-    parts = model.parts(roles)
-    # _problem's tuple, built here: this runs on every frame.
-    problem = (parts.Z, parts.T, corners, 1, 1.0, rows, _NO_BLOCKS, model.lens, False, _ZERO33, _ZERO3)
-    return _board_fit(model, roles, corners, _Whitening(rows=rows), problem)
-
-
-def _board_fit(
-    model: PlanarModel,
-    roles: tuple[str, ...],
-    img: NDArray[np.float64],
-    white: _Whitening,
-    problem: tuple[Any, ...] | None = None,
-) -> PlanarFit | None:
-    """The fit of two or more markers from the floor-constrained linear start (``_floor_start``): the pose
-    (x, y, yaw) that zeroes every corner's algebraic projection error, one 4x4 solve in compiled code, where
-    IPPE's 6-DoF solution took longer than the fit itself. Where that start cannot be found or the fit from it
-    does not converge, from the board's IPPE solution (``board_start``); None if there is none either."""
-    parts = model.parts(roles)
-    if problem is None:
-        problem = _problem(model, parts, img, white, None)
-    started, *result = _board_lm(problem, _MAX_ITERATIONS, _TOLERANCE)
-    if started and result[1] and result[-1]:
-        return _planar_fit(roles, *result)
-    th = _board_theta(model, roles, img)
-    if th is None:
-        return None
-    return _solve(model, roles, parts, img, white, th, None, _MAX_ITERATIONS, _TOLERANCE)
-
-
-@kernel
-def _board_lm(
-    problem: tuple[Any, ...], max_iterations: int, tolerance: float
-) -> tuple[bool, Any, bool, float, Any, Any, float, float, int, bool]:  # pragma: no cover - compiled
-    """``_lm3`` from ``_floor_start``; first whether that start exists (if not, the rest is meaningless)."""
-    Z, target, mode, scale, rows, lens = problem[0], problem[2], problem[3], problem[4], problem[5], problem[7]
-    started, theta = _floor_start(Z, target, mode, scale, rows, lens)
-    if not started:
-        nan3 = np.full((3, 3), np.nan)
-        return False, theta, False, np.inf, nan3, nan3, np.nan, np.inf, 0, False
-    th, ok, cost, cov, cov_res, scale, rms, iterations, converged = _lm3(problem, theta, max_iterations, tolerance)
-    return True, th, ok, cost, cov, cov_res, scale, rms, iterations, converged
-
-
-@kernel
-def _floor_start(  # noqa: PLR0912 - a compiled kernel
-    Z: Any, target: Any, mode: int, scale: float, rows: Any, lens: Any
-) -> tuple[bool, Any]:  # pragma: no cover - compiled
-    """A start for the planar fit, (x, y, yaw), from corner pixels ``target`` (N, 2), and whether it exists.
-
-    Each corner through the lens to undistorted normalised (u, v) (OpenCV's fixed-point iteration, 10 steps);
-    then, with P = c U + s V + W + x a0 + y a1 (``PlanarModel``), P_x - u P_z = 0 and P_y - v P_z = 0 are
-    linear in (c, s, x, y): least squares, each weighted as the whitening weighs its pixel (``rows`` with
-    ``mode`` 1, else ``scale``: 2x2 blocks weigh alike), yaw = atan2(s, c). The floor is built in (4 unknowns,
-    not 6), so it lands nearer the minimum than IPPE's start does.
-    """
-    fx, skew, cx, fy, cy = lens[0], lens[1], lens[2], lens[3], lens[4]
-    k1, k2, p1, p2, k3 = lens[5], lens[6], lens[7], lens[8], lens[9]
-    A = np.zeros((4, 4))
-    b = np.zeros(4)
-    row = np.empty(4)
-    for i in range(target.shape[0]):
-        y0 = (target[i, 1] - cy) / fy
-        x0 = (target[i, 0] - cx - skew * y0) / fx
-        x, y = x0, y0
-        for _ in range(10):
-            xx, yy, xy = x * x, y * y, x * y
-            r2 = xx + yy
-            icdist = 1.0 / (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)))
-            if lens[13] != 0.0:
-                icdist *= 1.0 + r2 * (lens[10] + r2 * (lens[11] + r2 * lens[12]))
-            if not icdist > 0.0:
-                x, y = x0, y0
-                break
-            x = (x0 - (2.0 * p1 * xy + p2 * (r2 + 2.0 * xx))) * icdist
-            y = (y0 - (p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy)) * icdist
-        for d in range(2):
-            m = x if d == 0 else y
-            w = rows[2 * i + d] if mode == 1 else scale
-            for k in range(4):
-                col = k if k < 2 else k + 1  # U, V, (W), a0, a1
-                row[k] = w * (Z[3 * i + d, col] - m * Z[3 * i + 2, col])
-            rhs = -w * (Z[3 * i + d, 2] - m * Z[3 * i + 2, 2])
-            for k in range(4):
-                b[k] += row[k] * rhs
-                for j in range(4):
-                    A[k, j] += row[k] * row[j]
-    theta = np.zeros(3)
-    # Gauss-Jordan with partial pivoting on the 4x4 normal equations (a LAPACK call costs more here).
-    for k in range(4):
-        p = k
-        for j in range(k + 1, 4):
-            if abs(A[j, k]) > abs(A[p, k]):
-                p = j
-        if not abs(A[p, k]) > 0.0:  # singular, or NaN
-            return False, theta
-        if p != k:
-            for j in range(4):
-                A[k, j], A[p, j] = A[p, j], A[k, j]
-            b[k], b[p] = b[p], b[k]
-        for j in range(4):
-            if j != k:
-                f = A[j, k] / A[k, k]
-                for m in range(k, 4):
-                    A[j, m] -= f * A[k, m]
-                b[j] -= f * b[k]
-    q0, q1, q2, q3 = b[0] / A[0, 0], b[1] / A[1, 1], b[2] / A[2, 2], b[3] / A[3, 3]
-    if not (np.isfinite(q0 + q1 + q2 + q3) and np.hypot(q0, q1) > 1e-3):
-        return False, theta
-    theta[0], theta[1], theta[2] = q2, q3, np.arctan2(q1, q0)
-    return True, theta
-
-
-def _board_theta(model: PlanarModel, roles: tuple[str, ...], img: NDArray[np.float64]) -> NDArray[np.float64] | None:
-    """``board_start`` as (x, y, yaw), from the stacked corners."""
-    if len(roles) < 2:
-        return None
-    camera = model.camera
-    try:
-        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-            model.parts(roles).obj, img.reshape(-1, 2), camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE
-        )
-    except cv2.error:
-        return None
-    return _planar_start(rvecs[0], tvecs[0], model.base_T_optical, _EYE4) if n else None
-
-
-_EYE4 = np.eye(4)
-
-
-def _ippe_starts(roles: tuple[str, ...], img: NDArray[np.float64], model: PlanarModel) -> list[NDArray[np.float64]]:
-    """Planar starts from every IPPE solution: each marker alone (IPPE_SQUARE) and, for several, the board."""
-    camera, layout = model.camera, model.layout
-    pixels = img.reshape(-1, 4, 2)
-    starts: list[NDArray[np.float64]] = []
-
-    def add(rvecs: Iterable[ArrayLike], tvecs: Iterable[ArrayLike], obj_T_dock: NDArray[np.float64]) -> None:
-        for rv, tv in zip(rvecs, tvecs, strict=True):
-            th = _planar_start(rv, tv, model.base_T_optical, obj_T_dock)
-            if th is not None:
-                starts.append(th)
-
-    square = layout.corners_in_marker()
-    for k, role in enumerate(roles):
-        try:
-            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-                square, pixels[k], camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
-            )
-        except cv2.error:
-            continue
-        if n:
-            add(rvecs, tvecs, transforms.invert(layout.dock_T_marker(role)))
-    if len(roles) == 1:
-        # Both sides of a lone marker's yaw ambiguity, whatever IPPE returned: its second solution is not always
-        # the mirror of its first (OpenCV 5.0.0's IPPE_SQUARE can return a rotation 4.7 px off for a marker
-        # 2.3 m away on an x86_64 build), and a missing side is a missing minimum.
-        starts += [_mirrored(th, roles[0], model) for th in starts]
-    if len(roles) > 1:
-        obj = model.parts(roles).obj
-        try:
-            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-                obj, pixels.reshape(-1, 2), camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE
-            )
-        except cv2.error:
-            n = 0
-        if n:
-            add(rvecs, tvecs, _EYE4)
-    return starts
-
-
-def _mirrored(th: NDArray[np.float64], role: str, model: PlanarModel) -> NDArray[np.float64]:
-    """The planar pose on the other side of a lone marker's yaw ambiguity: the marker's normal reflected about the
-    camera's line of sight to its centre (yaw -> 2 bearing - yaw), the marker's centre where it was."""
-    x, y, yaw = (float(v) for v in th)
-    offset = model.layout.marker(role).y  # the marker's centre in the dock frame is (0, offset, z)
-    mx, my = x - math.sin(yaw) * offset, y + math.cos(yaw) * offset
-    bearing = math.atan2(my - float(model.base_T_optical[1, 3]), mx - float(model.base_T_optical[0, 3]))
-    turned = wrap_angle(2.0 * bearing - yaw)
-    return np.array([mx + math.sin(turned) * offset, my - math.cos(turned) * offset, turned])
-
-
-def _same(a: NDArray[np.float64], b: NDArray[np.float64], tol: float) -> bool:
-    return abs(a[0] - b[0]) < tol and abs(a[1] - b[1]) < tol and abs(wrap_angle(float(a[2] - b[2]))) < tol
-
-
-def planar_candidates(
-    corners: Mapping[str, ArrayLike],
-    camera: CameraModel,
-    layout: DockLayout,
-    robot: RobotConfig,
-    *,
-    corner_sigma: float | ArrayLike = DEFAULT_CORNER_SIGMA_PX,
-    prior: PosePrior | None = None,
-    starts: Sequence[DockPose] = (),
-    max_iterations: int = 50,
-    tolerance: float = _TOLERANCE,
-    pitch_sd: float | None = None,
-    roll_sd: float | None = None,
-) -> list[PlanarFit]:
-    """Every distinct converged local minimum of the planar fit, lowest cost first.
-
-    Starts are ``starts`` (e.g. a regression estimate or the last frame's pose) and both IPPE solutions
-    of each marker (SOLVEPNP_IPPE_SQUARE) and, with several markers, of the board (SOLVEPNP_IPPE), each
-    turned into a planar pose (z, roll and pitch dropped). For a lone far marker the two IPPE solutions
-    lead to the two minima of the yaw sign ambiguity; the caller scores them (cost, a prior, a tracker).
-    ``pitch_sd``, ``roll_sd`` as in ``solve_planar`` (every start with δ = 0).
-
-    Raises:
-        InputError: as ``solve_planar``.
-    """
-    roles, img = _stack_corners(corners)
-    model = planar_model(camera, layout, robot)
-    parts = model.parts(roles)
-    white = _whitening(corner_sigma, len(parts.obj))
-    nuisance = _nuisance(pitch_sd, roll_sd)
-    seeds = [_theta(s) for s in starts] + _ippe_starts(roles, img, model)
-    tried: list[NDArray[np.float64]] = []
-    found: list[PlanarFit] = []
-    for seed in seeds:
-        # Starts this close run to the same minimum (IPPE of each marker and of the board mostly agree).
-        if any(_same(seed, t, _SAME_START) for t in tried):
-            continue
-        tried.append(seed)
-        if nuisance is None:
-            fit = _solve(model, roles, parts, img, white, seed, prior, max_iterations, tolerance)
-        else:
-            fit = _solve4(model, roles, parts, img, white, seed, prior, *nuisance, max_iterations, tolerance)
-        if not fit.converged:
-            continue
-        th = _theta(fit.pose)
-        if any(_same(th, _theta(f.pose), _SAME_MINIMUM) for f in found):
-            continue
-        found.append(fit)
-    return sorted(found, key=lambda f: f.cost)
+    return marginal3(F, 1.0)
