@@ -9,6 +9,9 @@ split and scored on the 20 % split; the model type whose best draw has the lowes
 All fits run in parallel (joblib, loky processes), each with its own seed derived from the configuration's seed
 and the task, so results do not depend on the number of workers. Features are rounded to float32 before
 fitting: the exported ONNX models take float32 input, and trees then split on the very numbers they will see.
+
+The model types and their search spaces are in ``learning.regressors``, the sets, configuration and tasks in
+``learning.tasks``; those of their names in this module's ``__all__`` are importable from here too.
 """
 
 from __future__ import annotations
@@ -16,14 +19,12 @@ from __future__ import annotations
 import logging
 import math
 import os
-import re
 import sys
 import time
 import warnings
-import zlib
 from collections.abc import Generator, Mapping, Sequence
 from contextlib import closing
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -34,8 +35,9 @@ from tqdm import tqdm
 
 from monodock.core.cluster import active_client
 from monodock.core.interrupt import sigint_blocked
-from monodock.errors import ConfigError, InputError
-from monodock.estimation.segments import SegmentTable
+from monodock.errors import InputError
+from monodock.learning.regressors import MODEL_NAMES, SEARCH_SPACES, describe_search_space, make_regressor, resolve_draw
+from monodock.learning.tasks import Task, TrainConfig, TrainingSet, make_tasks, segment_quota, stable_seed
 from monodock.learning.treefit import lean_predict
 
 __all__ = [
@@ -51,118 +53,6 @@ __all__ = [
     "segment_quota",
     "train",
 ]
-
-MODEL_NAMES: tuple[str, ...] = (
-    "linear",
-    "ridge",
-    "lasso",
-    "decision_tree",
-    "random_forest",
-    "svr",
-    "gradient_boosting",
-)
-
-# Model types that see standardised inputs (a StandardScaler in front, inside the exported model).
-SCALED_MODELS = frozenset({"linear", "ridge", "lasso", "svr"})
-
-# Upper bounds on the leaves of one fitted tree model, summed over its trees. They keep the ONNX bundle small:
-# about 80 bytes per leaf, so at most 80 B × (16384 + 45 × 2048) ≈ 8.7 MB per marker set even if every task
-# chose a full-budget forest. The global depth model, being only one and fit on every row, gets more.
-LEAF_BUDGET_DEPTH = 16384
-LEAF_BUDGET_ANGLE = 2048
-
-_SET_NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
-
-
-@dataclass(frozen=True)
-class TrainingSet:
-    """Rows for one marker set, e.g. name "m1m2m3" (all three markers seen) or "m2" (marker 2 alone).
-
-    Attributes:
-        name: The set's name: letters, digits, '_' or '-' (it becomes part of file names).
-        feature_names: One name per column of ``X``.
-        X: Features, shape (n, len(feature_names)), all finite.
-        depth: Depth target in metres (the DockPose x label), shape (n,).
-        yaw_deg: Angle target in degrees, shape (n,).
-        segment_depth: The depth in metres from the camera that assigns a row to its 5 cm segment, shape (n,).
-    """
-
-    name: str
-    feature_names: tuple[str, ...]
-    X: NDArray[np.float64]
-    depth: NDArray[np.float64]
-    yaw_deg: NDArray[np.float64]
-    segment_depth: NDArray[np.float64]
-
-    def __post_init__(self) -> None:
-        if not _SET_NAME.match(self.name):
-            raise InputError(f"training set name {self.name!r} must be 1-64 letters, digits, '_' or '-'")
-        n = len(self.depth)
-        if self.X.ndim != 2 or self.X.shape != (n, len(self.feature_names)):
-            raise InputError(
-                f"training set {self.name}: X has shape {self.X.shape}, expected ({n}, {len(self.feature_names)})"
-            )
-        for label, a in (("depth", self.depth), ("yaw_deg", self.yaw_deg), ("segment_depth", self.segment_depth)):
-            if a.shape != (n,):
-                raise InputError(f"training set {self.name}: {label} has shape {a.shape}, expected ({n},)")
-        for label, a in (("X", self.X), ("depth", self.depth), ("yaw_deg", self.yaw_deg)):
-            if not np.all(np.isfinite(a)):
-                raise InputError(f"training set {self.name}: {label} holds NaN or infinite values")
-        if len(set(self.feature_names)) != len(self.feature_names):
-            raise InputError(f"training set {self.name}: feature names are not unique")
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """How to train: search effort, split, seed, segment borrowing rules, model types and workers.
-
-    Attributes:
-        trials: Hyperparameter draws per model type and task (types without hyperparameters: 1).
-        test_size: Fraction of each task's rows held out for scoring (the papers' 80/20 split).
-        seed: Seed of every random choice (splits, draws, tree seeds, SVR subsample).
-        min_segment_samples: A segment with fewer rows borrows its neighbours' rows until it has this many.
-        min_rows_per_feature: ... or until it has this many rows per input feature, if that is more: a
-            linear model of 40 inputs fitted on 50 noisy labels learns their noise.
-        max_borrow: Borrow from at most this many segments on either side.
-        min_rows: Below this many rows after borrowing, a segment gets no angle model.
-        svr_max_rows: SVR (O(n²) to fit) is fit on a seeded subsample of at most this many training rows.
-        models: Model types to try, from MODEL_NAMES.
-        jobs: Worker processes; 0 means one per available core.
-        segments: The depth segments of the angle models.
-    """
-
-    trials: int = 10
-    test_size: float = 0.2
-    seed: int = 0
-    min_segment_samples: int = 40
-    min_rows_per_feature: float = 3.0
-    max_borrow: int = 4
-    min_rows: int = 10
-    svr_max_rows: int = 4000
-    models: tuple[str, ...] = MODEL_NAMES
-    jobs: int = 0
-    segments: SegmentTable = field(default_factory=SegmentTable)
-
-    def __post_init__(self) -> None:
-        unknown = [m for m in self.models if m not in MODEL_NAMES]
-        if unknown:
-            raise ConfigError(f"unknown model type(s) {', '.join(unknown)}; choose from {', '.join(MODEL_NAMES)}")
-        if not self.models or len(set(self.models)) != len(self.models):
-            raise ConfigError("models must name at least one model type, each once")
-        if self.trials < 1:
-            raise ConfigError(f"trials must be at least 1, got {self.trials}")
-        if not 0.0 < self.test_size < 1.0:
-            raise ConfigError(f"test_size must be between 0 and 1, got {self.test_size}")
-        if self.seed < 0:
-            raise ConfigError(f"seed must be non-negative, got {self.seed}")
-        if self.min_rows < 5 or self.min_segment_samples < self.min_rows:
-            raise ConfigError(
-                f"need 5 <= min_rows <= min_segment_samples, got {self.min_rows} and {self.min_segment_samples}"
-            )
-        if not self.min_rows_per_feature >= 0:
-            raise ConfigError(f"min_rows_per_feature must be >= 0, got {self.min_rows_per_feature}")
-        if self.max_borrow < 0 or self.jobs < 0 or self.svr_max_rows < 10:
-            raise ConfigError("max_borrow and jobs must be >= 0 and svr_max_rows >= 10")
 
 
 @dataclass(frozen=True)
@@ -277,283 +167,6 @@ class TrainingResult:
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# Model zoo and search spaces
-
-
-class _LogUniform:
-    """A log-uniform distribution over [lo, hi] for ParameterSampler (anything with ``rvs`` will do)."""
-
-    def __init__(self, lo: float, hi: float) -> None:
-        self.lo, self.hi = lo, hi
-
-    def rvs(self, random_state: np.random.RandomState) -> float:
-        return float(math.exp(random_state.uniform(math.log(self.lo), math.log(self.hi))))
-
-    def __repr__(self) -> str:
-        return f"log-uniform {self.lo:g}–{self.hi:g}"
-
-
-class _Uniform(_LogUniform):
-    """A uniform distribution over [lo, hi]."""
-
-    def rvs(self, random_state: np.random.RandomState) -> float:
-        return float(random_state.uniform(self.lo, self.hi))
-
-    def __repr__(self) -> str:
-        return f"uniform {self.lo:g}–{self.hi:g}"
-
-
-class _IntUniform:
-    """Integers lo..hi (inclusive), each equally likely."""
-
-    def __init__(self, lo: int, hi: int) -> None:
-        self.lo, self.hi = lo, hi
-
-    def rvs(self, random_state: np.random.RandomState) -> int:
-        return int(random_state.randint(self.lo, self.hi + 1))
-
-    def __repr__(self) -> str:
-        return f"integers {self.lo}–{self.hi}"
-
-
-# Raw search spaces; _resolve turns a draw into estimator parameters. SVR's C and epsilon and Lasso's alpha are
-# drawn relative to the target's standard deviation, SVR's gamma relative to 1/n_features (inputs are
-# standardised), so one space suits depth in metres and yaw in degrees alike.
-_SPACES: dict[str, dict[str, Any]] = {
-    "linear": {},
-    "ridge": {"alpha": _LogUniform(1e-4, 1e3)},
-    "lasso": {"alpha_rel": _LogUniform(1e-4, 1e-1)},
-    "decision_tree": {
-        "max_depth": _IntUniform(4, 16),
-        "min_samples_leaf": _IntUniform(1, 20),
-        "max_features": [1.0, 0.7],
-    },
-    "random_forest": {
-        "n_estimators": _IntUniform(20, 100),
-        "max_depth": _IntUniform(4, 16),
-        "min_samples_leaf": _IntUniform(1, 10),
-        "max_features": [0.33, 0.5, 1.0],
-    },
-    "svr": {
-        "C_rel": _LogUniform(0.1, 100.0),
-        "gamma_rel": _LogUniform(0.05, 5.0),
-        "epsilon_rel": _LogUniform(1e-3, 0.1),
-    },
-    "gradient_boosting": {
-        "n_estimators": _IntUniform(30, 150),
-        "learning_rate": _LogUniform(0.03, 0.3),
-        "max_depth": _IntUniform(2, 4),
-        "min_samples_leaf": _IntUniform(1, 20),
-        "subsample": _Uniform(0.5, 0.9),
-        "max_features": [0.5, 1.0],
-    },
-}
-
-_SPACE_NOTES = {
-    "linear": "ordinary least squares (no hyperparameters; one fit)",
-    "lasso": "alpha = alpha_rel × std(target); random coordinate order, at most 5000 passes",
-    "decision_tree": "leaves ≤ budget",
-    "random_forest": "max_leaf_nodes = budget // n_estimators (total leaves ≤ budget)",
-    "svr": "RBF kernel; C = C_rel × std(target), gamma = gamma_rel / n_features, epsilon = epsilon_rel × std(target)",
-    "gradient_boosting": "squared error; max_leaf_nodes = min(2^max_depth, budget // n_estimators)",
-}
-
-
-def describe_search_space(model: str) -> str:
-    """A one-line description of a model type's hyperparameter search space, for reports."""
-    space = _SPACES[model]
-    parts = [f"{k}: {v!r}" if not isinstance(v, list) else f"{k}: one of {v}" for k, v in sorted(space.items())]
-    scaled = "standardised inputs" if model in SCALED_MODELS else "raw inputs"
-    extra = _SPACE_NOTES.get(model)
-    return "; ".join([scaled, *parts, *([extra] if extra else [])])
-
-
-def _plain(v: Any) -> Any:
-    """A parameter value as a plain JSON-able Python value."""
-    if isinstance(v, np.integer):
-        return int(v)
-    if isinstance(v, np.floating):
-        return float(v)
-    return v
-
-
-def _resolve(model: str, raw: Mapping[str, Any], *, y_std: float, n_features: int, leaf_budget: int) -> dict[str, Any]:
-    """Estimator parameters from one raw draw, given the task's target spread, width and leaf budget."""
-    p = {k: _plain(v) for k, v in raw.items()}
-    scale = y_std if y_std > 0 else 1.0
-    if model == "lasso":
-        return {"alpha": p["alpha_rel"] * scale}
-    if model == "svr":
-        return {"C": p["C_rel"] * scale, "gamma": p["gamma_rel"] / n_features, "epsilon": p["epsilon_rel"] * scale}
-    if model == "decision_tree":
-        return {**p, "max_leaf_nodes": leaf_budget}
-    if model == "random_forest":
-        return {**p, "max_leaf_nodes": max(8, leaf_budget // int(p["n_estimators"]))}
-    if model == "gradient_boosting":
-        leaves = min(2 ** int(p["max_depth"]), max(4, leaf_budget // int(p["n_estimators"])))
-        return {**p, "max_leaf_nodes": leaves}
-    return p
-
-
-def make_regressor(model: str, params: Mapping[str, Any], random_state: int = 0) -> Any:
-    """An unfitted scikit-learn estimator of one model type with the given hyperparameters.
-
-    Linear, ridge, lasso and SVR are Pipelines with a StandardScaler first; tree models see raw inputs.
-
-    Args:
-        model: One of MODEL_NAMES.
-        params: Hyperparameters of the final estimator (as in ModelScore.params).
-        random_state: Seed of the randomised models (trees, forest, boosting).
-
-    Returns:
-        The estimator.
-    """
-    from sklearn.ensemble import GradientBoostingRegressor, RandomForestRegressor
-    from sklearn.linear_model import Lasso, LinearRegression, Ridge
-    from sklearn.pipeline import Pipeline
-    from sklearn.preprocessing import StandardScaler
-    from sklearn.svm import SVR
-    from sklearn.tree import DecisionTreeRegressor
-
-    p = dict(params)
-    if model == "linear":
-        inner: Any = LinearRegression(**p)
-    elif model == "ridge":
-        inner = Ridge(**p)
-    elif model == "lasso":
-        inner = Lasso(max_iter=5000, selection="random", random_state=random_state, **p)
-    elif model == "svr":
-        inner = SVR(kernel="rbf", cache_size=500, **p)
-    elif model == "decision_tree":
-        return DecisionTreeRegressor(random_state=random_state, **p)
-    elif model == "random_forest":
-        return RandomForestRegressor(random_state=random_state, n_jobs=1, **p)
-    elif model == "gradient_boosting":
-        return GradientBoostingRegressor(random_state=random_state, **p)
-    else:
-        raise ConfigError(f"unknown model type {model}; choose from {', '.join(MODEL_NAMES)}")
-    return Pipeline([("scale", StandardScaler()), ("model", inner)])
-
-
-# ---------------------------------------------------------------------------------------------------------------
-# Tasks
-
-
-def _seed(*parts: int | str) -> int:
-    """A 32-bit seed that depends only on ``parts`` (strings hashed with CRC-32, stable across runs)."""
-    words = [zlib.crc32(p.encode("utf-8")) if isinstance(p, str) else int(p) for p in parts]
-    return int(np.random.SeedSequence(words).generate_state(1, dtype=np.uint32)[0])
-
-
-@dataclass(frozen=True)
-class _Task:
-    """One (set, target, segment) problem with its rows and split, before any fit."""
-
-    set_index: int
-    set_name: str
-    target: str
-    segment: int | None
-    n_own: int
-    borrowed: tuple[int, int] | None
-    sources: tuple[int, ...]
-    rows: NDArray[np.int64]
-    leaf_budget: int
-    train_rows: NDArray[np.int64]
-    test_rows: NDArray[np.int64]
-    svr_rows: NDArray[np.int64]
-    y_std: float
-    reason: str | None = None
-
-    @property
-    def key(self) -> str:
-        return f"{self.set_name}/{self.target}/{'all' if self.segment is None else self.segment}"
-
-
-def segment_quota(config: TrainConfig, n_features: int) -> int:
-    """Rows an angle segment should have before it stops borrowing from its neighbours."""
-    return max(config.min_segment_samples, math.ceil(config.min_rows_per_feature * n_features))
-
-
-def _segment_rows(
-    seg_of_row: NDArray[np.int64], k: int, config: TrainConfig, n_features: int
-) -> tuple[NDArray[np.int64], int, tuple[int, int] | None]:
-    """Rows for segment ``k``: its own, plus neighbours k±1, k±2, ... while fewer than the segment quota."""
-    own = np.flatnonzero(seg_of_row == k)
-    quota = segment_quota(config, n_features)
-    lo = hi = k
-    d = 0
-    while int(np.count_nonzero((seg_of_row >= lo) & (seg_of_row <= hi))) < quota and d < config.max_borrow:
-        d += 1
-        lo, hi = max(0, k - d), min(config.segments.count - 1, k + d)
-    rows = np.flatnonzero((seg_of_row >= lo) & (seg_of_row <= hi))
-    borrowed = None if (lo, hi) == (k, k) else (lo, hi)
-    return rows, len(own), borrowed
-
-
-def _make_task(
-    s: TrainingSet,
-    set_index: int,
-    segment: int | None,
-    rows: NDArray[np.int64],
-    seg_of_row: NDArray[np.int64],
-    borrowed: tuple[int, int] | None,
-    config: TrainConfig,
-) -> _Task:
-    """The task of the depth model (``segment`` None) or of one segment's angle model, split 80/20."""
-    from sklearn.model_selection import train_test_split
-
-    target = "depth" if segment is None else "yaw_deg"
-    key_seed = _seed(config.seed, s.name, target, "all" if segment is None else segment)
-    empty = np.zeros(0, dtype=np.int64)
-    task = _Task(
-        set_index=set_index,
-        set_name=s.name,
-        target=target,
-        segment=segment,
-        n_own=len(rows) if segment is None else int(np.count_nonzero(seg_of_row == segment)),
-        borrowed=borrowed,
-        sources=() if segment is None else tuple(int(i) for i in np.unique(seg_of_row[rows])),
-        rows=rows,
-        leaf_budget=LEAF_BUDGET_DEPTH if segment is None else LEAF_BUDGET_ANGLE,
-        train_rows=empty,
-        test_rows=empty,
-        svr_rows=empty,
-        y_std=0.0,
-    )
-    if len(rows) < config.min_rows:
-        where = "" if borrowed is None else f" within ±{config.max_borrow} segments"
-        return replace(task, reason=f"only {len(rows)} rows{where} (need {config.min_rows})")
-    train_rows, test_rows = train_test_split(rows, test_size=config.test_size, random_state=key_seed % (2**31))
-    train_rows = np.sort(np.asarray(train_rows, dtype=np.int64))
-    svr_rows = train_rows
-    if len(train_rows) > config.svr_max_rows:
-        pick = np.random.default_rng(_seed(key_seed, "svr")).choice(len(train_rows), config.svr_max_rows, replace=False)
-        svr_rows = train_rows[np.sort(pick)]
-    y = s.depth if segment is None else s.yaw_deg
-    return replace(
-        task,
-        train_rows=train_rows,
-        test_rows=np.sort(np.asarray(test_rows, dtype=np.int64)),
-        svr_rows=svr_rows,
-        y_std=float(np.std(y[train_rows])),
-    )
-
-
-def _tasks(sets: Sequence[TrainingSet], config: TrainConfig) -> list[_Task]:
-    tasks: list[_Task] = []
-    for i, s in enumerate(sets):
-        all_rows = np.arange(len(s.depth), dtype=np.int64)
-        if len(all_rows) < config.min_rows:
-            raise InputError(f"training set {s.name} has {len(all_rows)} rows; need at least {config.min_rows}")
-        seg_of_row = config.segments.indices(s.segment_depth)
-        tasks.append(_make_task(s, i, None, all_rows, seg_of_row, None, config))
-        for k in range(config.segments.count):
-            rows, _, borrowed = _segment_rows(seg_of_row, k, config, len(s.feature_names))
-            tasks.append(_make_task(s, i, k, rows, seg_of_row, borrowed, config))
-    return tasks
-
-
-# ---------------------------------------------------------------------------------------------------------------
 # Fitting
 
 
@@ -614,7 +227,7 @@ _COST = {
 }
 
 
-def _batches(tasks: Sequence[_Task], config: TrainConfig, n_features: Sequence[int]) -> list[_Batch]:
+def _batches(tasks: Sequence[Task], config: TrainConfig, n_features: Sequence[int]) -> list[_Batch]:
     from sklearn.model_selection import ParameterSampler
 
     batches: list[_Batch] = []
@@ -624,17 +237,19 @@ def _batches(tasks: Sequence[_Task], config: TrainConfig, n_features: Sequence[i
         draws: list[_Draw] = []
         cost = 0.0
         for model in config.models:
-            space = _SPACES[model]
+            space = SEARCH_SPACES[model]
             n_iter = config.trials if space else 1
-            sampler = ParameterSampler(space, n_iter=n_iter, random_state=_seed(config.seed, t.key, model) % (2**31))
+            sampler = ParameterSampler(
+                space, n_iter=n_iter, random_state=stable_seed(config.seed, t.key, model) % (2**31)
+            )
             raws = list(sampler) if space else [{}]
             n_fit = len(t.svr_rows) if model == "svr" else len(t.train_rows)
             cost += len(raws) * _COST[model] * n_fit * (n_fit / 1000.0 if model == "svr" else 1.0)
             for trial, raw in enumerate(raws):
-                params = _resolve(
+                params = resolve_draw(
                     model, raw, y_std=t.y_std, n_features=n_features[t.set_index], leaf_budget=t.leaf_budget
                 )
-                draws.append(_Draw(model, trial, params, _seed(config.seed, t.key, model, trial)))
+                draws.append(_Draw(model, trial, params, stable_seed(config.seed, t.key, model, trial)))
         batches.append(_Batch(t_index, tuple(draws), tuple(config.models), cost))
     return batches
 
@@ -727,7 +342,7 @@ def _worker_count(jobs: int) -> int:
 
 def _run(
     batches: Sequence[_Batch],
-    tasks: Sequence[_Task],
+    tasks: Sequence[Task],
     data: Sequence[tuple[NDArray[np.float64], TrainingSet]],
     n_workers: int,
     progress: bool,
@@ -814,7 +429,7 @@ def train(sets: Sequence[TrainingSet], config: TrainConfig, *, progress: bool = 
     names = [s.name for s in sets]
     if len(set(names)) != len(names):
         raise InputError(f"training set names must be unique, got {', '.join(names)}")
-    tasks = _tasks(sets, config)
+    tasks = make_tasks(sets, config)
     # float32 values (held as float64): what the ONNX models will see, so trees split on the same numbers.
     data = [(s.X.astype(np.float32).astype(np.float64), s) for s in sets]
     batches = _batches(tasks, config, [len(s.feature_names) for s in sets])

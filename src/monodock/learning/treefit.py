@@ -27,8 +27,8 @@ __all__ = ["LEAN_MODELS", "lean_predict"]
 
 LEAN_MODELS = ("random_forest", "gradient_boosting")
 
-# The hyperparameters the lean fits understand, as the selection draws them (learning.train._resolve: a float
-# max_features, max_leaf_nodes always set); a draw with any other falls back to scikit-learn.
+# The hyperparameters the lean fits understand, as the selection draws them (learning.regressors.resolve_draw: a
+# float max_features, max_leaf_nodes always set); a draw with any other falls back to scikit-learn.
 _FOREST_KEYS = frozenset({"n_estimators", "max_depth", "min_samples_leaf", "max_features", "max_leaf_nodes"})
 _BOOSTING_KEYS = _FOREST_KEYS | {"learning_rate", "subsample"}
 _MAX_INT = np.iinfo(np.int32).max

@@ -2,7 +2,7 @@
 log, the executed case against the start region, and the runs worth a figure of their own.
 
 A run's ``path`` is the true (x, y, heading) in the dock frame; the robot reverses where it moved opposite to its
-heading. Top views draw a dock-frame point (x, y) at (-y, x), as report.docking does.
+heading. Top views draw a dock-frame point (x, y) at (-y, x), as report.dock_cases does.
 """
 
 from __future__ import annotations
