@@ -23,6 +23,7 @@ from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.controller import DockingConfig, DockingMission, Observation
+from monodock.dock.interface import Odometry
 from monodock.dock.pose_filter import (
     GATE_CHI2_3DOF,
     DockFilter,
@@ -272,15 +273,25 @@ def test_coasting_through_a_blackout_stays_bounded_and_grows_the_covariance() ->
 
 
 def test_mission_reads_the_observation_covariance() -> None:
-    """The controller folds a frame in with the covariance it came with, and falls back to the defaults."""
+    """The mission's track folds a frame in with the covariance it came with, and falls back to the mission's
+    defaults (``DockingConfig.measurement``) when it has none or one the filter cannot invert."""
     robot = RobotConfig.default()
     mission = DockingMission(DockingConfig(measurement=NOISE), robot, 0.1)
     pose = DockPose(1.2, 0.05, 0.02)
+    assert mission.track.place(Observation(0.0, pose, 3)) is None  # no odometry yet: the frame cannot be placed
+    here = Pose2D(0.4, -0.1, 0.3)
+    mission.track.move(Odometry(0.0, here, 0.0, 0.0))
+
+    def placed_covariance(observation: Observation) -> NDArray[np.float64]:
+        placed = mission.track.place(observation)
+        assert placed is not None
+        at, cov = placed
+        assert at == here
+        return cov
+
     own = np.diag([1e-4, 4e-6, 1e-4])
-    assert mission.measurement_covariance(Observation(0.0, pose, 3, own)) is not None
-    np.testing.assert_array_equal(mission.measurement_covariance(Observation(0.0, pose, 3, own)), own)
-    np.testing.assert_array_equal(mission.measurement_covariance(Observation(0.0, pose, 3)), NOISE.covariance(pose, 3))
+    np.testing.assert_array_equal(placed_covariance(Observation(0.0, pose, 3, own)), own)
+    np.testing.assert_array_equal(placed_covariance(Observation(0.0, pose, 3)), NOISE.covariance(pose, 3))
     broken = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0]])
-    np.testing.assert_array_equal(
-        mission.measurement_covariance(Observation(0.0, pose, 3, broken)), NOISE.covariance(pose, 3)
-    )
+    np.testing.assert_array_equal(placed_covariance(Observation(0.0, pose, 3, broken)), NOISE.covariance(pose, 3))
+    assert mission.track.place(Observation(0.0, None, 0)) is None

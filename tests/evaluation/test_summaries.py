@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from monodock.core.pose2d import Pose2D
+from monodock.dock.states import FailureReason, State
 from monodock.evaluation.dock_sim import DockSimConfig, DockSimSummary, FilterFrame, TrialResult, summarize
 from monodock.evaluation.heldout import (
     HeldoutResult,
@@ -32,9 +33,9 @@ def _trial(case: int, method: str, *, success: bool, lateral: float, frames: tup
         method=method,
         start=start,
         classified_case=case if success else None,
-        state="docked" if success else "failed",
+        state=State.DOCKED if success else State.FAILED,
         reason="" if success else "markers lost: for 1.2 s during the approach",
-        failure="" if success else "markers-lost",
+        failure=None if success else FailureReason.MARKERS_LOST,
         success=success,
         retries=0 if success else 2,
         time_s=18.5 + case,

@@ -16,6 +16,7 @@ import yaml
 from monodock.cli.demo import DemoConfig, demo_settings
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
+from monodock.dock.states import State
 from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
 from monodock.evaluation.dock_sim import DockSimConfig, TrialResult, summarize
 from monodock.evaluation.heldout import (
@@ -80,7 +81,7 @@ def _docking(out: Path) -> DockingRun:
         for m in config.methods:
             path = tuple((start.x + (-0.4 - start.x) * s, start.y * (1 - s), start.theta * (1 - s)) for s in (0, 1))
             numbers = (True, 0, 20.0, 0.1, 0.2, 0.1, None, 300, 1.0, 0.5, 0.1)
-            results.append(TrialResult(case, 0, m, start, case, "docked", "", *numbers, path, ()))
+            results.append(TrialResult(case, 0, m, start, case, State.DOCKED, "", *numbers, path, ()))
     (out / "docking").mkdir()
     write_dock_files(out / "docking", results, config)
     return DockingRun(config, tuple(results), summarize(results, config))

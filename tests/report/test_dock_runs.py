@@ -12,6 +12,7 @@ import pytest
 
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
+from monodock.dock.states import FailureReason, State
 from monodock.evaluation.dock_sim import DockSimConfig, TrialResult, summarize
 from monodock.report.dock_runs import (
     agreement_table,
@@ -69,7 +70,7 @@ def _run(
         method="pnp",
         start=Pose2D(*start),
         classified_case=executed,
-        state="docked" if success else "failed",
+        state=State.DOCKED if success else State.FAILED,
         reason="",
         success=success,
         retries=0,
@@ -84,7 +85,7 @@ def _run(
         perceive_s=0.1,
         path=tuple(path),
         log=tuple(log),
-        failure="" if success else "timeout",
+        failure=None if success else FailureReason.TIMEOUT,
         planner=planner,
         point_a=point_a if executed is not None else None,
         path_t=tuple(0.2 * i for i in range(len(path))) if times else (),

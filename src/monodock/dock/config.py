@@ -1,4 +1,5 @@
-"""The docking config file: the mission's gains, speeds, tolerances, time-outs and retries as one YAML mapping.
+"""The docking config: the mission's gains, speeds, tolerances, time-outs and retries (``DockingConfig``), and
+its file, one YAML mapping.
 
 The file mirrors ``DockingConfig`` field by field, its nested sections (``planner``, ``track`` with its
 ``odometry``, ``measurement``) as nested mappings. Every key is optional (a missing one keeps its default) and
@@ -13,14 +14,127 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
 
 from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
-from monodock.dock.controller import DockingConfig
+from monodock.dock.planner import PlannerConfig
+from monodock.dock.pose_filter import FilterConfig, MeasurementNoise
 from monodock.errors import ConfigError
 
-__all__ = ["docking_config_from_dict", "docking_config_to_dict", "load_docking_config", "save_docking_config"]
+__all__ = [
+    "DockingConfig",
+    "docking_config_from_dict",
+    "docking_config_to_dict",
+    "load_docking_config",
+    "save_docking_config",
+]
+
+
+@dataclass(frozen=True)
+class DockingConfig:
+    """Every gain, speed, acceleration, tolerance, time-out and retry count of docking (SI units, angles in degrees).
+
+    The docking config file (``monodock.dock.config``, ``--config``) and the docking node's ROS parameters set
+    these by name; docs/docking.md lists every field with its unit, default and what it does.
+    """
+
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    control_period: float = 0.02
+    # Speed and acceleration limits; the robot's own maxima cap these.
+    cruise_speed: float = 0.20
+    approach_speed: float = 0.12
+    turn_rate: float = 0.6
+    linear_accel: float = 0.4
+    angular_accel: float = 1.5
+    min_speed: float = 0.02  # below this a real base's wheels stall; a non-zero command is never smaller
+    min_turn_rate: float = 0.08
+    creep_distance: float = 0.03  # the last metres at min_speed
+    stop_lead: float = 0.1  # seconds: stop this early for the command latency and the motors' lag
+    # Moving₃'s P-control: heading reference -atan(k_lateral * lateral error), turn rate k_heading * heading error.
+    k_lateral: float = 4.0
+    k_heading: float = 2.5
+    max_correction_deg: float = 20.0
+    heading_only_gap: float = 0.12  # closer than this the lateral term fades out: arrive square
+    # Turning and driving on odometry.
+    k_turn: float = 3.0
+    turn_tolerance_deg: float = 0.3
+    k_bearing: float = 2.0
+    arrive_tolerance: float = 0.005
+    refine_while_moving: bool = True  # frames during Moving₁ and Moving₂ refine Point A and the turns
+    # Acquire and calculate.
+    acquire: bool = True
+    acquire_turn_rate: float = 0.3
+    first_frame_wait: float = 0.5
+    reacquire_wait: float = 3.0  # after losing the markers: stand and look this long before turning to search
+    acquire_max_turn_deg: float = 370.0
+    calculate_frames: int = 9
+    center_tolerance_deg: float = 5.0
+    calculate_timeout: float = 3.0
+    settle_speed: float = 0.005
+    settle_timeout: float = 1.5
+    # Retry, recovery and tolerances.
+    checkpoint_gap: float = 0.25  # end of Moving₃'s early part: front edge this far from the face
+    retry_lateral: float = 0.02
+    retry_heading_deg: float = 4.0  # off the P-controller's heading reference
+    max_retries: int = 2  # retries and recoveries together
+    recover_distance: float = 0.30  # markers lost mid-approach: back off this far before looking again
+    tolerance_lateral: float = 0.02
+    tolerance_longitudinal: float = 0.02
+    tolerance_heading_deg: float = 3.0
+    # Charging.
+    charge_timeout: float = 2.0  # at the face: the charger must report charging within this
+    reseat_distance: float = 0.05  # not charging: back off this far and drive in again
+    reseat_push: float = 0.005  # each re-seat drives this much farther in than the last (the contacts' springs)
+    max_reseats: int = 2
+    # Safety.
+    max_reverse_speed: float = 0.10
+    max_reverse_distance: float = 1.5  # no reverse leg is longer
+    rear_safety_distance: float = 0.25  # stop reversing short of anything this close behind the back edge
+    blocked_timeout: float = 5.0  # wait this long for the space behind to clear, then fail
+    lost_timeout: float = 1.0
+    mission_timeout: float = 120.0
+    blind_margin: float = 0.04
+    track: FilterConfig = field(default_factory=FilterConfig)  # the dock filter: odometry noise, gate, reset
+    measurement: MeasurementNoise = field(default_factory=MeasurementNoise)  # frames without a covariance
+
+    def __post_init__(self) -> None:
+        positive = (
+            "control_period",
+            "cruise_speed",
+            "approach_speed",
+            "turn_rate",
+            "linear_accel",
+            "angular_accel",
+            "max_reverse_speed",
+            "max_reverse_distance",
+            "recover_distance",
+            "reseat_distance",
+        )
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"docking config: {name} must be positive, got {getattr(self, name)}")
+        not_negative = (
+            "rear_safety_distance",
+            "blocked_timeout",
+            "charge_timeout",
+            "reacquire_wait",
+            "lost_timeout",
+            "reseat_push",
+        )
+        for name in not_negative:
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"docking config: {name} must not be negative, got {getattr(self, name)}")
+        if self.min_speed > self.approach_speed:
+            raise ConfigError("docking config: min_speed must not exceed approach_speed")
+        if self.min_speed > self.max_reverse_speed:
+            raise ConfigError("docking config: min_speed must not exceed max_reverse_speed")
+        if self.recover_distance > self.max_reverse_distance or self.reseat_distance > self.max_reverse_distance:
+            raise ConfigError(
+                "docking config: recover_distance and reseat_distance must not exceed max_reverse_distance"
+            )
+
 
 D = TypeVar("D")
 

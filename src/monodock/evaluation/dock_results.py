@@ -22,6 +22,7 @@ from monodock.core.config import json_text
 from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.records import file_key, from_record, to_record
+from monodock.dock.states import FailureReason, State
 
 __all__ = [
     "FILTER_BANDS_CM",
@@ -68,7 +69,7 @@ class TrialResult:
     method: str
     start: Pose2D
     classified_case: int | None
-    state: str
+    state: State
     reason: str  # the mission's own words, with its numbers
     success: bool
     retries: int
@@ -84,7 +85,7 @@ class TrialResult:
     path: tuple[tuple[float, float, float], ...]  # true (x, y, heading) in the dock frame, every 0.2 s
     log: tuple[tuple[float, str], ...]
     filter_frames: tuple[FilterFrame, ...] = ()
-    failure: str = ""  # the mission's FailureReason ("" when it docked by its own estimate)
+    failure: FailureReason | None = None  # why the mission failed (None when it docked by its own estimate)
     planner: str = "monodock"
     point_a: tuple[float, float] | None = None  # the planned Point A (x, y) in the dock frame, by the truth's axes
     path_t: tuple[float, ...] = ()  # the time of each ``path`` sample, seconds since the start
@@ -93,6 +94,7 @@ class TrialResult:
     charging: bool | None = None  # the mission's charging confirmation (None: it could not tell)
     reseats: int = 0
     recoveries: int = 0
+    obstacle_waits: int = 0  # reverse legs stopped for something behind, until it cleared or the mission gave up
     collided: bool = False  # the footprint touched an obstacle (the simulator's truth)
     redock: str = ""  # with redock: "redocked", "undock failed: ..." or "redock failed: ..."; "" when not run
     variant: str = ""  # the summary's group (DockSimConfig.variant)
@@ -104,13 +106,12 @@ class TrialResult:
     def recovered(self) -> bool:
         """Docked within the tolerances after something went wrong: a retry, a recovery, a re-seat or a wait for
         the space behind to clear."""
-        waited = any("obstacle" in entry for _, entry in self.log)
-        return self.success and (self.retries > 0 or self.reseats > 0 or waited)
+        return self.success and (self.retries > 0 or self.reseats > 0 or self.obstacle_waits > 0)
 
     @property
     def failed_cleanly(self) -> bool:
         """The mission gave up with its reason, stopped, and touched nothing."""
-        return self.state == "failed" and bool(self.failure) and not self.collided
+        return self.state is State.FAILED and self.failure is not None and not self.collided
 
 
 @dataclass(frozen=True)
@@ -170,7 +171,9 @@ class RunGroup:
         runs = len(results)
         successes = sum(r.success for r in results)
         failures = Counter(
-            (r.failure if r.state == "failed" else "docked outside the tolerances") for r in results if not r.success
+            (r.failure.value if r.state is State.FAILED and r.failure is not None else "docked outside the tolerances")
+            for r in results
+            if not r.success
         )
         return cls(
             runs=runs,

@@ -45,6 +45,7 @@ from monodock.estimation.bundle import load_bundle
 from monodock.estimation.consistency import camera_disagreement
 from monodock.estimation.factory import make_estimator
 from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE
+from monodock.evaluation.dock_faults import FAULTS, FaultInjector
 from monodock.evaluation.dock_results import (
     AbsStats,
     DockSimSettings,
@@ -62,7 +63,6 @@ from monodock.evaluation.dock_results import (
     runs_csv,
 )
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
-from monodock.sim.faults import Obstacle
 from monodock.sim.nuisance import Nuisances
 from monodock.sim.simulator import Simulator
 
@@ -94,16 +94,6 @@ __all__ = [
 
 ALL_METHODS = METHOD_NAMES
 
-# The faults of the fault table (``DockSimConfig.faults``); "none" is the nominal run from the same start.
-FAULTS = {
-    "none": "nothing goes wrong",
-    "occlusion": "a passer-by hides the markers for 2.5 s when the front edge is 0.7 m from the face",
-    "frame-drops": "no frame arrives for 1.5 s when the front edge is 0.8 m from the face",
-    "latency-spike": "frames exposed over 1 s arrive 0.4 s late, from 0.8 m before the face",
-    "odometry-jump": "the odometry jumps 5 cm sideways and 3° 0.5 s into the drive to Point A",
-    "wheel-slip": "the left wheel slips to 60 % of its speed for 1 s, 0.5 s into the drive to Point A",
-    "person-behind": "someone steps 0.5 m behind the robot as soon as it starts to reverse, for 4 s",
-}
 # The methods that need the model bundle.
 BUNDLE_METHODS = tuple(m for m in METHOD_NAMES if m in NEEDS_BUNDLE)
 
@@ -257,57 +247,6 @@ class _Task:
     variant: str = ""
 
 
-class _FaultInjector:
-    """Springs the run's fault on the simulated robot at its moment, judged from the truth and the mission state."""
-
-    def __init__(self, fault: str, robot: SimulatedRobot) -> None:
-        self.fault, self.robot = fault, robot
-        self.triggered = False
-        self.drive_started: float | None = None
-
-    def tick(self, mission: DockingMission) -> None:
-        if self.triggered or self.fault == "none":
-            return
-        robot, t, state = self.robot, self.robot.now(), mission.state
-        gap = robot.front_gap()
-        if self.fault in ("odometry-jump", "wheel-slip") and state is State.MOVING1_DRIVE:
-            if self.drive_started is None:
-                self.drive_started = t
-            if t - self.drive_started >= 0.5:
-                self._spring(t)
-        elif (
-            self.fault == "person-behind"
-            and (
-                state in (State.MOVING1_BACK, State.BACK_OFF, State.RECOVER, State.RESEAT)
-                or (state is State.MOVING1_DRIVE and mission.manoeuvre is not None and mission.manoeuvre.reverse)
-            )
-        ) or (
-            state is State.MOVING3
-            and (
-                (self.fault == "occlusion" and gap < 0.7)
-                or (self.fault in ("frame-drops", "latency-spike") and gap < 0.8)
-            )
-        ):
-            self._spring(t)
-
-    def _spring(self, t: float) -> None:
-        robot, f = self.robot, self.fault
-        self.triggered = True
-        if f == "occlusion":
-            robot.hide_markers = lambda stamp, _pose: t <= stamp < t + 2.5
-        elif f == "frame-drops":
-            robot.drop_frames(t, t + 1.5)
-        elif f == "latency-spike":
-            robot.delay_frames(t, t + 1.0, 0.4)
-        elif f == "odometry-jump":
-            robot.jump_odometry(0.0, 0.05, math.radians(3.0))
-        elif f == "wheel-slip":
-            robot.slip_wheel("left", 0.6, t, t + 1.0)
-        elif f == "person-behind":
-            behind = robot.pose.compose(Pose2D(-(robot.config.rear_offset + 0.5 + 0.2), 0.0, 0.0))
-            robot.obstacles.append(Obstacle(behind.x, behind.y, 0.2, appear=t, vanish=t + 4.0))
-
-
 def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     env = _environment(config)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -325,7 +264,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         track=dataclasses.replace(config.mission.track, odometry=odometry_noise(config.drive)),
     )
     mission = DockingMission(mission_config, sim.robot, env.blind)
-    faults = _FaultInjector(task.fault, robot)
+    faults = FaultInjector(task.fault, robot)
     perceive_s = perceive_cpu_s = 0.0
     inner = _skip_undetectable(robot, env.perceive[task.method])
     frames: list[FilterFrame] = []
@@ -366,9 +305,9 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         method=task.method,
         start=task.start,
         classified_case=result.case,
-        state=result.state.value,
+        state=result.state,
         reason=result.reason,
-        failure=result.failure.value if result.failure is not None else "",
+        failure=result.failure,
         success=success,
         retries=result.retries,
         time_s=result.duration,
@@ -391,6 +330,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         charging=result.charging,
         reseats=result.reseats,
         recoveries=result.recoveries,
+        obstacle_waits=result.obstacle_waits,
         collided=robot.collided,
         redock=redock,
         variant=task.variant,
@@ -446,11 +386,11 @@ def odometry_noise(drive: DiffDriveConfig) -> OdometryNoise:
 
 def _filter_frame(mission: DockingMission, robot: SimulatedRobot, observation: Observation) -> FilterFrame | None:
     """One frame's record: the filtered, raw and true DockPose at its exposure (None when it cannot be placed)."""
-    odom = mission.history.at(observation.stamp)
+    placed = mission.track.dock_at(observation.stamp)
     true_pose = next((pose for stamp, pose in robot.exposures if stamp == observation.stamp), None)
-    if mission.track.mean is None or odom is None or true_pose is None:
+    if placed is None or true_pose is None:
         return None
-    filtered, cov = mission.track.dock_pose(odom)
+    filtered, cov = placed
     truth = robot.dock_pose(true_pose)
     err = np.array([filtered.x - truth.x, filtered.y - truth.y, wrap_angle(filtered.yaw - truth.yaw)])
     try:
