@@ -3,10 +3,10 @@ parameters and its covariance topic, on a frame rendered here.
 
 First, bad settings, each in its own start (all at once): what each printed and its exit code. Then a detector
 (board PnP) with a camera file: camera_info that agrees with the file, then one whose fx is 3 % off, then one of
-another size; parameter changes through its set_parameters service (allowed, out of range, read-only), and their
-effect on the pose of the rendered frame. With a model bundle (argv[1]), a second detector, fused, in the namespace
-/fused and with compressed:=true: its PoseStamped and PoseWithCovarianceStamped of the same frame as a PNG on
-/fused/image/compressed. Prints what was seen as JSON lines."""
+another size; parameter changes through its set_parameters service (allowed, an integer for a real, out of range,
+read-only), and their effect on the pose of the rendered frame. With a model bundle (argv[1]), a second detector,
+fused, in the namespace /fused and with compressed:=true: its PoseStamped and PoseWithCovarianceStamped of the same
+frame as a PNG on /fused/image/compressed. Prints what was seen as JSON lines."""
 
 from __future__ import annotations
 
@@ -137,6 +137,8 @@ g.spin_for(node, 0.5)
 
 
 def parameter(name: str, value: Any) -> Parameter:
+    if isinstance(value, int):
+        return Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value))
     if isinstance(value, float):
         return Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value))
     return Parameter(name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value))
@@ -144,7 +146,7 @@ def parameter(name: str, value: Any) -> Parameter:
 
 changes = {"max_stamp_age": 2.5, "frame_id": "odom", "method": "pnp", "diagnostics_period": 5.0}
 results = {}
-for name, value in [*changes.items(), ("max_stamp_age", -1.0)]:
+for name, value in [("max_stamp_age", 2), *changes.items(), ("max_stamp_age", -1.0)]:
     request = SetParameters.Request(parameters=[parameter(name, value)])
     result = g.call(node, SetParameters, "set_parameters", request).results[0]
     results[f"{name}={value}"] = {"ok": result.successful, "reason": result.reason}

@@ -245,6 +245,7 @@ def test_bad_settings_are_one_line_and_exit_2(startup: GraphRun) -> None:
 
 def test_live_parameters_and_a_camera_info_that_disagrees(startup: GraphRun) -> None:
     results = startup.first("set")["results"]
+    assert results["max_stamp_age=2"]["ok"], results["max_stamp_age=2"]  # an integer serves a real, as at start-up
     assert results["max_stamp_age=2.5"]["ok"]
     assert results["frame_id=odom"]["ok"]
     assert not results["max_stamp_age=-1.0"]["ok"]  # out of its range

@@ -204,7 +204,12 @@ def test_the_robot_stops_when_the_dock_node_is_killed(record: Path) -> None:
             ["--ros-args", "-p", "planner.standoff:=0.0"],
             "ROS parameters: planner.standoff: the stand-off of Point A must",
         ),
-        (["--ros-args", "-p", "max_reseats:=two"], "ROS parameters: max_reseats"),
+        (["--ros-args", "-p", "max_reseats:=two"], "parameter max_reseats is an integer, got 'two'"),
+        (["--ros-args", "-p", "odom_timeout:=0.0"], "parameter odom_timeout must be a finite number above 0, got 0"),
+        (
+            ["--ros-args", "-p", "method:=bogus"],
+            "parameter method: 'bogus' is not one of regression, pnp, board, fused",
+        ),
         (["--ros-args", "-p", "planner.no_such_key:=1.0"], "unknown parameter planner.no_such_key"),
         (["--method", "fused"], "needs a model bundle"),
     ],

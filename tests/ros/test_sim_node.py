@@ -41,12 +41,12 @@ def test_the_simulated_robot_publishes_and_drives() -> None:
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["-p", "nuisances:=foggy"], "parameter nuisances: 'default' or 'clean'"),
-        (["-p", "camera_rate:=0.0"], "parameter camera_rate: expected a positive number"),
+        (["-p", "nuisances:=foggy"], "parameter nuisances: 'foggy' is not one of default, clean"),
+        (["-p", "camera_rate:=0.0"], "parameter camera_rate must be a finite number above 0, got 0"),
         (["-p", "layout:=/nonexistent/layout.yaml"], "/nonexistent/layout.yaml"),
-        (["-p", "seed:=abc"], "parameter 'seed'"),
-        (["-p", "start:=[1.0, 2.0]"], "parameter start: [x, y, yaw]"),
-        (["-p", "start:=hello"], "parameter 'start'"),
+        (["-p", "seed:=abc"], "parameter seed is an integer, got 'abc'"),
+        (["-p", "start:=[1.0, 2.0]"], "parameter start is a list of 3 finite numbers, got [1.0, 2.0]"),
+        (["-p", "start:=hello"], "parameter start is a list of 3 finite numbers, got 'hello'"),
     ],
 )
 def test_bad_parameters_are_one_line_and_exit_2(args: list[str], message: str) -> None:

@@ -35,7 +35,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -43,11 +43,11 @@ import numpy as np
 from monodock.core.camera import CameraModel
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
-from monodock.ros.options import EstimatorOptions
+from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
+from monodock.ros.parameters import Parameter, declare_options
 
 __all__ = [
     "CALIBRATION_GRACE",
@@ -91,28 +91,9 @@ class DetectorOptions(EstimatorOptions):
     diagnostics_period: float = 1.0
 
 
-@dataclass(frozen=True)
-class Parameter:
-    """How one of the node's ROS parameters is declared: what it is for, whether it can change live, its bounds."""
-
-    description: str
-    read_only: bool = True
-    bounds: tuple[float, float] | None = None
-    choices: tuple[str, ...] = ()
-
-
 # One per DetectorOptions field, of the same name; read-only ones are read once, at start-up.
 PARAMETERS: dict[str, Parameter] = {
-    "model": Parameter("model bundle folder (it carries the camera, layout and mounts); empty: PnP on the files"),
-    "method": Parameter(
-        "regression, pnp, board or fused; empty: regression with a model, board without", choices=("", *METHOD_NAMES)
-    ),
-    "camera": Parameter("camera file (ROS camera_info YAML or OpenCV); empty: the model's, else camera_info's"),
-    "layout": Parameter("dock layout YAML (needed without a model; with one, it must match the model's)"),
-    "robot": Parameter("robot YAML with the camera mount (needed without a model; overrides the model's)"),
-    "refinement": Parameter("OpenCV's ArUco corner refinement", choices=REFINEMENTS),
-    "image_topic": Parameter("sensor_msgs/Image topic; with compressed, its /compressed sub-topic is subscribed"),
-    "compressed": Parameter("subscribe to image_topic/compressed (sensor_msgs/CompressedImage)"),
+    **ESTIMATOR_PARAMETERS,
     "camera_info_topic": Parameter("sensor_msgs/CameraInfo: the camera when no file gives it, else checked"),
     "pose_topic": Parameter("geometry_msgs/PoseStamped of each valid estimate, stamped with its image's stamp"),
     "pose_covariance_topic": Parameter("PoseWithCovarianceStamped of each estimate that has a covariance (fused)"),
@@ -217,7 +198,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             "DiagnosticStatus": DiagnosticStatus,
             "KeyValue": KeyValue,
         }
-        self.options = _declare_parameters(self, options)
+        self.options = declare_options(self, options, PARAMETERS)
         o = self.options
         self.frame_id, self.max_stamp_age = o.frame_id, o.max_stamp_age
         self.add_post_set_parameters_callback(self._on_parameters)
@@ -482,63 +463,7 @@ def _milliseconds(values: list[float], percentile: float) -> str:
     return f"{1e3 * float(np.percentile(values, percentile)):.1f}" if values else ""
 
 
-# --- parameters ----------------------------------------------------------------------------------------------
-
-
-def _declare_parameters(node: Node, options: DetectorOptions) -> DetectorOptions:
-    """Declare every parameter (the options' values as defaults) and return the options they hold.
-
-    Each is declared dynamically typed first, so that a value of the wrong type is our one line rather than rclpy's
-    exception, and an integer serves a real-valued parameter (``max_stamp_age:=2``); then it gets its full
-    descriptor (fixed type, range, read-only), which ``ros2 param set`` obeys.
-
-    Raises:
-        InputError: a value of the wrong type, out of range, or not one of the choices, naming the parameter.
-    """
-    from rcl_interfaces.msg import (  # type: ignore[import-not-found, unused-ignore]
-        FloatingPointRange,
-        ParameterDescriptor,
-    )
-    from rclpy.parameter import Parameter as RosParameter  # type: ignore[import-not-found, unused-ignore]
-
-    values: dict[str, Any] = {}
-    for f in fields(options):
-        spec = PARAMETERS[f.name]
-        default = getattr(options, f.name)
-        default = "" if default is None else default
-        loose = ParameterDescriptor(description=spec.description, dynamic_typing=True)
-        value = _checked(f.name, spec, node.declare_parameter(f.name, default, loose).value, default)
-        typed = RosParameter(f.name, value=value)
-        descriptor = ParameterDescriptor(description=spec.description, read_only=spec.read_only, type=typed.type_.value)
-        if spec.bounds is not None:
-            descriptor.floating_point_range = [FloatingPointRange(from_value=spec.bounds[0], to_value=spec.bounds[1])]
-        if spec.choices:
-            descriptor.additional_constraints = "one of: " + ", ".join(repr(c) for c in spec.choices)
-        node.set_descriptor(f.name, descriptor, typed.get_parameter_value())
-        values[f.name] = value
-    optional = ("model", "method", "camera", "layout", "robot")  # empty: not given
-    given: dict[str, Any] = {k: (v or None) if k in optional else v for k, v in values.items()}
-    return replace(options, **given)
-
-
-def _checked(name: str, spec: Parameter, value: Any, default: Any) -> Any:
-    """The value, of the default's type (an integer for a real), within bounds and choices; else InputError."""
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise InputError(f"parameter {name} is true or false, got {value!r}")
-    elif isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InputError(f"parameter {name} is a number, got {value!r}")
-        value = float(value)
-        low, high = spec.bounds or (-math.inf, math.inf)
-        if not low <= value <= high:
-            raise InputError(f"parameter {name} must be from {low:g} to {high:g}, got {value:g}")
-    elif not isinstance(value, str):
-        raise InputError(f"parameter {name} is a string, got {value!r} (quote a number: {name}:=\"'{value}'\")")
-    elif spec.choices and value not in spec.choices:
-        named = ", ".join(c for c in spec.choices if c)
-        raise InputError(f"parameter {name}: '{value}' is not one of {named}")
-    return value
+# --- start-up checks -----------------------------------------------------------------------------------------
 
 
 def _check_options(options: DetectorOptions) -> None:

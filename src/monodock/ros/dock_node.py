@@ -54,11 +54,18 @@ from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
-from monodock.ros.options import EstimatorOptions
-from monodock.ros.parameters import declare, flatten, unflatten
+from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
+from monodock.ros.parameters import (
+    Parameter,
+    declare,
+    declare_options,
+    flatten,
+    refuse_unknown_overrides,
+    unflatten,
+)
 from monodock.ros.shutdown import ShutdownFlag
 
-__all__ = ["DockNode", "DockOptions", "Ros2Robot", "run_dock"]
+__all__ = ["PARAMETERS", "DockNode", "DockOptions", "Ros2Robot", "run_dock"]
 
 
 @dataclass(frozen=True)
@@ -80,27 +87,29 @@ class DockOptions(EstimatorOptions):
     sensor_timeout: float = 1.0
 
 
-_DESCRIPTIONS = {
-    "model": "model bundle folder (carries the camera, layout and mounts); empty: PnP on the calibration files",
-    "method": "regression, pnp, board or fused (empty: regression with a bundle, board without)",
-    "camera": "camera file (camera_info YAML or OpenCV); empty: the bundle's, else the camera_info topic",
-    "layout": "dock layout YAML (needed without a bundle)",
-    "robot": "robot YAML: mounts, front_offset, speed limits (needed without a bundle)",
-    "refinement": "ArUco corner refinement: subpix, contour, apriltag or none",
-    "image_topic": "sensor_msgs/Image topic; with compressed, its /compressed sub-topic is subscribed",
-    "compressed": "subscribe to image_topic/compressed (sensor_msgs/CompressedImage)",
-    "camera_info_topic": "sensor_msgs/CameraInfo, used when no camera file is given",
-    "odom_topic": "nav_msgs/Odometry of the base",
-    "cmd_vel_topic": "geometry_msgs/Twist to the base",
-    "battery_topic": "sensor_msgs/BatteryState: CHARGING or FULL confirms docking (empty: no charging signal)",
-    "contact_topic": "std_msgs/Bool, true on contact with the charger (empty: none)",
-    "rear_range_topic": "sensor_msgs/Range behind the robot, watched while reversing (empty: none)",
-    "pose_topic": "PoseStamped of the dock filter's estimate in base_link (for Nav2's docking server)",
-    "pose_covariance_topic": "the same with its covariance (PoseWithCovarianceStamped)",
-    "frame_id": "the robot's base frame",
-    "config": "docking config YAML read before the parameters (docs/docking.md); empty: the defaults",
-    "odom_timeout": "a mission fails with odometry-lost when odometry is older than this, s",
-    "sensor_timeout": "battery, contact and rear range readings older than this count as absent, s",
+# One per DockOptions field, of the same name, all read once at start-up (the docking config's keys are parameters
+# too, declared with the config's values as defaults: DockNode._declare_config).
+PARAMETERS: dict[str, Parameter] = {
+    **ESTIMATOR_PARAMETERS,
+    "robot": Parameter(
+        "robot YAML: mounts, front_offset, speed limits (needed without a model; overrides the model's)"
+    ),
+    "camera_info_topic": Parameter("sensor_msgs/CameraInfo, used when no camera file is given"),
+    "odom_topic": Parameter("nav_msgs/Odometry of the base"),
+    "cmd_vel_topic": Parameter("geometry_msgs/Twist to the base"),
+    "battery_topic": Parameter(
+        "sensor_msgs/BatteryState: CHARGING or FULL confirms docking (empty: no charging signal)"
+    ),
+    "contact_topic": Parameter("std_msgs/Bool, true on contact with the charger (empty: none)"),
+    "rear_range_topic": Parameter("sensor_msgs/Range behind the robot, watched while reversing (empty: none)"),
+    "pose_topic": Parameter("PoseStamped of the dock filter's estimate in base_link (for Nav2's docking server)"),
+    "pose_covariance_topic": Parameter("the same with its covariance (PoseWithCovarianceStamped)"),
+    "frame_id": Parameter("the robot's base frame"),
+    "config": Parameter("docking config YAML read before the parameters (docs/docking.md); empty: the defaults"),
+    "odom_timeout": Parameter("a mission fails with odometry-lost when odometry is older than this, s", positive=True),
+    "sensor_timeout": Parameter(
+        "battery, contact and rear range readings older than this count as absent, s", positive=True
+    ),
 }
 
 
@@ -252,7 +261,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
 
         self._msgs = {"String": String, "DiagnosticStatus": DiagnosticStatus, "PoseStamped": PoseStamped}
         self._pose_cov = PoseWithCovarianceStamped
-        self.options = self._declare_options(options)
+        self.options = declare_options(self, options, PARAMETERS)
         base = load_docking_config(self.options.config) if self.options.config else DockingConfig()
         self._config_names = list(flatten(docking_config_to_dict(base)))
         self._config_base = base
@@ -269,7 +278,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             )
         self._declare_config()
         self.docking_config()  # a bad value in the parameters or the config file: refused before anything runs
-        _refuse_unknown_overrides(self)
+        refuse_unknown_overrides(self)
         self.add_on_set_parameters_callback(self._check_new_parameters)
         self.robot = Ros2Robot(self, self.options)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -289,16 +298,6 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
 
     # --- set-up -----------------------------------------------------------------------------
 
-    def _declare_options(self, options: DockOptions) -> DockOptions:
-        values: dict[str, Any] = {}
-        for f in dataclasses.fields(options):
-            default = getattr(options, f.name)
-            value = declare(self, f.name, "" if default is None else default, _DESCRIPTIONS[f.name], read_only=True)
-            values[f.name] = _typed(f.name, value, default)
-        for name in ("model", "method", "camera", "layout", "robot"):
-            values[name] = values[name] or None
-        return DockOptions(**values)
-
     def _declare_config(self) -> None:
         """The docking config's keys as parameters, defaulting to the config file's (or the built-in) values.
 
@@ -309,7 +308,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         if not self.options.config and self.method:
             base = dataclasses.replace(base, measurement=MeasurementNoise.for_method(self.method))
         for name, default in flatten(docking_config_to_dict(base)).items():
-            declare(self, name, default, f"docking config: {name} (docs/docking.md)")
+            declare(self, name, Parameter(f"docking config: {name} (docs/docking.md)", read_only=False), default)
         self._config_declared = True
 
     def docking_config(self) -> DockingConfig:
@@ -433,18 +432,15 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         self.pub_state.publish(msg)
 
     def _publish_pose(self, mission: DockingMission, odom: Odometry) -> None:
-        track = mission.track
-        if track.mean is None:
+        placed = mission.track.dock_at(odom.stamp)  # the filtered dock in base_link at this odometry
+        if placed is None:
             return
-        dock = odom.pose.inverse().compose(track.mean)  # the dock in base_link at this odometry
-        c, s = math.cos(odom.pose.theta), math.sin(odom.pose.theta)
-        rotate = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # odom frame → base_link, odometry exact
-        cov = rotate @ track.cov @ rotate.T
+        dock, cov = placed
         out = self._msgs["PoseStamped"]()
         out.header.stamp.sec, out.header.stamp.nanosec = m.split_stamp(odom.stamp)
         out.header.frame_id = self.options.frame_id
         out.pose.position.x, out.pose.position.y = dock.x, dock.y
-        out.pose.orientation.z, out.pose.orientation.w = math.sin(0.5 * dock.theta), math.cos(0.5 * dock.theta)
+        out.pose.orientation.z, out.pose.orientation.w = math.sin(0.5 * dock.yaw), math.cos(0.5 * dock.yaw)
         self.pub_pose.publish(out)
         with_cov = self._pose_cov()
         with_cov.header = out.header
@@ -511,31 +507,6 @@ def _key_value(key: str, value: str) -> Any:
     from diagnostic_msgs.msg import KeyValue  # type: ignore[import-not-found, unused-ignore]
 
     return KeyValue(key=key, value=value)
-
-
-def _typed(name: str, value: Any, default: Any) -> Any:
-    """A parameter's value as its option's type; one clear line when it is not one."""
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise InputError(f"parameter {name}: expected true or false, got {value!r}")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-            raise InputError(f"parameter {name}: expected a positive number, got {value!r}")
-        return float(value)
-    if default is None or isinstance(default, str):
-        if not isinstance(value, str):
-            raise InputError(f"parameter {name}: expected a string, got {value!r}")
-        return value
-    return value
-
-
-def _refuse_unknown_overrides(node: Node) -> None:
-    """A misspelt parameter (``-p planner.standof:=1.2``, a params file's key) is an error, not silently ignored."""
-    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps -p and params-file values here
-    unknown = sorted(name for name in overrides if not node.has_parameter(name))
-    if unknown:
-        raise InputError(f"unknown parameter {unknown[0]} (docs/ros2.md lists the node's parameters)")
 
 
 def _check_calibration(options: DockOptions) -> None:

@@ -1,4 +1,5 @@
-"""What both ROS 2 nodes run: the estimator, from a model bundle or the calibration files, and the camera topic."""
+"""What both ROS 2 nodes run: the estimator, from a model bundle or the calibration files, and the camera topic;
+and the ROS parameters that set them."""
 
 from __future__ import annotations
 
@@ -6,9 +7,10 @@ from dataclasses import dataclass
 
 from monodock.core.camera import CameraModel
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.factory import make_estimator
+from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
+from monodock.ros.parameters import Parameter
 
-__all__ = ["EstimatorOptions"]
+__all__ = ["ESTIMATOR_PARAMETERS", "EstimatorOptions"]
 
 
 @dataclass(frozen=True)
@@ -55,3 +57,19 @@ class EstimatorOptions:
             robot=self.robot,
             refinement=self.refinement,
         )
+
+
+# The parameters of EstimatorOptions' fields, of the same names, read once at start-up (a node adds its own and
+# may describe one of these more closely).
+ESTIMATOR_PARAMETERS: dict[str, Parameter] = {
+    "model": Parameter("model bundle folder (it carries the camera, layout and mounts); empty: PnP on the files"),
+    "method": Parameter(
+        "regression, pnp, board or fused; empty: regression with a model, board without", choices=("", *METHOD_NAMES)
+    ),
+    "camera": Parameter("camera file (ROS camera_info YAML or OpenCV); empty: the model's, else camera_info's"),
+    "layout": Parameter("dock layout YAML (needed without a model; with one, it must match the model's)"),
+    "robot": Parameter("robot YAML with the camera mount (needed without a model; overrides the model's)"),
+    "refinement": Parameter("OpenCV's ArUco corner refinement", choices=REFINEMENTS),
+    "image_topic": Parameter("sensor_msgs/Image topic; with compressed, its /compressed sub-topic is subscribed"),
+    "compressed": Parameter("subscribe to image_topic/compressed (sensor_msgs/CompressedImage)"),
+}

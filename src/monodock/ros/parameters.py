@@ -1,4 +1,11 @@
-"""ROS 2 parameters for the nodes: declared with a description, and nested configs as dotted names.
+"""ROS 2 parameters for the nodes: one scheme of typed, checked declarations, and nested configs as dotted names.
+
+Every node describes its parameters as ``Parameter`` specs (what each is for, whether it may change live, a
+number's range, a string's choices) and declares them with ``declare`` or ``declare_options``. A value comes back
+of its default's type, checked against the spec (``checked``), or the node stops with one InputError line that names
+the parameter, the value and what is allowed. The parameter then carries a typed descriptor (type, range,
+read-only, choices) that ``ros2 param set`` obeys. An integer serves a real-valued parameter, at start-up
+(``-p max_stamp_age:=2``) and in a live change alike.
 
 A params file's nested mapping (``planner: {standoff: 1.2}``) reaches rclpy as the dotted name
 ``planner.standoff``; ``flatten`` and ``unflatten`` turn monodock's nested config mappings into those names and
@@ -7,14 +14,68 @@ back, so a node's parameters and a config file share one schema.
 
 from __future__ import annotations
 
+import array
+import dataclasses
+import functools
 import itertools
+import math
+import weakref
 from collections.abc import Mapping, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from monodock.core.config import load_yaml
-from monodock.errors import ConfigError
+from monodock.errors import ConfigError, InputError
 
-__all__ = ["check_params_files", "declare", "flatten", "unflatten"]
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+    _Options = TypeVar("_Options", bound=DataclassInstance)
+
+__all__ = [
+    "Parameter",
+    "check_params_files",
+    "checked",
+    "declare",
+    "declare_options",
+    "flatten",
+    "refuse_unknown_overrides",
+    "unflatten",
+]
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """How one ROS parameter is declared and checked; its type is its default's (bool, int, float, str, or a
+    tuple of floats).
+
+    Attributes:
+        description: what it is for, in its descriptor.
+        read_only: read once, at start-up; False: it may change while the node runs.
+        bounds: a number's range, both ends allowed (in the descriptor too).
+        positive: a number must be finite and above 0 (a descriptor's range cannot leave out its end: the check
+            alone says so).
+        choices: the strings allowed ("" among them where empty means not given).
+        length: how many numbers a tuple has.
+    """
+
+    description: str
+    read_only: bool = True
+    bounds: tuple[float, float] | None = None
+    positive: bool = False
+    choices: tuple[str, ...] = ()
+    length: int | None = None
+
+    @property
+    def constraints(self) -> str:
+        """What the descriptor says of the values allowed beyond the type and range (``additional_constraints``)."""
+        if self.choices:
+            return "one of: " + ", ".join(repr(c) for c in self.choices)
+        if self.positive:
+            return "finite and above 0"
+        if self.length is not None:
+            return f"{self.length} numbers"
+        return ""
 
 
 def check_params_files(argv: Sequence[str]) -> None:
@@ -31,16 +92,158 @@ def check_params_files(argv: Sequence[str]) -> None:
             load_yaml(value, "ROS parameters")
 
 
-def declare(node: Any, name: str, default: Any, description: str, *, read_only: bool = False) -> Any:
-    """Declare ``name`` with its description and return its value (the default unless overridden).
+def declare(node: Any, name: str, spec: Parameter, default: Any) -> Any:
+    """Declare ``name`` with ``spec`` and return its value (``default`` unless ``-p`` or a params file overrides it),
+    checked.
 
-    Numbers take ints or floats alike (``-p standoff:=1`` is a float's 1.0): the parameter is dynamically typed
-    and the caller checks the value, so a wrong type is one clear line instead of rclpy's exception.
+    It is declared dynamically typed first, so that a value of the wrong type is ``checked``'s one line rather than
+    rclpy's exception and an integer serves a real; then it gets its typed descriptor, which changes obey.
+
+    Raises:
+        InputError: as ``checked``.
     """
-    from rcl_interfaces.msg import ParameterDescriptor  # type: ignore[import-not-found, unused-ignore]
+    from rcl_interfaces.msg import (  # type: ignore[import-not-found, unused-ignore]
+        FloatingPointRange,
+        ParameterDescriptor,
+    )
+    from rclpy.parameter import Parameter as RosParameter  # type: ignore[import-not-found, unused-ignore]
 
-    descriptor = ParameterDescriptor(description=description, read_only=read_only, dynamic_typing=True)
-    return node.declare_parameter(name, default, descriptor).value
+    _accept_integers_for_reals(node)
+    loose = ParameterDescriptor(description=spec.description, dynamic_typing=True)
+    value = checked(name, spec, node.declare_parameter(name, _ros_value(default), loose).value, default)
+    typed = RosParameter(name, value=_ros_value(value))
+    descriptor = ParameterDescriptor(
+        description=spec.description,
+        read_only=spec.read_only,
+        type=typed.type_.value,
+        additional_constraints=spec.constraints,
+    )
+    if spec.bounds is not None:
+        descriptor.floating_point_range = [FloatingPointRange(from_value=spec.bounds[0], to_value=spec.bounds[1])]
+    node.set_descriptor(name, descriptor, typed.get_parameter_value())
+    return value
+
+
+def declare_options(node: Any, options: _Options, specs: Mapping[str, Parameter]) -> _Options:
+    """Declare a parameter for each of ``specs``, a field of ``options`` whose value is its default, and return the
+    options they hold.
+
+    A field whose dataclass default is None is a string parameter, empty when not given (and None again here).
+
+    Raises:
+        InputError: as ``checked``.
+    """
+    optional = {f.name for f in dataclasses.fields(options) if f.default is None}
+    values: dict[str, Any] = {}
+    for name, spec in specs.items():
+        default = getattr(options, name)
+        value = declare(node, name, spec, "" if default is None else default)
+        values[name] = (value or None) if name in optional else value
+    return dataclasses.replace(options, **values)
+
+
+def checked(name: str, spec: Parameter, value: Any, default: Any) -> Any:
+    """``value`` as the type of ``default`` (an integer serves a real; a tuple's numbers come back a tuple), within
+    the spec's range, choices and length.
+
+    Raises:
+        InputError: one line naming the parameter, the value and what is allowed.
+    """
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InputError(f"parameter {name} is true or false, got {value!r}")
+        return value
+    if isinstance(default, float):
+        return _number(name, spec, value)
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"parameter {name} is an integer, got {value!r}")
+        return value
+    if isinstance(default, tuple | list):
+        return _numbers(name, spec, value)
+    if not isinstance(value, str):
+        raise InputError(f"parameter {name} is a string, got {value!r} (quote a number: {name}:=\"'{value}'\")")
+    if spec.choices and value not in spec.choices:
+        named = ", ".join(c for c in spec.choices if c)
+        raise InputError(f"parameter {name}: '{value}' is not one of {named}")
+    return value
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _number(name: str, spec: Parameter, value: Any) -> float:
+    if not _is_number(value):
+        raise InputError(f"parameter {name} is a number, got {value!r}")
+    number = float(value)
+    if spec.bounds is not None:
+        low, high = spec.bounds
+        if not low <= number <= high:
+            raise InputError(f"parameter {name} must be from {low:g} to {high:g}, got {number:g}")
+    if spec.positive and not (math.isfinite(number) and number > 0):
+        raise InputError(f"parameter {name} must be a finite number above 0, got {number:g}")
+    return number
+
+
+def _numbers(name: str, spec: Parameter, value: Any) -> tuple[float, ...]:
+    items = list(value) if isinstance(value, list | tuple | array.array) else None
+    if (
+        items is None
+        or not all(_is_number(v) and math.isfinite(v) for v in items)
+        or (spec.length is not None and len(items) != spec.length)
+    ):
+        count = "" if spec.length is None else f"{spec.length} "
+        raise InputError(
+            f"parameter {name} is a list of {count}finite numbers, got {value if items is None else items!r}"
+        )
+    return tuple(float(v) for v in items)
+
+
+def _ros_value(value: Any) -> Any:
+    """A value as rclpy takes it: a tuple as a list."""
+    return list(value) if isinstance(value, tuple) else value
+
+
+# The nodes whose live changes take an integer for a real (each gets the callback once: rclpy would run a second
+# one too and set every parameter twice).
+_WIDENING: weakref.WeakSet[Any] = weakref.WeakSet()
+
+
+def _accept_integers_for_reals(node: Any) -> None:
+    if node not in _WIDENING:
+        _WIDENING.add(node)
+        node.add_pre_set_parameters_callback(functools.partial(_integers_as_reals, node))
+
+
+def _integers_as_reals(node: Any, parameters: list[Any]) -> list[Any]:
+    """A live change's integers as reals where the parameter is real (``ros2 param set`` sends ``2`` as an
+    integer), as at start-up; rclpy's type check, which comes after this, would refuse them."""
+    from rclpy.parameter import Parameter as RosParameter  # type: ignore[import-not-found, unused-ignore]
+
+    kinds = RosParameter.Type
+    out: list[Any] = []
+    for given in parameters:
+        kind = node.describe_parameter(given.name).type if node.has_parameter(given.name) else None
+        if given.type_ == kinds.INTEGER and kind == kinds.DOUBLE.value:
+            out.append(RosParameter(given.name, value=float(given.value)))
+        elif given.type_ == kinds.INTEGER_ARRAY and kind == kinds.DOUBLE_ARRAY.value:
+            out.append(RosParameter(given.name, value=[float(v) for v in given.value]))
+        else:
+            out.append(given)
+    return out
+
+
+def refuse_unknown_overrides(node: Any) -> None:
+    """A misspelt parameter (``-p planner.standof:=1.2``, a params file's key) is an error, not silently ignored.
+
+    Raises:
+        InputError: naming the first unknown name.
+    """
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps -p and params-file values here
+    unknown = sorted(name for name in overrides if not node.has_parameter(name))
+    if unknown:
+        raise InputError(f"unknown parameter {unknown[0]} (docs/ros2.md lists the node's parameters)")
 
 
 def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -29,21 +29,22 @@ from monodock.core.layout import DockLayout
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.interface import CameraFrame, Odometry
-from monodock.errors import InputError, MonodockError
+from monodock.errors import MonodockError
 from monodock.recording.messages import split_stamp
 from monodock.ros._rclpy import Node, rclpy
+from monodock.ros.parameters import Parameter, declare_options
 from monodock.ros.shutdown import ShutdownFlag
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances
 from monodock.sim.realtime import RealTimeRunner
 from monodock.sim.simulator import Simulator
 
-__all__ = ["SimNode", "SimSettings", "run_sim"]
+__all__ = ["PARAMETERS", "SimNode", "SimSettings", "run_sim"]
 
 
 @dataclass(frozen=True)
 class SimSettings:
-    """The node's parameters (ROS parameters of the same names)."""
+    """The node's settings: ROS parameters of the same names (``PARAMETERS``), and the frames of its messages."""
 
     start: tuple[float, float, float] = (-1.8, 0.0, 0.0)  # x, y (m), yaw (rad) of base_link in the dock frame
     seed: int = 0
@@ -55,6 +56,25 @@ class SimSettings:
     nuisances: str = "default"  # the camera's: "default" (a cheap indoor webcam) or "clean" (the exact render)
     frame_id: str = "base_link"
     camera_frame_id: str = "camera_optical_frame"
+
+
+# SimSettings' parameters: read once, at start-up (writable as they always were, though a change does nothing).
+PARAMETERS: dict[str, Parameter] = {
+    "start": Parameter("x, y (m), yaw (rad) of base_link in the dock frame", read_only=False, length=3),
+    "seed": Parameter("the simulator's random seed", read_only=False),
+    "layout": Parameter("dock layout YAML; empty: the built-in default", read_only=False),
+    "robot": Parameter("robot YAML; empty: the built-in default", read_only=False),
+    "camera": Parameter("camera file (ROS camera_info YAML or OpenCV); empty: the built-in default", read_only=False),
+    "camera_rate": Parameter("frames per second", read_only=False, positive=True),
+    "cmd_vel_timeout": Parameter(
+        "simulated seconds of cmd_vel silence before the base stops", read_only=False, positive=True
+    ),
+    "nuisances": Parameter(
+        "the camera's nuisances: default (a cheap indoor webcam) or clean (the exact render)",
+        read_only=False,
+        choices=("default", "clean"),
+    ),
+}
 
 
 def _stamp(msg_time: Any, seconds: float) -> Any:
@@ -93,35 +113,8 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             "Range": Range,
             "Bool": Bool,
         }
-        d = SimSettings()
-        self.declare_parameter("start", list(d.start))
-        self.declare_parameter("seed", d.seed)
-        self.declare_parameter("layout", d.layout)
-        self.declare_parameter("robot", d.robot)
-        self.declare_parameter("camera", d.camera)
-        self.declare_parameter("camera_rate", d.camera_rate)
-        self.declare_parameter("cmd_vel_timeout", d.cmd_vel_timeout)
-        self.declare_parameter("nuisances", d.nuisances)
-        p = self.get_parameter
-        start = [float(v) for v in p("start").value]
-        if len(start) != 3 or not all(math.isfinite(v) for v in start):
-            raise InputError(f"parameter start: [x, y, yaw] (metres, radians), got {start}")
-        self.settings = SimSettings(
-            start=(start[0], start[1], start[2]),
-            seed=int(p("seed").value),
-            layout=str(p("layout").value),
-            robot=str(p("robot").value),
-            camera=str(p("camera").value),
-            camera_rate=float(p("camera_rate").value),
-            cmd_vel_timeout=float(p("cmd_vel_timeout").value),
-            nuisances=str(p("nuisances").value),
-        )
+        self.settings = declare_options(self, SimSettings(), PARAMETERS)
         s = self.settings
-        if s.nuisances not in ("default", "clean"):
-            raise InputError(f"parameter nuisances: 'default' or 'clean', got {s.nuisances!r}")
-        for name, value in (("camera_rate", s.camera_rate), ("cmd_vel_timeout", s.cmd_vel_timeout)):
-            if not (math.isfinite(value) and value > 0):
-                raise InputError(f"parameter {name}: expected a positive number, got {value}")
         sim = Simulator(
             layout=DockLayout.load(s.layout) if s.layout else DockLayout.default(),
             camera=CameraModel.load(s.camera) if s.camera else CameraModel.default(),
