@@ -17,6 +17,7 @@ from monodock.cli.main import main
 from monodock.core import parallel
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout, MarkerSpec
+from monodock.core.records import to_record
 from monodock.core.robot import Mount, RobotConfig
 from monodock.errors import InputError
 from monodock.learning import dataset as dataset_module
@@ -71,7 +72,7 @@ def test_labelling_in_worker_processes_gives_the_same_dataset(tmp_path: Path, mo
     monkeypatch.setattr(parallel, "worker_pool", counted)
     one, run_one, _ = label_recording(tmp_path / "rec", sim.layout, progress=False)
     _, run_two, _ = label_recording(tmp_path / "rec", sim.layout, progress=False, jobs=2)
-    assert run_two.to_dict() == run_one.to_dict()
+    assert to_record(run_two) == to_record(run_one)
     sim.layout.save(tmp_path / "layout.yaml")
     argv = ["label", str(tmp_path / "rec"), "--layout", str(tmp_path / "layout.yaml"), "--jobs", "2"]
     assert main([*argv, "--out", str(tmp_path / "two.parquet")]) == 0

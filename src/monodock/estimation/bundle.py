@@ -17,7 +17,7 @@ import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Final, Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,6 +27,7 @@ from monodock.core.config import load_json
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.errors import ConfigError, InputError
+from monodock.estimation.bundle_format import BundleMetadata, Manifest, ModelEntry, SetEntry
 from monodock.estimation.fused import FusionTables
 from monodock.estimation.segments import SegmentTable
 from monodock.perception.features import MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
@@ -48,7 +49,7 @@ __all__ = [
 BUNDLE_SCHEMA_VERSION = 2
 BUNDLE_FILE = "bundle.json"
 INPUT_NAME = "input"
-MANIFEST_DIGEST = "manifest_sha256"
+MANIFEST_DIGEST: Final = "manifest_sha256"
 
 
 def manifest_digest(manifest: Mapping[str, Any]) -> str:
@@ -62,9 +63,12 @@ def manifest_digest(manifest: Mapping[str, Any]) -> str:
     return hashlib.sha256(canonical.encode("ascii")).hexdigest()
 
 
-def seal_manifest(manifest: dict[str, Any]) -> dict[str, Any]:
-    """The manifest with its digest set (what ``learning.export`` writes)."""
-    return {**{k: v for k, v in manifest.items() if k != MANIFEST_DIGEST}, MANIFEST_DIGEST: manifest_digest(manifest)}
+def seal_manifest(manifest: Manifest) -> Manifest:
+    """The manifest with its digest set, last (what ``learning.export`` writes)."""
+    sealed = manifest.copy()
+    sealed.pop(MANIFEST_DIGEST, None)
+    sealed[MANIFEST_DIGEST] = manifest_digest(manifest)
+    return sealed
 
 
 _SAFE_FILE = re.compile(r"^[A-Za-z0-9_.-]+\.onnx$")
@@ -110,7 +114,10 @@ def _describe(names: Sequence[str], other: Sequence[str]) -> str:
 
 
 def _read_manifest(p: Path) -> tuple[Path, dict[str, Any]]:
-    """The bundle's ``bundle.json`` path and contents, checked for this schema version and its own digest."""
+    """The bundle's ``bundle.json`` path and contents as read, checked for this schema version and its own digest.
+
+    The digest proves no accident, not who wrote it: ``_check_structure`` checks the shape before it is typed.
+    """
     if not p.is_dir():
         raise InputError(f"{p} is not a model bundle folder")
     mf = p / BUNDLE_FILE
@@ -134,10 +141,11 @@ def _read_manifest(p: Path) -> tuple[Path, dict[str, Any]]:
     return mf, manifest
 
 
-def _check_structure(
-    manifest: dict[str, Any], mf: Path
-) -> tuple[dict[str, Any], dict[str, dict[str, Any]], SegmentTable]:
-    """The manifest's metadata, marker sets and segment table, each checked to have the shape export writes."""
+def _check_structure(manifest: dict[str, Any], mf: Path) -> tuple[Manifest, SegmentTable]:
+    """The manifest as read, its metadata, marker sets and segment table checked to have the shape export writes.
+
+    The models' entries are checked as they are opened (``_open_models``).
+    """
     meta = manifest.get("metadata")
     sets = manifest.get("sets")
     if not isinstance(meta, dict) or not isinstance(sets, dict) or not sets:
@@ -149,12 +157,12 @@ def _check_structure(
     for name, entry in sets.items():
         if not isinstance(entry, dict) or not isinstance(entry.get("feature_names"), list):
             raise InputError(f"{mf} is malformed: marker set {name} has no list of feature_names")
-    return meta, sets, segments
+    return cast(Manifest, manifest), segments
 
 
 def _check_features(
-    sets: dict[str, dict[str, Any]],
-    meta: dict[str, Any],
+    sets: dict[str, SetEntry],
+    meta: BundleMetadata,
     expected_feature_names: Mapping[str, Sequence[str]] | None,
     feature_schema: str | None,
 ) -> None:
@@ -180,7 +188,7 @@ def _check_features(
 
 
 def _open_models(
-    p: Path, mf: Path, sets: dict[str, dict[str, Any]], segments: SegmentTable
+    p: Path, mf: Path, sets: dict[str, SetEntry], segments: SegmentTable
 ) -> tuple[dict[str, _Model], dict[str, list[_Model | None]]]:
     """Per marker set, its depth model and its per-segment yaw models (None for a segment without one)."""
     depth: dict[str, _Model] = {}
@@ -201,7 +209,7 @@ def _open_models(
 class Bundle:
     """A loaded model bundle: predicts depth (m) and per-segment yaw (deg) with ONNX Runtime, one thread."""
 
-    manifest: dict[str, Any]
+    manifest: Manifest
     path: Path
     segments: SegmentTable
     sets: tuple[str, ...]
@@ -209,7 +217,7 @@ class Bundle:
     def __init__(
         self,
         path: Path,
-        manifest: dict[str, Any],
+        manifest: Manifest,
         segments: SegmentTable,
         depth: dict[str, _Model],
         yaw: dict[str, list[_Model | None]],
@@ -246,10 +254,10 @@ class Bundle:
                 feature mismatch, or a model ONNX Runtime cannot load. One line saying which.
         """
         p = Path(path)
-        mf, manifest = _read_manifest(p)
-        meta, sets, segments = _check_structure(manifest, mf)
-        _check_features(sets, meta, expected_feature_names, feature_schema)
-        depth, yaw = _open_models(p, mf, sets, segments)
+        mf, raw = _read_manifest(p)
+        manifest, segments = _check_structure(raw, mf)
+        _check_features(manifest["sets"], manifest["metadata"], expected_feature_names, feature_schema)
+        depth, yaw = _open_models(p, mf, manifest["sets"], segments)
         bundle = cls(p, manifest, segments, depth, yaw)
         # The calibration it was trained with is checked as its files would be, before any estimate (the part
         # that is there: a bundle lacking one is refused, naming it, where it is needed).
@@ -261,12 +269,11 @@ class Bundle:
     # --- what the models were trained with ------------------------------------------------------------------
 
     @property
-    def metadata(self) -> dict[str, Any]:
+    def metadata(self) -> BundleMetadata:
         """``bundle.json``'s metadata: the calibration, feature schema, labels and the fused method's tables."""
-        meta: dict[str, Any] = self.manifest["metadata"]
-        return meta
+        return self.manifest["metadata"]
 
-    def _meta(self, key: str) -> Any:
+    def _meta(self, key: Literal["camera", "layout", "robot"]) -> dict[str, Any]:
         if key not in self.metadata:
             raise InputError(f"{self.path}: {BUNDLE_FILE} has no '{key}' in its metadata")
         return self.metadata[key]
@@ -305,12 +312,12 @@ class Bundle:
         """The feature names (input columns, in order) of a marker set's models."""
         return tuple(self._set(set_name)["feature_names"])
 
-    def entry(self, set_name: str, segment: int | None = None) -> dict[str, Any]:
+    def entry(self, set_name: str, segment: int | None = None) -> ModelEntry:
         """The manifest entry (model type, metrics, rows, borrowing) of the depth model or a segment's angle model."""
         s = self._set(set_name)
         if segment is None:
-            return dict(s["depth"])
-        return dict(s["yaw"][segment])
+            return s["depth"].copy()
+        return s["yaw"][segment].copy()
 
     def predict_depth(self, set_name: str, X: NDArray[Any]) -> NDArray[np.float64]:
         """Depth in metres for each row of X, shape (n, f) or (f,); returns shape (n,) (or (1,) for one row)."""
@@ -333,11 +340,10 @@ class Bundle:
             raise InputError(f"marker set {set_name} has no angle model for {self.segments.label(segment)}: {reason}")
         return model.predict(X)
 
-    def _set(self, set_name: str) -> dict[str, Any]:
+    def _set(self, set_name: str) -> SetEntry:
         if set_name not in self._depth:
             raise InputError(f"the bundle has no marker set {set_name!r}; it has {', '.join(self.sets)}")
-        entry: dict[str, Any] = self.manifest["sets"][set_name]
-        return entry
+        return self.manifest["sets"][set_name]
 
 
 def _open(folder: Path, entry: Any, n_features: int, manifest_path: Path) -> _Model | None:

@@ -40,6 +40,7 @@ from monodock.core.config import parse_json
 from monodock.core.frame import Frame
 from monodock.core.layout import DockLayout
 from monodock.core.parallel import map_stream
+from monodock.core.records import to_record
 from monodock.core.robot import RobotConfig
 from monodock.errors import ConfigError, InputError
 from monodock.learning.label import LABEL_COLUMNS, LidarLabel, label_frame
@@ -232,7 +233,7 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
 
 @dataclass
 class LabelRun:
-    """Counts of a labelling run, for the summary line and the dataset's metadata."""
+    """Counts of a labelling run, for the summary line and the dataset's metadata (``core.records`` writes it)."""
 
     images: int = 0
     unreadable: int = 0
@@ -241,17 +242,6 @@ class LabelRun:
     no_marker2: int = 0
     labelled: int = 0
     invalid_labels: Counter[str] = field(default_factory=Counter)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "images": self.images,
-            "unreadable": self.unreadable,
-            "paired": self.paired,
-            "unpaired": self.unpaired,
-            "no_marker2": self.no_marker2,
-            "labelled": self.labelled,
-            "invalid_labels": dict(self.invalid_labels),
-        }
 
     def add(self, other: LabelRun) -> None:
         """Add another run's counts to these (the parts of one recording labelled in chunks)."""
@@ -516,7 +506,7 @@ def label_recording(
         "source": source,
         "pairing_tolerance_s": tolerance_s,
         "corner_refinement": refinement,
-        "counts": run.to_dict(),
+        "counts": to_record(run),
         "warnings": warnings,
         "has_truth": bool(truth_poses),
     }

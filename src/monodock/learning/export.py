@@ -13,17 +13,17 @@ import json
 import math
 import os
 import platform
-from collections.abc import Mapping
 from dataclasses import asdict
 from datetime import UTC, datetime
 from importlib import metadata as importlib_metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from monodock.core.atomic import atomic_directory, write_text_atomic
 from monodock.estimation.bundle import BUNDLE_FILE, BUNDLE_SCHEMA_VERSION, INPUT_NAME, seal_manifest
+from monodock.estimation.bundle_format import BundleMetadata, Manifest, ModelEntry, SetEntry
 from monodock.learning.train import TaskResult, TrainingResult
 
 __all__ = ["TARGET_OPSET", "onnx_model_bytes", "save_bundle", "update_bundle_metadata", "write_bundle"]
@@ -147,9 +147,9 @@ def _number(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def _entry(task: TaskResult, file: str | None, digest: str | None, size: int | None) -> dict[str, Any]:
+def _entry(task: TaskResult, file: str | None, digest: str | None, size: int | None) -> ModelEntry:
     best = task.best
-    entry: dict[str, Any] = {
+    entry: ModelEntry = {
         "file": file,
         "model": task.chosen,
         "params": None if best is None else best.params,
@@ -172,7 +172,7 @@ def _entry(task: TaskResult, file: str | None, digest: str | None, size: int | N
 
 
 def save_bundle(
-    out: str | os.PathLike[str], result: TrainingResult, *, metadata: Mapping[str, Any], force: bool = False
+    out: str | os.PathLike[str], result: TrainingResult, *, metadata: BundleMetadata, force: bool = False
 ) -> Path:
     """Write a model bundle folder atomically: one ONNX file per chosen model and ``bundle.json``.
 
@@ -194,17 +194,17 @@ def save_bundle(
     return Path(out)
 
 
-def write_bundle(folder: Path, result: TrainingResult, *, metadata: Mapping[str, Any]) -> None:
+def write_bundle(folder: Path, result: TrainingResult, *, metadata: BundleMetadata) -> None:
     """Write a bundle's files into an existing empty ``folder`` (``save_bundle`` without the atomic rename)."""
     try:
-        meta = json.loads(json.dumps(dict(metadata), allow_nan=False))
+        meta: BundleMetadata = json.loads(json.dumps(dict(metadata), allow_nan=False))
     except (TypeError, ValueError) as exc:
         raise TypeError(f"bundle metadata must be JSON-serialisable: {exc}") from exc
-    cfg = result.config
-    sets: dict[str, Any] = {}
+    cfg, seg = result.config, result.config.segments
+    sets: dict[str, SetEntry] = {}
     total = 0
 
-    def write(task: TaskResult, file: str, n_features: int) -> dict[str, Any]:
+    def write(task: TaskResult, file: str, n_features: int) -> ModelEntry:
         nonlocal total
         if task.estimator is None:
             return _entry(task, None, None, None)
@@ -221,14 +221,14 @@ def write_bundle(folder: Path, result: TrainingResult, *, metadata: Mapping[str,
             "depth": write(s.depth, f"{s.name}.depth.onnx", nf),
             "yaw": [write(t, f"{s.name}.yaw.{t.segment:02d}.onnx", nf) for t in s.angle],
         }
-    manifest = {
+    manifest: Manifest = {
         "schema_version": BUNDLE_SCHEMA_VERSION,
         "created": datetime.now(UTC).isoformat(timespec="seconds").replace("+00:00", "Z"),
         "versions": _versions(),
         "metadata": meta,
         "targets": {"depth": "metres (DockPose x label)", "yaw": "degrees (DockPose yaw label)"},
         "onnx": {"input": INPUT_NAME, "dtype": "float32", "opset": TARGET_OPSET},
-        "segments": asdict(cfg.segments),
+        "segments": {"start_m": seg.start_m, "width_m": seg.width_m, "count": seg.count},
         "train_config": {**{k: v for k, v in asdict(cfg).items() if k != "segments"}, "models": list(cfg.models)},
         "training": {"seconds": round(result.seconds, 3), "fits": result.n_fits, "jobs": result.jobs},
         "onnx_bytes": total,
@@ -244,6 +244,8 @@ def update_bundle_metadata(path: str | os.PathLike[str], key: str, value: Any) -
     For what is learned after the models exist (the fused method's tables come from the models' answers).
     """
     mf = Path(path) / BUNDLE_FILE
-    manifest = json.loads(mf.read_text(encoding="utf-8"))
-    manifest["metadata"][key] = json.loads(json.dumps(value, allow_nan=False))
+    manifest: Manifest = json.loads(mf.read_text(encoding="utf-8"))
+    # An existing key keeps its place in the file; a new one goes last.
+    metadata: dict[str, Any] = {**manifest["metadata"], key: json.loads(json.dumps(value, allow_nan=False))}
+    manifest["metadata"] = cast(BundleMetadata, metadata)
     write_text_atomic(mf, json.dumps(seal_manifest(manifest), indent=1, allow_nan=False) + "\n", force=True)

@@ -25,6 +25,7 @@ import numpy as np
 from monodock.core.atomic import atomic_directory
 from monodock.core.camera import CameraModel
 from monodock.errors import InputError
+from monodock.estimation.bundle_format import BundleMetadata
 from monodock.estimation.fused import FusionTables
 from monodock.estimation.regression import ANGLE_LABELS, DEPTH_LABELS
 from monodock.learning.dataset import Dataset
@@ -144,7 +145,7 @@ def training_sets(
     return out
 
 
-def bundle_metadata(dataset: Dataset, *, depth_label: str, angle_label: str, source: str) -> dict[str, object]:
+def bundle_metadata(dataset: Dataset, *, depth_label: str, angle_label: str, source: str) -> BundleMetadata:
     """What a bundle must carry besides its models: the calibration, layout, schema and label definitions."""
     x = np.asarray(dataset[DEPTH_LABELS[depth_label]], dtype=np.float64)
     ok = np.asarray(dataset["label_valid"], dtype=bool) & np.isfinite(x)

@@ -22,6 +22,7 @@ ExtrinsicsResult, its YAML and tf line); every public name is importable from he
 from __future__ import annotations
 
 from monodock.calibrate.extrinsics.diamond import (
+    EdgeFit,
     edge_pairs_from_views,
     extrinsics_from_target_views,
     target_views_from_recording,
@@ -48,6 +49,7 @@ __all__ = [
     "MIN_PAIRS",
     "PAIRING_TOLERANCE_S",
     "DockView",
+    "EdgeFit",
     "ExtrinsicsResult",
     "edge_pairs_from_views",
     "extrinsics_from_dock_views",

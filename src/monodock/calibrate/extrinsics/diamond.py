@@ -39,6 +39,31 @@ RANGE_JUMP_M = 0.06
 
 
 @dataclass(frozen=True)
+class EdgeFit:
+    """The diamond target's LiDAR point / pixel pairs and the point-to-line fit that matched them.
+
+    Attributes:
+        points: (N, 3) segment ends in the laser frame.
+        pixels: (N, 2) the pixel of each end's closest point on its edge.
+        views: views used (board and segment found).
+        skipped: views or ends left out, reason -> count.
+        mount: the point-to-line solution for the laser mount.
+        rms_m: the ends' RMS distance to their edges, metres.
+        std: the mount fields' 1-sigma (x, y, z, roll, pitch, yaw).
+        condition: the condition of the fit's normalised J^T J.
+    """
+
+    points: NDArray[np.float64]
+    pixels: NDArray[np.float64]
+    views: int
+    skipped: dict[str, int]
+    mount: Mount
+    rms_m: float
+    std: dict[str, float]
+    condition: float
+
+
+@dataclass(frozen=True)
 class _EdgeEnd:
     """One end of a view's LiDAR segment on the target: the point (laser frame) and the view's board pose."""
 
@@ -221,7 +246,7 @@ def edge_pairs_from_views(
     base_T_optical: NDArray[np.float64],
     target: DiamondTarget,
     prior_mount: Mount,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], dict[str, Any]]:
+) -> EdgeFit:
     """LiDAR point / pixel pairs from views of the diamond target: segment ends matched to the board's edges.
 
     Per view the camera gives the board's pose (its markers, PnP) and the scan its segment on the board, whose
@@ -230,8 +255,7 @@ def edge_pairs_from_views(
     point on its edge.
 
     Returns:
-        points (N, 3) in the laser frame, pixels (N, 2), and facts for the result's notes: ``views`` used,
-        ``skipped`` (reason -> count), ``mount`` (the point-to-line solution), ``rms_m``, ``std``, ``condition``.
+        The pairs and the facts for the result's notes (views used, skipped, the point-to-line mount and RMS).
 
     Raises:
         InputError: fewer than MIN_TARGET_VIEWS views with the board and its segment found.
@@ -279,15 +303,7 @@ def edge_pairs_from_views(
     points = np.array([e.point for e in ends])
     rms = float(np.sqrt(np.mean(res**2)))
     std, cond = covariance(J, rms, ("x", "y", "z", "roll", "pitch", "yaw"))
-    facts: dict[str, Any] = {
-        "views": used,
-        "skipped": skipped,
-        "mount": Mount(*(float(v) for v in x)),
-        "rms_m": rms,
-        "std": std,
-        "condition": cond,
-    }
-    return points, pixels, facts
+    return EdgeFit(points, pixels, used, skipped, Mount(*(float(v) for v in x)), rms, std, cond)
 
 
 def extrinsics_from_target_views(
@@ -300,18 +316,18 @@ def extrinsics_from_target_views(
     """The full 6-DoF LiDAR mount from views of the diamond target: edge pairs, then SolvePnP on them."""
 
     tgt = target or DiamondTarget()
-    points, pixels, facts = edge_pairs_from_views(views, camera, base_T_optical, tgt, prior_mount)
-    result = extrinsics_from_pairs(points, pixels, camera, base_T_optical, prior=prior_mount)
-    m: Mount = facts["mount"]
+    fit = edge_pairs_from_views(views, camera, base_T_optical, tgt, prior_mount)
+    result = extrinsics_from_pairs(fit.points, fit.pixels, camera, base_T_optical, prior=prior_mount)
+    m = fit.mount
     notes = [
         f"point-to-line solution: x {m.x:+.4f} y {m.y:+.4f} z {m.z:+.4f} m, roll {math.degrees(m.roll):+.3f} "
-        f"pitch {math.degrees(m.pitch):+.3f} yaw {math.degrees(m.yaw):+.3f} deg, RMS {facts['rms_m'] * 100:.2f} cm",
+        f"pitch {math.degrees(m.pitch):+.3f} yaw {math.degrees(m.yaw):+.3f} deg, RMS {fit.rms_m * 100:.2f} cm",
         *result.notes,
     ]
-    if facts["skipped"]:
-        notes.append("views skipped: " + ", ".join(f"{n} {r}" for r, n in facts["skipped"].items()))
+    if fit.skipped:
+        notes.append("views skipped: " + ", ".join(f"{n} {r}" for r, n in fit.skipped.items()))
     return dataclasses.replace(
-        result, method="target pairs (SolvePnP)", count=int(facts["views"]), points=len(points), notes=tuple(notes)
+        result, method="target pairs (SolvePnP)", count=fit.views, points=len(fit.points), notes=tuple(notes)
     )
 
 
