@@ -16,6 +16,7 @@ from monodock.estimation.bundle import Bundle
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
 from monodock.estimation.factory import bundle_calibration as _bundle_calibration
+from monodock.estimation.methods import NEEDS_BUNDLE
 
 if TYPE_CHECKING:
     SubParsers = argparse._SubParsersAction[Any]
@@ -223,7 +224,7 @@ def add_estimator_options(
 def build_estimator(args: argparse.Namespace) -> Estimator:
     """The Estimator of ``--model`` / ``--method`` / ``--camera --layout --robot`` (``estimation.factory``)."""
     if not args.model:
-        if args.method in ("regression", "fused"):
+        if args.method in NEEDS_BUNDLE:
             raise InputError(f"the {args.method} method needs --model BUNDLE")
         missing = [f"--{k}" for k in ("camera", "layout", "robot") if not getattr(args, k, None)]
         if missing:

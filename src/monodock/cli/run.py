@@ -16,6 +16,7 @@ from monodock.cli.options import SubParsers, add_estimator_options, build_estima
 from monodock.core.atomic import check_writable
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator, FrameEstimates
+from monodock.estimation.methods import METHOD_NAMES
 from monodock.io.frames import FrameSource, open_frames
 from monodock.io.live import Draw, LiveStats, run_live
 from monodock.io.nav2 import UNSTAMPED_BAG, PoseStampedBagWriter
@@ -38,7 +39,7 @@ def add_parser(subparsers: SubParsers) -> None:
     )
     add_estimator_options(
         r,
-        methods=("regression", "pnp", "board", "fused"),
+        methods=METHOD_NAMES,
         camera_help="camera file: ROS camera_info YAML or OpenCV FileStorage",
         robot_help="robot YAML (camera and LiDAR mounts, front_offset)",
     )

@@ -2,7 +2,7 @@
 then typed field access with plausible ranges, and every error one line naming the file, the key and the range.
 
 Every loader of a user file goes through here: the camera (``core.camera``), the layout, the robot, the docking
-config, a bundle's manifest and a dataset's metadata. ``docs/input-files.md`` lists the ranges.
+config, a bundle's manifest and a dataset's metadata. docs/user-guide.md ("What every file may hold") lists the ranges.
 """
 
 from __future__ import annotations

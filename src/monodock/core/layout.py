@@ -25,8 +25,8 @@ __all__ = ["ROLES", "DockLayout", "MarkerSpec"]
 ROLES: tuple[str, str, str] = ("left", "center", "right")
 ROLE_NUMBER: dict[str, int] = {"left": 1, "center": 2, "right": 3}
 
-# What a layout file may hold (docs/input-files.md): printed markers from 5 mm to 2 m, within 5 m of the dock
-# origin.
+# What a layout file may hold (docs/user-guide.md, "What every file may hold"): printed markers from 5 mm to 2 m,
+# within 5 m of the dock origin.
 MARKER_SIZE_RANGE = (0.005, 2.0)
 MAX_OFFSET = 5.0
 

@@ -55,8 +55,8 @@ class Mount:
 
 _MOUNT_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
 
-# What a robot file may hold (docs/input-files.md): sensors within 5 m of base_link, angles within ±π, speeds a
-# wheeled base can have.
+# What a robot file may hold (docs/user-guide.md, "What every file may hold"): sensors within 5 m of base_link,
+# angles within ±π, speeds a wheeled base can have.
 MAX_MOUNT_OFFSET = 5.0
 MAX_LINEAR_SPEED = 5.0  # m/s
 MAX_ANGULAR_SPEED = 10.0  # rad/s

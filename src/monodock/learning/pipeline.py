@@ -7,8 +7,8 @@
 5. the fused method's tables, learned on the held-out rows through the saved models (``fusion.train_fusion``).
 
 The whole bundle is written beside its final path and renamed into place at the end, so an interruption or an
-error leaves nothing half-written. ``monodock train``, the demo and the self-trained bundles of dock-sim and
-the robustness sweep all call ``train_bundle``; the checks on the dataset live here, not in the callers.
+error leaves nothing half-written. ``monodock train``, the demo and dock-sim's self-trained
+bundles all call ``train_bundle``; the checks on the dataset live here, not in the callers.
 """
 
 from __future__ import annotations
