@@ -14,6 +14,10 @@ remaining distance; markers lost for longer than ``lost_timeout`` outside that b
 the whole mission has a time limit. Every stop is a zero command, never a silent hang, and every failure
 says why as a ``FailureReason`` (the kind of error code Nav2's docking server reports), with the numbers in
 ``MissionResult.reason``. ``State`` documents what the robot does in each state and what ends it.
+
+The parts: the states and failure reasons (``dock.states``), the control law as pure functions
+(``dock.control_law``), what the mission knows of the dock (``dock.tracking.DockTrack``: frames placed by the
+odometry, the filter) and the gains (``dock.config.DockingConfig``). This module sequences them.
 """
 
 from __future__ import annotations
