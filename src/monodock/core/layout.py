@@ -3,10 +3,17 @@
 Marker corners follow OpenCV's ArUco order as seen by a robot facing the charger: top-left, top-right,
 bottom-right, bottom-left. In the ``dock`` frame (x into the charger, y left, z up) a marker centred at
 (0, y, z) with side s has its top-left corner at (0, y + s/2, z + s/2): the robot's left is +y.
+
+A surveyed dock (``monodock calibrate layout``) or a designed one says more per marker, each optional: ``x``
+(its centre's distance along the dock's x, metres: > 0 behind the face, < 0 standing off it), its tilt against
+the face ``roll``, ``pitch``, ``yaw`` (radians, URDF order, about the dock's axes through the marker's centre:
+roll turns it in the face's plane, pitch > 0 leans its top into the charger, yaw > 0 turns it to face the
+robot's right) and ``size`` (its own printed side, metres). A file without them means what it always meant.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core import transforms
 from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.errors import ConfigError
 
@@ -37,19 +45,49 @@ def _dictionary_size(name: str) -> int:
     return int(d.bytesList.shape[0])
 
 
+# A marker's tilt against the face: beyond this it is not taped onto the face but mounted some other way.
+MAX_TILT = math.radians(45.0)
+# The optional per-marker keys, and the keys every marker has.
+_POSE_KEYS = ("x", "roll", "pitch", "yaw")
+_MARKER_KEYS = ("id", "y", "z", *_POSE_KEYS, "size")
+
+
 @dataclass(frozen=True)
 class MarkerSpec:
-    """One marker on the charger face: its role, ArUco id, and centre (0, y, z) in the dock frame."""
+    """One marker on the charger face: its role, ArUco id, centre (x, y, z) in the dock frame, tilt and side.
+
+    Attributes:
+        role: left, center or right.
+        id: the ArUco id.
+        y, z: its centre across and above the floor, metres.
+        x: its centre along the dock's x (0: on the face), metres.
+        roll, pitch, yaw: its tilt against the face, radians (URDF order, the dock's axes; the module's docstring).
+        size: its own printed side (outer black border), metres; None: the layout's ``marker_size``.
+    """
 
     role: str
     id: int
     y: float
     z: float
+    x: float = 0.0
+    roll: float = 0.0
+    pitch: float = 0.0
+    yaw: float = 0.0
+    size: float | None = None
 
     @property
     def number(self) -> int:
         """The papers' marker number: 1 left, 2 centre, 3 right."""
         return ROLE_NUMBER[self.role]
+
+    @property
+    def tilted(self) -> bool:
+        """Whether it stands off the face or is tilted against it (what a flat face of equal markers is not)."""
+        return any(getattr(self, k) != 0.0 for k in _POSE_KEYS)
+
+    def centre(self) -> NDArray[np.float64]:
+        """Its centre in the dock frame, shape (3,)."""
+        return np.array([self.x, self.y, self.z])
 
 
 @dataclass(frozen=True)
@@ -74,14 +112,20 @@ class DockLayout:
         for m in self.markers:
             if not 0 <= m.id < size:
                 raise ConfigError(f"marker {m.role}: id {m.id} is not in {self.dictionary} (0..{size - 1})")
+        for m in self.markers:
+            if m.size is not None and not m.size > 0:
+                raise ConfigError(f"marker {m.role}: size must be positive, got {m.size}")
         centres = [(m.y, m.z) for m in self.markers]
         for i in range(3):
             for j in range(i + 1, 3):
                 gap = max(abs(centres[i][0] - centres[j][0]), abs(centres[i][1] - centres[j][1]))
-                if gap < self.marker_size:
+                # Tilted markers' outlines on the face are a little narrower than their sides: a gap of the
+                # mean half sides, at most 3 % short, is still apart (a survey's ±2° leave 0.06 %).
+                need = 0.5 * (self.side(self.markers[i].role) + self.side(self.markers[j].role))
+                if gap < 0.97 * need or (gap < need and not (self.markers[i].tilted or self.markers[j].tilted)):
                     raise ConfigError(
                         f"markers {self.markers[i].role} and {self.markers[j].role} overlap "
-                        f"(centres {gap:.3f} m apart, marker_size {self.marker_size} m)"
+                        f"(centres {gap:.3f} m apart, sides {need:.3f} m on average)"
                     )
 
     @classmethod
@@ -115,8 +159,11 @@ class DockLayout:
             marker_id = m.integer("id", minimum=0)  # the dictionary's range is checked with its name below
             y = m.number("y", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
             z = m.number("z", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
-            m.warn_unknown(("id", "y", "z"))
-            specs.append(MarkerSpec(role, marker_id, y, z))
+            x = m.number("x", 0.0, within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
+            tilt = [m.number(k, 0.0, within=(-MAX_TILT, MAX_TILT), unit="rad") for k in ("roll", "pitch", "yaw")]
+            size = m.number("size", within=MARKER_SIZE_RANGE, unit="m") if m.has("size") else None
+            m.warn_unknown(_MARKER_KEYS)
+            specs.append(MarkerSpec(role, marker_id, y, z, x, *tilt, size=size))
         # Unknown keys are reported and dropped: nothing a file holds beyond the schema travels into outputs.
         f.warn_unknown(("dictionary", "marker_size", "markers"))
         try:
@@ -130,9 +177,16 @@ class DockLayout:
         return cls.from_dict(load_yaml(path, "layout"), str(path))
 
     def to_dict(self) -> dict[str, Any]:
-        """The layout YAML mapping (docs/user-guide.md)."""
+        """The layout YAML mapping (docs/user-guide.md): the optional keys only where a marker has them."""
         out: dict[str, Any] = {"dictionary": self.dictionary, "marker_size": self.marker_size}
-        out["markers"] = {m.role: {"id": m.id, "y": m.y, "z": m.z} for m in self.markers}
+        markers: dict[str, Any] = {}
+        for m in self.markers:
+            entry: dict[str, Any] = {"id": m.id, "y": m.y, "z": m.z}
+            entry.update({k: getattr(m, k) for k in _POSE_KEYS if getattr(m, k) != 0.0})
+            if m.size is not None:
+                entry["size"] = m.size
+            markers[m.role] = entry
+        out["markers"] = markers
         return out
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
@@ -171,21 +225,40 @@ class DockLayout:
         img = cv2.aruco.generateImageMarker(d, marker_id, cells, borderBits=1)
         return (img > 127).astype(np.uint8)
 
-    def corners_in_marker(self) -> NDArray[np.float64]:
-        """A marker's corners in its own frame, the order SOLVEPNP_IPPE_SQUARE requires, shape (4, 3)."""
-        h = self.marker_size / 2.0
+    def side(self, role: str) -> float:
+        """A marker's printed side (outer black border), metres: its own ``size``, else ``marker_size``."""
+        size = self.marker(role).size
+        return self.marker_size if size is None else size
+
+    @property
+    def flat(self) -> bool:
+        """Whether every marker lies on the face, untilted, at ``marker_size`` (a layout file of three keys each)."""
+        return not any(m.tilted or (m.size is not None and m.size != self.marker_size) for m in self.markers)
+
+    def corners_in_marker(self, role: str | None = None) -> NDArray[np.float64]:
+        """A marker's corners in its own frame, the order SOLVEPNP_IPPE_SQUARE requires, shape (4, 3).
+
+        ``role`` picks the marker's own side (``side``); without it, the layout's ``marker_size``.
+        """
+        h = (self.marker_size if role is None else self.side(role)) / 2.0
         return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
 
     def dock_T_marker(self, role: str) -> NDArray[np.float64]:
         """Pose of a marker's own frame (x right, y up as seen from the robot, z out of the face) in dock."""
         m = self.marker(role)
-        # Marker frame axes in dock coordinates: x -> -y_dock, y -> +z_dock, z -> -x_dock (towards the robot).
+        # Marker frame axes in dock coordinates: x -> -y_dock, y -> +z_dock, z -> -x_dock (towards the robot),
+        # then the marker's tilt about the dock's axes through its centre.
         T = np.eye(4)
-        T[:3, :3] = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
-        T[:3, 3] = (0.0, m.y, m.z)
+        T[:3, :3] = _FACE_R_MARKER
+        if m.roll or m.pitch or m.yaw:
+            T[:3, :3] = transforms.rotation_from_rpy(m.roll, m.pitch, m.yaw) @ _FACE_R_MARKER
+        T[:3, 3] = (m.x, m.y, m.z)
         return T
 
     def corners_in_dock(self, role: str) -> NDArray[np.float64]:
         """A marker's four corners in the dock frame, ArUco order (TL, TR, BR, BL), shape (4, 3)."""
         T = self.dock_T_marker(role)
-        return self.corners_in_marker() @ T[:3, :3].T + T[:3, 3]
+        return self.corners_in_marker(role) @ T[:3, :3].T + T[:3, 3]
+
+
+_FACE_R_MARKER = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])

@@ -249,11 +249,10 @@ def _ippe_starts(roles: tuple[str, ...], img: NDArray[np.float64], model: Planar
             if th is not None:
                 starts.append(th)
 
-    square = layout.corners_in_marker()
     for k, role in enumerate(roles):
         try:
             n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-                square, pixels[k], camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
+                layout.corners_in_marker(role), pixels[k], camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
             )
         except cv2.error:
             continue
@@ -281,11 +280,13 @@ def _mirrored(th: NDArray[np.float64], role: str, model: PlanarModel) -> NDArray
     """The planar pose on the other side of a lone marker's yaw ambiguity: the marker's normal reflected about the
     camera's line of sight to its centre (yaw -> 2 bearing - yaw), the marker's centre where it was."""
     x, y, yaw = (float(v) for v in th)
-    offset = model.layout.marker(role).y  # the marker's centre in the dock frame is (0, offset, z)
-    mx, my = x - math.sin(yaw) * offset, y + math.cos(yaw) * offset
+    m = model.layout.marker(role)  # the marker's centre in the dock frame is (m.x, m.y, z)
+    c, s = math.cos(yaw), math.sin(yaw)
+    mx, my = x + c * m.x - s * m.y, y + s * m.x + c * m.y
     bearing = math.atan2(my - float(model.base_T_optical[1, 3]), mx - float(model.base_T_optical[0, 3]))
     turned = wrap_angle(2.0 * bearing - yaw)
-    return np.array([mx + math.sin(turned) * offset, my - math.cos(turned) * offset, turned])
+    c, s = math.cos(turned), math.sin(turned)
+    return np.array([mx - c * m.x + s * m.y, my - s * m.x - c * m.y, turned])
 
 
 def _same(a: NDArray[np.float64], b: NDArray[np.float64], tol: float) -> bool:

@@ -145,7 +145,7 @@ def estimate_single_marker(
     obs = detection.observations.get(role)
     if obs is None:
         return PoseEstimate("pnp", None, f"marker {layout.marker(role).number} ({role}) not seen")
-    obj = layout.corners_in_marker()
+    obj = layout.corners_in_marker(role)
     img = obs.corners
     ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE_SQUARE)
     if not ok:

@@ -119,14 +119,16 @@ class Simulator:
         """Share of a 9x9 grid of points on the marker that the camera sees unoccluded and inside the image."""
         T = self.world_T_optical(pose)
         centre = T[:3, 3]
-        m = self.layout.marker(role)
         g = (np.arange(9) + 0.5) / 9 - 0.5
-        gy, gz = np.meshgrid(g * self.layout.marker_size, g * self.layout.marker_size)
-        pts = np.stack([np.zeros(gy.size), m.y + gy.ravel(), m.z + gz.ravel()], axis=1)
+        ga, gb = np.meshgrid(g * self.layout.side(role), g * self.layout.side(role))
+        grid = np.stack([ga.ravel(), gb.ravel(), np.zeros(ga.size)], axis=1)
+        pts = transforms.apply(self.layout.dock_T_marker(role), grid)
         dirs = pts - centre
         dist = np.linalg.norm(dirs, axis=1)
         hits = world.cast(centre, dirs / dist[:, None])
-        face = world.surface_index("charger_face")
+        # The marker is painted on the face, or on a card of its own when it stands off the face or is tilted.
+        names = {s.name for s in world.surfaces}
+        face = world.surface_index(f"marker_{role}" if f"marker_{role}" in names else "charger_face")
         seen = (hits.surface == face) & (np.abs(hits.t - dist) < 1e-6)
         px = self.camera.project(transforms.apply(transforms.invert(T), pts))
         optical_z = transforms.apply(transforms.invert(T), pts)[:, 2]

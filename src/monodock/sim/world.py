@@ -214,12 +214,38 @@ class RoomGeometry:
     extra: tuple[Surface, ...] = field(default=())
 
 
-def marker_patch(layout: DockLayout, marker_id: int, centre_s: float, centre_t: float) -> Patch:
-    """The marker's black/white cells as a patch centred at (centre_s, centre_t) on a surface."""
+def marker_patch(
+    layout: DockLayout, marker_id: int, centre_s: float, centre_t: float, size: float | None = None
+) -> Patch:
+    """The marker's black/white cells as a patch centred at (centre_s, centre_t) on a surface; ``size`` is its
+    side (default the layout's ``marker_size``)."""
     bits = layout.marker_bits(marker_id).astype(np.float64)
     values = INK_BLACK + bits * (PAPER_WHITE - INK_BLACK)
-    h = layout.marker_size / 2.0
-    return Patch(centre_s - h, centre_t - h, layout.marker_size, layout.marker_size, values)
+    side = layout.marker_size if size is None else size
+    h = side / 2.0
+    return Patch(centre_s - h, centre_t - h, side, side, values)
+
+
+# The white paper around a marker printed on its own sheet, in modules each side: the quiet zone it is cut with.
+CARD_MARGIN_MODULES = 1.5
+
+
+def marker_card(layout: DockLayout, role: str) -> Surface:
+    """A marker printed on a card of its own, where the layout places and tilts it: ``marker_<role>``.
+
+    A marker that stands off the face or is tilted against it is not painted on the face: its card is a surface
+    of its own, the marker in the middle and ``CARD_MARGIN_MODULES`` of white around it. A card that reaches
+    behind the face is hidden there, as it would be inside the charger.
+    """
+    m = layout.marker(role)
+    side = layout.side(role)
+    T = layout.dock_T_marker(role)
+    right, up = T[:3, 0], T[:3, 1]  # the marker's x (the robot's right) and y (up) in the dock frame
+    margin = CARD_MARGIN_MODULES * side / layout.modules
+    card = side + 2.0 * margin
+    top_left = T[:3, 3] - right * (card / 2.0) + up * (card / 2.0)
+    surface = rectangle(f"marker_{role}", top_left, right, -up, card, card, PAPER_WHITE)
+    return surface.with_patches(marker_patch(layout, m.id, card / 2.0, card / 2.0, side))
 
 
 def build_dock_world(
@@ -230,18 +256,18 @@ def build_dock_world(
     """The charger with the layout's markers on its face, standing against a wall on the floor."""
     ch = charger or ChargerGeometry()
     rm = room or RoomGeometry()
-    ys = [m.y for m in layout.markers]
-    zs = [m.z for m in layout.markers]
-    margin = 0.6 * layout.marker_size
-    half_w = max(ch.width / 2.0, max(abs(y) for y in ys) + layout.marker_size / 2.0 + margin)
-    height = max(ch.height, max(zs) + layout.marker_size / 2.0 + margin)
+    half_w = max(ch.width / 2.0, *(abs(m.y) + 1.1 * layout.side(m.role) for m in layout.markers))
+    height = max(ch.height, *(m.z + 1.1 * layout.side(m.role) for m in layout.markers))
     # The face, seen from the robot: s runs to the robot's right (-y), t downwards (-z).
     face = rectangle("charger_face", (0.0, half_w, height), (0, -1, 0), (0, 0, -1), 2 * half_w, height, ch.face_albedo)
-    patches = [marker_patch(layout, m.id, half_w - m.y, height - m.z) for m in layout.markers]
-    face = face.with_patches(*patches)
+    on_face = [m for m in layout.markers if not m.tilted]
+    face = face.with_patches(
+        *(marker_patch(layout, m.id, half_w - m.y, height - m.z, layout.side(m.role)) for m in on_face)
+    )
     d = ch.depth
     surfaces = [
         face,
+        *(marker_card(layout, m.role) for m in layout.markers if m.tilted),
         rectangle("charger_left", (0.0, half_w, height), (1, 0, 0), (0, 0, -1), d, height, ch.body_albedo),
         rectangle("charger_right", (d, -half_w, height), (-1, 0, 0), (0, 0, -1), d, height, ch.body_albedo),
         rectangle("charger_top", (d, half_w, height), (0, -1, 0), (-1, 0, 0), 2 * half_w, d, ch.body_albedo * 1.2),
