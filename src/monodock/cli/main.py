@@ -32,6 +32,7 @@ COMMANDS = {
     "train": "monodock.cli.train",
     "evaluate": "monodock.cli.evaluate",
     "calibrate": "monodock.cli.calibrate",
+    "dock-kit": "monodock.cli.dock_kit",
     "run": "monodock.cli.run",
     "dock-sim": "monodock.cli.dock_sim",
     "demo": "monodock.cli.demo",

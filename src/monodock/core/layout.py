@@ -27,7 +27,7 @@ from monodock.core import transforms
 from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.errors import ConfigError
 
-__all__ = ["ROLES", "DockLayout", "MarkerSpec"]
+__all__ = ["FACE_R_MARKER", "ROLES", "DockLayout", "MarkerSpec"]
 
 # The papers' markers 1, 2, 3 from the robot's left to its right; marker 2 marks the docking point.
 ROLES: tuple[str, str, str] = ("left", "center", "right")
@@ -45,6 +45,9 @@ def _dictionary_size(name: str) -> int:
     return int(d.bytesList.shape[0])
 
 
+# A marker's own frame (x right, y up as seen from the robot, z out of the face towards it) in the dock frame,
+# for a marker flat on the face: x -> -y_dock, y -> +z_dock, z -> -x_dock.
+FACE_R_MARKER = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 # A marker's tilt against the face: beyond this it is not taped onto the face but mounted some other way.
 MAX_TILT = math.radians(45.0)
 # The optional per-marker keys, and the keys every marker has.
@@ -160,12 +163,13 @@ class DockLayout:
             y = m.number("y", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
             z = m.number("z", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
             x = m.number("x", 0.0, within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
-            tilt = [m.number(k, 0.0, within=(-MAX_TILT, MAX_TILT), unit="rad") for k in ("roll", "pitch", "yaw")]
+            roll, pitch, yaw = (m.number(k, 0.0, within=(-MAX_TILT, MAX_TILT), unit="rad") for k in _POSE_KEYS[1:])
             size = m.number("size", within=MARKER_SIZE_RANGE, unit="m") if m.has("size") else None
             m.warn_unknown(_MARKER_KEYS)
-            specs.append(MarkerSpec(role, marker_id, y, z, x, *tilt, size=size))
-        # Unknown keys are reported and dropped: nothing a file holds beyond the schema travels into outputs.
-        f.warn_unknown(("dictionary", "marker_size", "markers"))
+            specs.append(MarkerSpec(role, marker_id, y, z, x, roll, pitch, yaw, size))
+        # Unknown keys are reported and dropped: nothing a file holds beyond the schema travels into outputs. A
+        # survey's record (``calibrate layout``) is for people: read past, without a warning.
+        f.warn_unknown(("dictionary", "marker_size", "markers", "survey"))
         try:
             return cls(dictionary, marker_size, (specs[0], specs[1], specs[2]))
         except ConfigError as exc:
@@ -249,9 +253,9 @@ class DockLayout:
         # Marker frame axes in dock coordinates: x -> -y_dock, y -> +z_dock, z -> -x_dock (towards the robot),
         # then the marker's tilt about the dock's axes through its centre.
         T = np.eye(4)
-        T[:3, :3] = _FACE_R_MARKER
+        T[:3, :3] = FACE_R_MARKER
         if m.roll or m.pitch or m.yaw:
-            T[:3, :3] = transforms.rotation_from_rpy(m.roll, m.pitch, m.yaw) @ _FACE_R_MARKER
+            T[:3, :3] = transforms.rotation_from_rpy(m.roll, m.pitch, m.yaw) @ FACE_R_MARKER
         T[:3, 3] = (m.x, m.y, m.z)
         return T
 
@@ -259,6 +263,3 @@ class DockLayout:
         """A marker's four corners in the dock frame, ArUco order (TL, TR, BR, BL), shape (4, 3)."""
         T = self.dock_T_marker(role)
         return self.corners_in_marker(role) @ T[:3, :3].T + T[:3, 3]
-
-
-_FACE_R_MARKER = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])

@@ -25,17 +25,21 @@ from monodock.core.scan import LaserScan
 from monodock.errors import ConfigError
 
 __all__ = [
+    "BATTERY_STATE",
     "CAMERA_INFO",
     "COMPRESSED_IMAGE",
     "IMAGE",
     "IMAGE_ENCODINGS",
     "IMAGE_TYPES",
     "LASER_SCAN",
+    "ODOMETRY",
     "POSE_STAMPED",
     "TF_MESSAGE",
     "DecodeError",
+    "battery_msg",
     "camera_from_msg",
     "camera_info_msg",
+    "charging_from_msg",
     "check_raw_image",
     "decode_image",
     "encode_image",
@@ -43,6 +47,8 @@ __all__ = [
     "humble_typestore",
     "matrix_from_quaternion",
     "normalize_msgtype",
+    "odometry_from_msg",
+    "odometry_msg",
     "pose_from_msg",
     "pose_msg",
     "quaternion_from_matrix",
@@ -62,6 +68,10 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+ODOMETRY = "nav_msgs/msg/Odometry"
+BATTERY_STATE = "sensor_msgs/msg/BatteryState"
+# sensor_msgs/BatteryState's power_supply_status of a battery that is being charged.
+POWER_SUPPLY_STATUS_CHARGING = 1
 
 # What write_recording can put in a bag: raw sensor_msgs/Image, or image_transport's compressed formats.
 IMAGE_ENCODINGS = ("mono8", "bgr8", "png", "jpeg")
@@ -244,6 +254,77 @@ def pose_from_msg(msg: Any) -> DockPose:
     p, q = msg.pose.position, msg.pose.orientation
     R = matrix_from_quaternion(q.x, q.y, q.z, q.w)
     return DockPose.from_matrix(transforms.transform(R, (p.x, p.y, p.z)))
+
+
+def odometry_msg(
+    stamp: float,
+    x: float,
+    y: float,
+    yaw: float,
+    linear: float,
+    angular: float,
+    *,
+    frame_id: str = "odom",
+    child_frame_id: str = "base_link",
+) -> Any:
+    """nav_msgs/Odometry of a planar pose in the odometry frame and the body's forward and turn rates."""
+    ts = humble_typestore()
+    half = 0.5 * yaw
+    Vector3 = ts.types["geometry_msgs/msg/Vector3"]
+    cov = np.zeros(36)
+    return ts.types[ODOMETRY](
+        header=_header(ts, stamp, frame_id),
+        child_frame_id=child_frame_id,
+        pose=ts.types["geometry_msgs/msg/PoseWithCovariance"](
+            pose=ts.types["geometry_msgs/msg/Pose"](
+                position=ts.types["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0),
+                orientation=ts.types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
+            ),
+            covariance=cov,
+        ),
+        twist=ts.types["geometry_msgs/msg/TwistWithCovariance"](
+            twist=ts.types["geometry_msgs/msg/Twist"](
+                linear=Vector3(x=float(linear), y=0.0, z=0.0), angular=Vector3(x=0.0, y=0.0, z=float(angular))
+            ),
+            covariance=cov.copy(),
+        ),
+    )
+
+
+def odometry_from_msg(msg: Any) -> tuple[float, float, float, float]:
+    """(stamp, x, y, yaw) of a nav_msgs/Odometry: its header stamp and the pose's floor-plane part."""
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    R = matrix_from_quaternion(q.x, q.y, q.z, q.w)
+    return header_stamp(msg), float(p.x), float(p.y), math.atan2(R[1, 0], R[0, 0])
+
+
+def battery_msg(stamp: float, charging: bool, *, frame_id: str = "base_link") -> Any:
+    """sensor_msgs/BatteryState saying whether the battery is being charged (the rest unknown, NaN)."""
+    ts = humble_typestore()
+    nan = math.nan
+    return ts.types[BATTERY_STATE](
+        header=_header(ts, stamp, frame_id),
+        voltage=nan,
+        temperature=nan,
+        current=nan,
+        charge=nan,
+        capacity=nan,
+        design_capacity=nan,
+        percentage=nan,
+        power_supply_status=POWER_SUPPLY_STATUS_CHARGING if charging else 3,  # 3: not charging
+        power_supply_health=0,
+        power_supply_technology=0,
+        present=True,
+        cell_voltage=np.zeros(0, dtype=np.float32),
+        cell_temperature=np.zeros(0, dtype=np.float32),
+        location="",
+        serial_number="",
+    )
+
+
+def charging_from_msg(msg: Any) -> tuple[float, bool]:
+    """(stamp, charging) of a sensor_msgs/BatteryState."""
+    return header_stamp(msg), int(msg.power_supply_status) == POWER_SUPPLY_STATUS_CHARGING
 
 
 # --- camera ---------------------------------------------------------------------------------------

@@ -242,6 +242,7 @@ class Recording:
         camera_info_topic: str | None = None,
         scan_topic: str | None = None,
         truth_topic: str | None = "/monodock/ground_truth",
+        odometry_topic: str | None = None,
     ) -> None:
         self.path = path
         self.warnings: list[str] = []
@@ -254,6 +255,8 @@ class Recording:
             self.image_topic: str = self._pick(m.IMAGE_TYPES, image_topic, "--image-topic", required=True) or ""
             self.camera_info_topic = self._pick((m.CAMERA_INFO,), camera_info_topic, "--camera-info-topic")
             self.scan_topic = self._pick((m.LASER_SCAN,), scan_topic, "--scan-topic")
+            self.odometry_topic = self._pick((m.ODOMETRY,), odometry_topic, "--odometry-topic")
+            self.battery_topic = self._pick((m.BATTERY_STATE,), None, "--battery-topic")
             self.truth_topic = truth_topic if truth_topic in self.topics else None
             if self.truth_topic is not None and self.topics[self.truth_topic][0] != m.POSE_STAMPED:
                 raise InputError(
@@ -480,6 +483,21 @@ class Recording:
         out = [m.scan_from_msg(msg) for msg, _ in self._decoded(self.scan_topic)]
         return sorted(out, key=lambda s: s.stamp)
 
+    def odometry(self) -> NDArray[np.float64]:
+        """Every nav_msgs/Odometry pose of the odometry topic in stamp order, rows (stamp, x, y, yaw); (0, 4) when
+        the recording has none."""
+        if self.odometry_topic is None:
+            return np.zeros((0, 4))
+        rows = [m.odometry_from_msg(msg) for msg, _ in self._decoded(self.odometry_topic)]
+        out = np.array(sorted(rows), dtype=np.float64).reshape(-1, 4)
+        return out[np.all(np.isfinite(out), axis=1)]
+
+    def charging(self) -> list[tuple[float, bool]]:
+        """(stamp, charging) of each sensor_msgs/BatteryState in stamp order; empty without the topic."""
+        if self.battery_topic is None:
+            return []
+        return sorted(m.charging_from_msg(msg) for msg, _ in self._decoded(self.battery_topic))
+
     def ground_truth(self) -> list[tuple[float, DockPose]]:
         """(header stamp, DockPose) of each ground-truth message in stamp order; empty without the topic."""
         if self.truth_topic is None:
@@ -500,6 +518,7 @@ def open_recording(
     camera_info_topic: str | None = None,
     scan_topic: str | None = None,
     truth_topic: str | None = "/monodock/ground_truth",
+    odometry_topic: str | None = None,
 ) -> Recording:
     """Open a rosbag2 folder, a bare .mcap or .db3 file, or a ROS 1 .bag; a context manager.
 
@@ -515,4 +534,5 @@ def open_recording(
         camera_info_topic=camera_info_topic,
         scan_topic=scan_topic,
         truth_topic=truth_topic,
+        odometry_topic=odometry_topic,
     )

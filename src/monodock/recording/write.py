@@ -8,7 +8,9 @@ The topics and frames of monodock's recordings (``sim.recording`` writes a simul
 - ``/scan`` sensor_msgs/LaserScan at each scan stamp, frame ``laser``;
 - ``/tf_static`` tf2_msgs/TFMessage once at the start (transient local, as the recorder stores it);
 - ``/monodock/ground_truth`` geometry_msgs/PoseStamped per image: the DockPose in base_link. Training never
-  reads it; evaluation does.
+  reads it; evaluation does;
+- in a continuous drive (``sim.drive_recording``): ``/odom`` nav_msgs/Odometry (frame ``odom``, child
+  ``base_link``) at the control rate, and ``/battery_state`` sensor_msgs/BatteryState (CHARGING on the contacts).
 
 The bag is written in a temporary folder beside its path and renamed into place when the ``with`` block ends
 without an error; its QoS profiles are stored as Humble's rosbag2 (version 8, integers) reads them.
@@ -32,12 +34,15 @@ from monodock.recording import messages as m
 
 __all__ = [
     "BASE_FRAME",
+    "BATTERY_TOPIC",
     "CAMERA_FRAME",
     "CAMERA_INFO_TOPIC",
     "COMPRESSED_IMAGE_TOPIC",
     "IMAGE_TOPIC",
     "LASER_FRAME",
     "LATCHED",
+    "ODOMETRY_TOPIC",
+    "ODOM_FRAME",
     "RELIABLE",
     "SCAN_TOPIC",
     "SENSOR",
@@ -53,6 +58,9 @@ CAMERA_INFO_TOPIC = "/camera/camera_info"
 SCAN_TOPIC = "/scan"
 TF_STATIC_TOPIC = "/tf_static"
 TRUTH_TOPIC = "/monodock/ground_truth"
+ODOMETRY_TOPIC = "/odom"
+BATTERY_TOPIC = "/battery_state"
+ODOM_FRAME = "odom"
 BASE_FRAME = "base_link"
 CAMERA_FRAME = "camera_optical_frame"
 LASER_FRAME = "laser"

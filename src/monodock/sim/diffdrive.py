@@ -178,6 +178,8 @@ class SimulatedRobot:
             how close it came (the charger face is not one of them).
         blank_undetectable: deliver a blank frame (the sensor's noise on the charger face's white, no render)
             when no dock marker can be detected in it (``undetectable``); off: every frame is rendered.
+        wheel_scale: each wheel's (left, right) ground speed against its encoder, fixed: the same robot in several
+            runs (a commissioning drive, then dockings); None draws it per run from ``wheel_scale_sd``.
 
     Charging: the charger reports current once its spring contacts have pressed the robot's pads for
     ``charge_delay`` (0.3 s, the charger's current sense) without a break. They press when the front edge is
@@ -207,13 +209,15 @@ class SimulatedRobot:
     hide_markers: Callable[[float, Pose2D], bool] | None = None
     obstacles: list[Obstacle] = field(default_factory=list)
     blank_undetectable: bool = False
+    wheel_scale: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         c = self.config
         self.t = 0.0
         self.pose = self.start
         self.odom = Pose2D(0.0, 0.0, 0.0)
-        self.wheel_scale = 1.0 + self.rng.normal(0.0, c.wheel_scale_sd, size=2)
+        drawn = 1.0 + self.rng.normal(0.0, c.wheel_scale_sd, size=2)
+        self.wheels = drawn if self.wheel_scale is None else np.asarray(self.wheel_scale, dtype=np.float64)
         self.wheel_speed = np.zeros(2)  # encoder speeds (left, right), m/s at the rim
         self.odom_velocity = (0.0, 0.0)
         self.commands: deque[tuple[float, float, float]] = deque()  # (time it takes effect, v, w)
@@ -423,7 +427,7 @@ class SimulatedRobot:
         half = 0.5 * c.track_width
         wanted = np.array([v - w * half, v + w * half])
         self.wheel_speed += (wanted - self.wheel_speed) * (1.0 - math.exp(-dt / c.motor_time_constant))
-        ground = self.wheel_speed * self.wheel_scale * (1.0 + self.rng.normal(0.0, c.wheel_noise_sd, size=2))
+        ground = self.wheel_speed * self.wheels * (1.0 + self.rng.normal(0.0, c.wheel_noise_sd, size=2))
         for slip in self._slips:
             if slip.t0 <= self.t < slip.t1:
                 ground[slip.wheel] *= slip.factor
