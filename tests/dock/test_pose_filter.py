@@ -285,8 +285,9 @@ def test_mission_reads_the_observation_covariance() -> None:
     def placed_covariance(observation: Observation) -> NDArray[np.float64]:
         placed = mission.track.place(observation)
         assert placed is not None
-        at, cov = placed
+        at, seen, cov = placed
         assert at == here
+        assert seen == observation.pose  # no taught charging pose: the dock's own
         return cov
 
     own = np.diag([1e-4, 4e-6, 1e-4])

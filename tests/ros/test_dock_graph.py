@@ -211,7 +211,7 @@ def test_the_robot_stops_when_the_dock_node_is_killed(record: Path) -> None:
             "parameter method: 'bogus' is not one of regression, pnp, board, fused",
         ),
         (["--ros-args", "-p", "planner.no_such_key:=1.0"], "unknown parameter planner.no_such_key"),
-        (["--method", "fused"], "needs a model bundle"),
+        (["--method", "regression"], "needs a model bundle"),
     ],
 )
 def test_bad_parameters_are_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:

@@ -30,7 +30,7 @@ is too uncertain.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -40,21 +40,24 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
+from monodock.calibrate.survey import survey_views
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
+from monodock.core.frame import Frame
 from monodock.core.layout import FACE_R_MARKER, ROLES, DockLayout, MarkerSpec
-from monodock.core.robot import Mount, RobotConfig
+from monodock.core.robot import Mount, OdometryCalibration, RobotConfig
 from monodock.errors import InputError
-from monodock.perception.detect import MarkerDetector, as_gray
-from monodock.perception.refine import refine_detection
+from monodock.perception.edge_offset import EdgeOffset
 from monodock.recording.read import open_recording
 
 __all__ = [
     "MOUNT_FIELDS",
+    "Drive",
     "DriveFrame",
     "MountCalibration",
     "MountLimits",
     "calibrate_mount",
+    "calibrate_mount_of",
     "corrected_layout",
     "frames_from_recording",
     "odometry_at",
@@ -137,15 +140,25 @@ class MountCalibration:
     residuals_px: NDArray[np.float64] = field(repr=False)
     unexcited: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    edge_offset: EdgeOffset | None = None
 
     def robot(self, nominal: RobotConfig) -> RobotConfig:
-        """The robot file with the calibrated camera mount (everything else as given)."""
-        return replace(nominal, camera_mount=self.mount)
+        """The robot file with the calibrated camera mount and odometry (everything else as given)."""
+        return replace(nominal, camera_mount=self.mount, odometry=self.odometry)
+
+    @property
+    def odometry(self) -> OdometryCalibration:
+        """The odometry's errors in the ruler's lengths (the print's, or with ``scale_from="odometry"`` its own)."""
+        distance = self.odometry_scale * self.scale
+        return OdometryCalibration(distance, self.rotation_scale, self.drift_per_m * self.odometry_scale / distance)
 
     def layout(self, layout: DockLayout) -> DockLayout:
-        """The layout as the drive measured it: scaled about the centre marker, and stood up on the floor (its
-        markers turned by the dock's lean, then the origin set below the centre marker again)."""
-        return corrected_layout(layout, self.scale, self.dock_roll, self.dock_pitch)
+        """The layout as the drive measured it: stood up on the floor (its markers turned by the dock's lean, then
+        the origin set below the centre marker again), scaled to the odometry with ``scale_from="odometry"``, and
+        with the edge offset of the robot's camera when the drive measured it."""
+        out = corrected_layout(layout, self.scale, self.dock_roll, self.dock_pitch)
+        # The robot's own camera on this print: its edge offset is the one every frame will have.
+        return out if self.edge_offset is None else replace(out, edge_offset=self.edge_offset.offset_px)
 
     def summary(self) -> str:
         m, sd = self.mount, self.sd
@@ -207,34 +220,24 @@ def odometry_at(odometry: NDArray[np.float64], stamps: Sequence[float]) -> NDArr
 
 @dataclass
 class _Odometry:
-    """The odometry's increments, re-integrated under the two errors (``corrected``)."""
+    """The drive's odometry: its poses, and the travel (metres, a radian turned counting ``_TURN_METRES``) that its
+    random walk grows with."""
 
     raw: NDArray[np.float64]
 
     def __post_init__(self) -> None:
-        t, x, y = self.raw[:, 0], self.raw[:, 1], self.raw[:, 2]
-        yaw = np.unwrap(self.raw[:, 3])
-        dth = np.diff(yaw)
-        mid = yaw[:-1] + 0.5 * dth
-        dx, dy = np.diff(x), np.diff(y)
-        self.ds = dx * np.cos(mid) + dy * np.sin(mid)  # forward, signed
-        self.dl = -dx * np.sin(mid) + dy * np.cos(mid)  # sideways (0 for a differential drive, kept anyway)
-        self.dth = dth
-        self.t = t
-        self.start = (x[0], y[0], yaw[0])
-        self.travel = np.concatenate([[0.0], np.cumsum(np.abs(self.ds) + _TURN_METRES * np.abs(dth))])
+        self.t = self.raw[:, 0]
+        self.poses = self.raw[:, 1:4].copy()
+        self.poses[:, 2] = np.unwrap(self.poses[:, 2])
+        step = np.hypot(np.diff(self.poses[:, 0]), np.diff(self.poses[:, 1])) + _TURN_METRES * np.abs(
+            np.diff(self.poses[:, 2])
+        )
+        self.travel = np.concatenate([[0.0], np.cumsum(step)])
 
     def corrected(self, distance_scale: float, rotation_scale: float, drift: float) -> NDArray[np.float64]:
-        """Every sample's pose (x, y, yaw) integrated with distances x distance_scale, turns (1 + rotation_scale)
-        x and a heading drift x distance (Censi et al.'s wheel radii and track width, as a body's three errors)."""
-        ds, dl = distance_scale * self.ds, distance_scale * self.dl
-        dth = (1.0 + rotation_scale) * self.dth + drift * ds
-        yaw = self.start[2] + np.concatenate([[0.0], np.cumsum(dth)])
-        mid = yaw[:-1] + 0.5 * dth
-        c, s = np.cos(mid), np.sin(mid)
-        x = self.start[0] + np.concatenate([[0.0], np.cumsum(ds * c - dl * s)])
-        y = self.start[1] + np.concatenate([[0.0], np.cumsum(ds * s + dl * c)])
-        return np.column_stack([x, y, yaw])
+        """Every sample's pose re-integrated under the three errors (Censi et al.'s wheel radii and track width, as a
+        body's distance scale, turn scale and heading drift per metre)."""
+        return OdometryCalibration(distance_scale, rotation_scale, drift).corrected(self.poses)
 
     def at(self, poses: NDArray[np.float64], stamps: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.column_stack([np.interp(stamps, self.t, poses[:, k]) for k in range(3)])
@@ -347,7 +350,8 @@ def _start_poses(
         roles = [r for r in ROLES if r in f.corners]
         obj = np.concatenate([layout.corners_in_dock(r) for r in roles])
         img = np.concatenate([f.corners[r] for r in roles])
-        n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE)
+        # SQPNP: a surveyed dock's markers are not exactly in one plane, which IPPE needs.
+        n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_SQPNP)
         if not n:
             continue
         best = int(np.argmin(np.asarray(errs).ravel()))
@@ -426,6 +430,7 @@ def calibrate_mount(
     scale_from: str = "print",
     limits: MountLimits | None = None,
     seen: int | None = None,
+    edge_offset: EdgeOffset | None = None,
 ) -> MountCalibration:
     """The camera mount that makes the frames agree with the odometry, and the dock's lean and scale.
 
@@ -439,6 +444,7 @@ def calibrate_mount(
             scaled to them).
         limits: what counts as not excited.
         seen: how many frames had two or more markers before any were thinned out (for the summary).
+        edge_offset: the offset the drive's images measured (its frames are corrected already), for the layout.
 
     Raises:
         InputError: too few frames, or no odometry over them.
@@ -494,6 +500,7 @@ def calibrate_mount(
         path=p[_NG:].reshape(-1, 3).copy(),
         residuals_px=per_frame,
         unexcited=_unexcited(sd, limits),
+        edge_offset=edge_offset,
         notes=(
             f"z from the layout's heights (the centre marker at {layout.marker('center').z * 1e3:.1f} mm): a drive "
             "on a flat floor cannot measure the camera's height, only its height against the markers'",
@@ -525,11 +532,23 @@ def _shown(key: str, value: float) -> str:
     return f"{value * 1e3:.2f} mm" if key in ("x", "y", "z") else f"{math.degrees(value):.3f} deg"
 
 
+@dataclass(frozen=True)
+class Drive:
+    """A commissioning drive as read: its usable frames, its odometry, the camera, how many frames showed two or
+    more markers, and the edge offset its images measure (the robot's camera on this print; None: too small)."""
+
+    frames: list[DriveFrame]
+    odometry: NDArray[np.float64] = field(repr=False)
+    camera: CameraModel
+    seen: int
+    edge_offset: EdgeOffset | None = None
+
+
 def frames_from_recording(
     path: str, layout: DockLayout, *, camera: CameraModel | None = None, image_topic: str | None = None
-) -> tuple[list[DriveFrame], NDArray[np.float64], CameraModel, int]:
-    """The drive's usable frames (two or more refined markers, within the odometry's span), its odometry, the
-    camera (``camera``, else the recording's CameraInfo) and how many frames showed two or more markers.
+) -> Drive:
+    """The drive's usable frames (two or more refined markers, corrected by the edge offset the drive measures,
+    within the odometry's span), its odometry and the camera (``camera``, else the recording's CameraInfo).
 
     More than ``MAX_FRAMES`` usable frames are thinned evenly: neighbours a fifteenth of a second apart add little.
     """
@@ -540,20 +559,15 @@ def frames_from_recording(
         odometry = rec.odometry()
         if odometry.shape[0] < 2:
             raise InputError(f"{path} has no odometry (nav_msgs/Odometry): record the robot's odom topic too")
-        detector = MarkerDetector(layout)
-        found: list[tuple[float, dict[str, NDArray[np.float64]]]] = []
-        for frame in rec.images():
-            if frame.image is None:
-                continue
-            gray = as_gray(frame.image)
-            if (gray.shape[1], gray.shape[0]) != cam.size:
-                raise InputError(
-                    f"{path}: images are {gray.shape[1]}x{gray.shape[0]}, the camera {cam.width}x{cam.height}"
-                )
-            det = refine_detection(gray, detector.detect(gray), cam, modules=layout.modules)
-            corners = {r: o.corners for r, o in det.observations.items() if r not in det.unrefined}
-            if len(corners) >= 2:
-                found.append((frame.stamp, corners))
+        stamps: dict[str, float] = {}
+
+        def stamped() -> Iterator[Frame]:
+            for frame in rec.images():
+                stamps[frame.name] = frame.stamp
+                yield frame
+
+        views, _, offset = survey_views(stamped(), cam, layout)
+    found = [(stamps[v.name], dict(v.corners)) for v in views if len(v.corners) >= 2]
     seen = len(found)
     inside = [(s, c) for s, c in found if odometry[0, 0] <= s <= odometry[-1, 0]]
     if len(inside) > MAX_FRAMES:
@@ -563,4 +577,19 @@ def frames_from_recording(
     frames = [
         DriveFrame(s, c, (float(q[0]), float(q[1]), float(q[2]))) for (s, c), q in zip(inside, poses, strict=True)
     ]
-    return frames, odometry, cam, seen
+    return Drive(frames, odometry, cam, seen, offset)
+
+
+def calibrate_mount_of(
+    drive: Drive,
+    layout: DockLayout,
+    nominal: RobotConfig,
+    *,
+    scale_from: str = "print",
+    limits: MountLimits | None = None,
+) -> MountCalibration:
+    """``calibrate_mount`` on a drive as ``frames_from_recording`` read it."""
+    return calibrate_mount(
+        drive.frames, drive.odometry, drive.camera, layout, nominal, scale_from=scale_from, limits=limits,
+        seen=drive.seen, edge_offset=drive.edge_offset,
+    )  # fmt: skip

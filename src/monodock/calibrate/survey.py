@@ -37,12 +37,22 @@ from scipy.optimize import least_squares
 
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
+from monodock.core.config import yaml_text
 from monodock.core.frame import Frame
 from monodock.core.layout import FACE_R_MARKER, ROLES, DockLayout, MarkerSpec
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
+from monodock.io.frames import open_frames
 from monodock.perception.detect import MarkerDetector, as_gray
+from monodock.perception.edge_offset import (
+    EdgeOffset,
+    clipped_roles,
+    detection_edge_offset,
+    estimate_edge_offset,
+    offset_corners,
+)
 from monodock.perception.refine import refine_detection
+from monodock.recording.read import is_recording, open_recording
 
 __all__ = [
     "LayoutSurvey",
@@ -52,6 +62,8 @@ __all__ = [
     "ViewNote",
     "survey_layout",
     "survey_views",
+    "surveyed_layout_text",
+    "views_from_inputs",
 ]
 
 # The values written per marker, in this order (metres and radians).
@@ -86,11 +98,13 @@ class SurveyLimits:
 
 @dataclass(frozen=True)
 class SurveyView:
-    """One view's usable markers: each role's refined corners (4, 2), px, ArUco order; and its image."""
+    """One view's usable markers: each role's refined corners (4, 2), px, ArUco order; its image; and the roles
+    with clipped pixels (the refiner took their edges' shift out already: the edge offset is not theirs)."""
 
     name: str
     corners: Mapping[str, NDArray[np.float64]]
     image: NDArray[np.uint8] | None = field(default=None, repr=False, compare=False)
+    clipped: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -169,19 +183,33 @@ class LayoutSurvey:
         return "\n".join(lines)
 
 
+def surveyed_layout_text(survey: LayoutSurvey, layout: DockLayout | None = None) -> str:
+    """The surveyed layout file: ``layout`` (default the survey's own), then the survey's record (read by people,
+    ignored by every method)."""
+    head = (
+        "# Surveyed by monodock calibrate layout: every marker's pose and printed side from photographs.\n"
+        "# The 'survey' mapping records how well the views determined them; no method reads it.\n"
+    )
+    body = yaml_text((layout or survey.layout).to_dict(), flow=None)
+    return head + body + yaml_text({"survey": survey.record()}, flow=None)
+
+
 # --- the views --------------------------------------------------------------------------------------------------
 
 
 def survey_views(
     frames: Iterable[Frame], camera: CameraModel, layout: DockLayout, *, keep_images: bool = False
-) -> tuple[list[SurveyView], list[ViewNote]]:
-    """Each frame's dock markers with bias-free corners; the frames with fewer than one refined marker skipped.
+) -> tuple[list[SurveyView], list[ViewNote], EdgeOffset | None]:
+    """Each frame's dock markers with bias-free corners, corrected by the edge offset the frames measure.
 
-    Returns the views (a marker whose corners could not be refined is left out) and a note per skipped frame.
+    Returns the views (a marker whose corners could not be refined is left out), a note per skipped frame, and
+    the edge offset pooled over every unclipped marker's code runs (``perception.edge_offset``; None when the
+    markers are too small to measure it, and then no correction).
     """
     detector = MarkerDetector(layout)
     views: list[SurveyView] = []
     skipped: list[ViewNote] = []
+    runs: list[NDArray[np.float64]] = []
     for frame in frames:
         if frame.image is None:
             skipped.append(ViewNote(frame.name, (), False, reason=frame.error or "unreadable"))
@@ -196,8 +224,53 @@ def survey_views(
         if not corners:
             skipped.append(ViewNote(frame.name, (), False, reason="no dock marker found"))
             continue
-        views.append(SurveyView(frame.name, corners, gray if keep_images else None))
-    return views, skipped
+        runs += detection_edge_offset(gray, detection, camera, layout)
+        clipped = clipped_roles(gray, detection, modules=layout.modules)
+        views.append(SurveyView(frame.name, corners, gray if keep_images else None, clipped))
+    offset = pooled_edge_offset(runs)
+    if offset is not None:
+        views = [corrected_view(v, offset.offset_px) for v in views]
+    return views, skipped, offset
+
+
+def pooled_edge_offset(runs: Sequence[NDArray[np.float64]]) -> EdgeOffset | None:
+    """The edge offset of many markers' runs, or None when they are too few to tell it."""
+    try:
+        return estimate_edge_offset(runs)
+    except InputError:
+        return None
+
+
+def corrected_view(view: SurveyView, offset_px: float) -> SurveyView:
+    """The view with its unclipped markers' corners corrected by the edge offset."""
+    corners = {r: c if r in view.clipped else offset_corners(c, offset_px) for r, c in view.corners.items()}
+    return replace(view, corners=corners)
+
+
+def views_from_inputs(
+    images: Sequence[str],
+    camera: CameraModel | None,
+    nominal: DockLayout,
+    *,
+    max_views: int = 40,
+    keep_images: bool = False,
+) -> tuple[list[SurveyView], list[ViewNote], CameraModel, EdgeOffset | None]:
+    """The views of the inputs (every frame of a video or recording; the views thinned evenly to ``max_views``),
+    the skipped frames and the camera."""
+    if camera is None:
+        recordings = [i for i in images if is_recording(i)]
+        if not recordings:
+            raise InputError("give --camera (the calibration of the camera that took the views)")
+        with open_recording(recordings[0]) as rec:
+            camera = rec.camera()
+        if camera is None:
+            raise InputError(f"{recordings[0]} has no CameraInfo: give --camera")
+    with open_frames(images, skip_bad=True) as source:
+        views, skipped, offset = survey_views(source, camera, nominal, keep_images=keep_images)
+    if len(views) > max_views:
+        step = (len(views) - 1) / (max_views - 1)
+        views = [views[round(k * step)] for k in range(max_views)]
+    return views, skipped, camera, offset
 
 
 # --- the problem ------------------------------------------------------------------------------------------------
@@ -415,6 +488,8 @@ class _Problem:
             inner = self.W_T_marker0[roles[0]]
         else:
             ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, self.K, self.dist, flags=cv2.SOLVEPNP_IPPE)
+            if not ok:  # a nominal layout whose markers are not in one plane (a surveyed one): IPPE needs one
+                ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, self.K, self.dist, flags=cv2.SOLVEPNP_SQPNP)
             inner = np.eye(4)
         best, best_rms = None, math.inf
         for rvec, tvec in zip(rvecs, tvecs, strict=True) if ok else ():
@@ -553,6 +628,7 @@ def survey_layout(
     robot: RobotConfig | None = None,
     limits: SurveyLimits | None = None,
     skipped: Sequence[ViewNote] = (),
+    edge_offset: EdgeOffset | None = None,
 ) -> LayoutSurvey:
     """The dock's layout as the views see it, with each value's standard deviation.
 
@@ -563,6 +639,8 @@ def survey_layout(
         robot: the views are the robot's own camera on the floor, with this mount: heights and up are measured.
         limits: the largest standard deviations accepted.
         skipped: notes on input frames already dropped (they appear in the result's ``views``).
+        edge_offset: the offset the views measured (``survey_views``; their corners are corrected already),
+            written into the layout.
 
     Raises:
         InputError: too few views, markers not tied together, or a value more uncertain than ``limits``
@@ -606,7 +684,8 @@ def survey_layout(
         specs.append(
             MarkerSpec(r, m.id, float(y), float(z), float(x), float(roll), float(pitch), float(yaw), float(side))
         )
-    layout = replace(nominal, markers=(specs[0], specs[1], specs[2]))
+    offset = edge_offset.offset_px if edge_offset is not None else 0.0
+    layout = replace(nominal, markers=(specs[0], specs[1], specs[2]), edge_offset=offset)
     dock_T_W = transforms.invert(W_T_dock)
     mean_side = math.exp(np.mean([math.log(nominal.side(r)) for r in ROLES]))
     notes_text = (
@@ -615,6 +694,11 @@ def survey_layout(
         if robot is not None
         else f"heights nominal: the centre marker at {nominal.marker('center').z * 1e3:.1f} mm (no robot views); "
         "up is the markers' mean up",
+        f"edge offset {edge_offset.offset_px:+.3f} ±{edge_offset.sd_px:.3f} px from {edge_offset.runs} code runs of "
+        f"{edge_offset.markers} markers (black looks {'thinner' if edge_offset.offset_px < 0 else 'thicker'} than "
+        "printed); every corner corrected by it"
+        if edge_offset is not None
+        else "edge offset: the markers are too small in the views to measure it; none applied",
     )
     order = {v.name: k for k, v in enumerate(views)}
     used_notes = [ViewNote(v.name, tuple(v.corners), True, float(rms[k])) for k, v in enumerate(usable)]

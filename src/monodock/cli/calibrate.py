@@ -1,4 +1,5 @@
-"""``monodock calibrate``: camera intrinsics from a checkerboard; the LiDAR mount (camera-LiDAR extrinsics)."""
+"""``monodock calibrate``: camera intrinsics from a checkerboard; the LiDAR mount (camera-LiDAR extrinsics); the
+dock's layout from photographs (``layout``); the camera mount from a drive (``mount``)."""
 
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ from monodock.calibrate.intrinsics import (
     summary,
 )
 from monodock.calibrate.target import DiamondTarget, read_target_views
+from monodock.cli.calibrate_dock import add_layout_parser, add_mount_parser
 from monodock.cli.options import SubParsers, float_in
 from monodock.core import transforms
 from monodock.core.atomic import check_writable, resolved, write_bytes_atomic, write_text_atomic
@@ -52,10 +54,15 @@ __all__ = ["add_parser", "run_extrinsics", "run_intrinsics"]
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``calibrate`` with its two sub-commands."""
-    cal = subparsers.add_parser("calibrate", help="camera intrinsics from a checkerboard; camera-LiDAR extrinsics")
+    cal = subparsers.add_parser(
+        "calibrate",
+        help="camera intrinsics; camera-LiDAR extrinsics; the dock's layout from photos; the camera mount from a drive",
+    )
     cal_sub = cal.add_subparsers(dest="calibrate_command", required=True, metavar="WHAT")
     _add_intrinsics(cal_sub)
     _add_extrinsics(cal_sub)
+    add_layout_parser(cal_sub)
+    add_mount_parser(cal_sub)
 
 
 def _add_intrinsics(calibrate_subparsers: SubParsers) -> None:

@@ -33,6 +33,8 @@ COMMANDS = {
     "evaluate": "monodock.cli.evaluate",
     "calibrate": "monodock.cli.calibrate",
     "dock-kit": "monodock.cli.dock_kit",
+    "teach": "monodock.cli.teach",
+    "commission": "monodock.cli.commission",
     "run": "monodock.cli.run",
     "dock-sim": "monodock.cli.dock_sim",
     "demo": "monodock.cli.demo",

@@ -26,10 +26,13 @@ from monodock.errors import MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.report.overlay import estimates_png
 from monodock.sim import Nuisances, PoseDistribution, RoomGeometry, SimFrame, Simulator
+from monodock.sim.continuous import DRIVES, commissioning_route, record_drive, teach_route, teach_start
+from monodock.sim.diffdrive import SimulatedRobot
 from monodock.sim.drive import DriveConfig, plan_drive
 from monodock.sim.export import FrameRecord, write_frame_folder
 from monodock.sim.recording import write_recording
 from monodock.sim.render import MAX_SUPERSAMPLE
+from monodock.sim.survey_views import VIEW_KINDS, write_view_folder
 
 __all__ = ["MAX_FRAMES", "add_parser", "run"]
 
@@ -67,6 +70,26 @@ def add_parser(subparsers: SubParsers) -> None:
         default="folder",
         help="folder: PNGs, scans.npz and ground_truth.csv (default); rosbag2: a stop-and-go data-collection "
         "recording (Image, CameraInfo, LaserScan, /tf_static, ground truth on /monodock/ground_truth)",
+    )
+    s.add_argument(
+        "--views",
+        choices=VIEW_KINDS,
+        help="survey photographs instead of frames (folder format): handheld (a person walking round the dock) or "
+        "robot (its camera on the floor); --frames views, for monodock calibrate layout",
+    )
+    s.add_argument(
+        "--drive",
+        choices=("stops", *DRIVES),
+        default="stops",
+        help="with --format rosbag2: stops (the papers' stop-and-go data collection, default), commissioning (a "
+        "minute's continuous drive and turns before the dock, with odometry, for calibrate mount) or teach (on "
+        "the contacts, charging, then a metre's back-off, for monodock teach)",
+    )
+    s.add_argument(
+        "--frame-every",
+        type=int_in(1, 100),
+        default=3,
+        help="continuous drives: record every n-th camera frame, 1-100 (default 3: 5 Hz of a 15 Hz camera)",
     )
     g = s.add_argument_group("recording (--format rosbag2)")
     g.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="rosbag2 storage (default mcap)")
@@ -164,8 +187,13 @@ def run(args: argparse.Namespace) -> int:
     if args.side_walls is not None:
         room = RoomGeometry(side_walls=args.side_walls)
     sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=nuisances(args), room=room, seed=args.seed)
+    if args.views and args.format != "folder":
+        raise MonodockError("--views writes a folder: drop --format rosbag2")
+    if args.drive != "stops" and args.format != "rosbag2":
+        raise MonodockError(f"--drive {args.drive} writes a recording: add --format rosbag2")
     try:
-        poses = [sim.sample_pose(dist) for _ in range(args.frames)] if args.format == "folder" else []
+        folder = args.format == "folder" and not args.views
+        poses = [sim.sample_pose(dist) for _ in range(args.frames)] if folder else []
     except RuntimeError as exc:
         raise MonodockError(str(exc)) from None
     previews: list[tuple[str, bytes]] = []
@@ -177,6 +205,12 @@ def run(args: argparse.Namespace) -> int:
             previews.append((rec.name, estimates_png(rec.frame.image, result, estimator, rec.frame.truth.corners)))
 
     t0 = time.perf_counter()
+    if args.views:
+        n = write_view_folder(args.out, sim, args.views, args.frames, args.seed, force=args.force)
+        print(f"wrote {n} {args.views} survey views to {args.out} in {time.perf_counter() - t0:.1f} s")
+        return 0
+    if args.format == "rosbag2" and args.drive != "stops":
+        return _simulate_drive(args, sim)
     if args.format == "rosbag2":
         return _simulate_recording(args, sim, estimator, dist)
     infos = write_frame_folder(
@@ -189,6 +223,23 @@ def run(args: argparse.Namespace) -> int:
             for name, png in previews:
                 (tmp / name).write_bytes(png)
         print(f"preview overlays: {Path(args.out) / 'preview'}")
+    return 0
+
+
+def _simulate_drive(args: argparse.Namespace, sim: Simulator) -> int:
+    """``simulate --format rosbag2 --drive commissioning|teach``: a continuous drive with odometry."""
+    rng = np.random.default_rng([args.seed, 5])
+    if args.drive == "commissioning":
+        start, legs = commissioning_route(rng)
+    else:
+        start, legs = teach_start(sim.robot.front_offset, rng), teach_route()
+    robot = SimulatedRobot(sim, start, rng=np.random.default_rng([args.seed, 6]))
+    t0 = time.perf_counter()
+    summary = record_drive(args.out, robot, legs, frame_every=args.frame_every, storage=args.storage, force=args.force)
+    print(
+        f"wrote a {summary.duration_s:.0f} s {args.drive} drive ({summary.images} images, {summary.odometry} "
+        f"odometry messages, {summary.bytes / 1e6:.0f} MB) to {args.out} in {time.perf_counter() - t0:.1f} s"
+    )
     return 0
 
 

@@ -37,6 +37,7 @@ ROLE_NUMBER: dict[str, int] = {"left": 1, "center": 2, "right": 3}
 # within 5 m of the dock origin.
 MARKER_SIZE_RANGE = (0.005, 2.0)
 MAX_OFFSET = 5.0
+MAX_EDGE_OFFSET_PX = 2.0
 
 
 def _dictionary_size(name: str) -> int:
@@ -100,6 +101,10 @@ class DockLayout:
     dictionary: str
     marker_size: float
     markers: tuple[MarkerSpec, MarkerSpec, MarkerSpec]
+    # How far this print's black/white edges look moved towards the white in this camera's images, px (< 0: black
+    # thinner; ink, sharpening, processing). Measured by ``calibrate layout``; the geometric methods' corners are
+    # corrected by it (``perception.edge_offset``). 0: none.
+    edge_offset: float = 0.0
 
     def __post_init__(self) -> None:
         if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
@@ -167,11 +172,12 @@ class DockLayout:
             size = m.number("size", within=MARKER_SIZE_RANGE, unit="m") if m.has("size") else None
             m.warn_unknown(_MARKER_KEYS)
             specs.append(MarkerSpec(role, marker_id, y, z, x, roll, pitch, yaw, size))
+        edge_offset = f.number("edge_offset_px", 0.0, within=(-MAX_EDGE_OFFSET_PX, MAX_EDGE_OFFSET_PX), unit="px")
         # Unknown keys are reported and dropped: nothing a file holds beyond the schema travels into outputs. A
         # survey's record (``calibrate layout``) is for people: read past, without a warning.
-        f.warn_unknown(("dictionary", "marker_size", "markers", "survey"))
+        f.warn_unknown(("dictionary", "marker_size", "markers", "edge_offset_px", "survey"))
         try:
-            return cls(dictionary, marker_size, (specs[0], specs[1], specs[2]))
+            return cls(dictionary, marker_size, (specs[0], specs[1], specs[2]), edge_offset)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}") from None
 
@@ -191,6 +197,8 @@ class DockLayout:
                 entry["size"] = m.size
             markers[m.role] = entry
         out["markers"] = markers
+        if self.edge_offset != 0.0:
+            out["edge_offset_px"] = self.edge_offset
         return out
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:

@@ -15,7 +15,7 @@ from monodock.core import transforms
 from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.errors import ConfigError
 
-__all__ = ["Mount", "RobotConfig"]
+__all__ = ["Mount", "OdometryCalibration", "RobotConfig"]
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,59 @@ MAX_LINEAR_SPEED = 5.0  # m/s
 MAX_ANGULAR_SPEED = 10.0  # rad/s
 
 
-_ROBOT_KEYS = ("camera_mount", "laser_mount", "front_offset", "max_linear_speed", "max_angular_speed")
+_ROBOT_KEYS = ("camera_mount", "laser_mount", "front_offset", "max_linear_speed", "max_angular_speed", "odometry")
+_ODOMETRY_KEYS = ("distance_scale", "rotation_scale", "drift_per_m")
+
+
+@dataclass(frozen=True)
+class OdometryCalibration:
+    """How the wheel odometry is off, as ``monodock calibrate mount`` measures it (the optional ``odometry`` key).
+
+    Attributes:
+        distance_scale: true distance per odometry distance (in the print's lengths: the camera's ruler).
+        rotation_scale: true turn = (1 + this) x the odometry's turn (a track width's error), plus the drift.
+        drift_per_m: heading error per metre driven, radians (unequal wheels).
+    """
+
+    distance_scale: float = 1.0
+    rotation_scale: float = 0.0
+    drift_per_m: float = 0.0
+
+    @property
+    def identity(self) -> bool:
+        return self == OdometryCalibration()
+
+    def corrected(self, poses: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Odometry poses (N, 3: x, y, yaw) re-integrated from their increments with the errors taken out, from the
+        first pose: what the wheels really did."""
+        p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        if self.identity or len(p) < 2:
+            return p.copy()
+        yaw = np.unwrap(p[:, 2])
+        dth = np.diff(yaw)
+        mid = yaw[:-1] + 0.5 * dth
+        dx, dy = np.diff(p[:, 0]), np.diff(p[:, 1])
+        ds = self.distance_scale * (dx * np.cos(mid) + dy * np.sin(mid))
+        dl = self.distance_scale * (-dx * np.sin(mid) + dy * np.cos(mid))
+        dth = (1.0 + self.rotation_scale) * dth + self.drift_per_m * ds
+        new_yaw = yaw[0] + np.concatenate([[0.0], np.cumsum(dth)])
+        m = new_yaw[:-1] + 0.5 * dth
+        x = p[0, 0] + np.concatenate([[0.0], np.cumsum(ds * np.cos(m) - dl * np.sin(m))])
+        y = p[0, 1] + np.concatenate([[0.0], np.cumsum(ds * np.sin(m) + dl * np.cos(m))])
+        return np.column_stack([x, y, new_yaw])
+
+    @classmethod
+    def from_fields(cls, f: Fields) -> OdometryCalibration:
+        out = cls(
+            f.number("distance_scale", 1.0, within=(0.8, 1.25)),
+            f.number("rotation_scale", 0.0, within=(-0.2, 0.2)),
+            f.number("drift_per_m", 0.0, within=(-0.5, 0.5), unit="rad/m"),
+        )
+        f.warn_unknown(_ODOMETRY_KEYS)
+        return out
+
+    def to_dict(self) -> dict[str, float]:
+        return {k: float(getattr(self, k)) for k in _ODOMETRY_KEYS}
 
 
 @dataclass(frozen=True)
@@ -76,6 +128,7 @@ class RobotConfig:
         front_offset: base_link to the robot's front edge, metres; docked means DockPose (front_offset, 0, 0).
         max_linear_speed: m/s.
         max_angular_speed: rad/s.
+        odometry: how the wheel odometry is off (``calibrate mount``); none by default.
     """
 
     camera_mount: Mount = Mount(0.17, 0.0, 0.25)
@@ -83,6 +136,7 @@ class RobotConfig:
     front_offset: float = 0.34
     max_linear_speed: float = 0.3
     max_angular_speed: float = 1.0
+    odometry: OdometryCalibration = OdometryCalibration()
 
     def __post_init__(self) -> None:
         if self.front_offset < 0:
@@ -127,6 +181,9 @@ class RobotConfig:
                     within=(0.0, MAX_ANGULAR_SPEED),
                     unit="rad/s",
                 ),
+                odometry=OdometryCalibration.from_fields(f.child("odometry"))
+                if f.has("odometry")
+                else OdometryCalibration(),
             )
             f.warn_unknown(_ROBOT_KEYS)
             return robot
@@ -148,6 +205,7 @@ class RobotConfig:
             "front_offset": self.front_offset,
             "max_linear_speed": self.max_linear_speed,
             "max_angular_speed": self.max_angular_speed,
+            **({} if self.odometry.identity else {"odometry": self.odometry.to_dict()}),
         }
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:

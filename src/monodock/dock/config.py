@@ -16,20 +16,49 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
+from monodock.core.pose2d import Pose2D
 from monodock.dock.planner import PlannerConfig
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise
 from monodock.errors import ConfigError
 
 __all__ = [
+    "ChargingOffset",
     "DockingConfig",
     "docking_config_from_dict",
     "docking_config_to_dict",
     "load_docking_config",
     "save_docking_config",
 ]
+
+
+@dataclass(frozen=True)
+class ChargingOffset:
+    """Where base_link charges, against the nominal docked pose (front_offset before the face, on the dock's axis,
+    square): x towards the charger, y left, metres; yaw_deg counter-clockwise. ``monodock teach`` measures it in the
+    dock frame as this camera and layout see it, so that what is left of a layout's or a mount's bias at the face
+    cancels there. All zero: dock at the nominal pose.
+    """
+
+    SIGNED: ClassVar[tuple[str, ...]] = ("x", "y", "yaw_deg")
+
+    x: float = 0.0
+    y: float = 0.0
+    yaw_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if abs(self.x) > 0.2 or abs(self.y) > 0.2 or abs(self.yaw_deg) > 20.0:
+            raise ConfigError(
+                "docking config: charging_offset beyond 20 cm or 20 degrees of the nominal docked pose is not a "
+                f"contact's tolerance but another dock, got x {self.x} y {self.y} yaw_deg {self.yaw_deg}"
+            )
+
+    def dock_T_target(self, front_offset: float) -> Pose2D:
+        """The frame the mission docks in (docked there is (front_offset, 0, 0) as a DockPose), in the dock frame."""
+        taught = Pose2D(-front_offset + self.x, self.y, math.radians(self.yaw_deg))
+        return taught.compose(Pose2D(front_offset, 0.0, 0.0))
 
 
 @dataclass(frozen=True)
@@ -98,6 +127,7 @@ class DockingConfig:
     blind_margin: float = 0.04
     track: FilterConfig = field(default_factory=FilterConfig)  # the dock filter: odometry noise, gate, reset
     measurement: MeasurementNoise = field(default_factory=MeasurementNoise)  # frames without a covariance
+    charging_offset: ChargingOffset = field(default_factory=ChargingOffset)  # the taught pose (monodock teach)
 
     def __post_init__(self) -> None:
         positive = (
@@ -152,6 +182,7 @@ def _from_fields(cls: type[D], f: Fields) -> D:
     if unknown:
         raise f.error(unknown[0], f"unknown key (known: {', '.join(known)})")
     values: dict[str, Any] = {}
+    signed = getattr(cls, "SIGNED", ())
     for name in known:
         if not f.has(name):
             continue
@@ -166,7 +197,7 @@ def _from_fields(cls: type[D], f: Fields) -> D:
         elif isinstance(default, int):
             values[name] = f.integer(name, minimum=0, maximum=MAX_COUNT)
         elif isinstance(default, float):
-            values[name] = f.number(name, within=(0.0, MAX_NUMBER))
+            values[name] = f.number(name, within=(-MAX_NUMBER if name in signed else 0.0, MAX_NUMBER))
         elif isinstance(default, str):
             values[name] = f.string(name)
         else:  # pragma: no cover - every DockingConfig field is one of the above

@@ -217,7 +217,9 @@ class DockingMission:
         self.blind = blind + config.blind_margin
         self.max_speed = min(config.cruise_speed, robot.max_linear_speed)
         self.max_turn = min(config.turn_rate, robot.max_angular_speed)
-        self.track = DockTrack(config.track, config.measurement)
+        self.track = DockTrack(
+            config.track, config.measurement, config.charging_offset.dock_T_target(robot.front_offset)
+        )
         self.state = State.ACQUIRE
         self.phase: _Phase = _Acquiring()
         self.failure: FailureReason | None = None
@@ -320,13 +322,13 @@ class DockingMission:
             self._enter(now, State.UNDOCK if self.task == "undock" else State.ACQUIRE)
         self.track.move(odom)
         placed = None if observation is None else self.track.place(observation)
-        if observation is not None and observation.pose is not None and placed is not None:
-            at, cov = placed
+        if observation is not None and placed is not None:
+            at, seen, cov = placed
             if isinstance(self.phase, _Calculating):
-                self.phase.samples.append((at, observation.pose, cov))  # the median comes at the plan
+                self.phase.samples.append((at, seen, cov))  # the median comes at the plan
                 self.phase.markers.append(observation.markers)
                 self.last_seen = observation.stamp
-            elif self.track.update(at, observation.pose, cov):
+            elif self.track.update(at, seen, cov):
                 self.last_seen = observation.stamp
         if self.finished:
             return (0.0, 0.0)

@@ -116,9 +116,11 @@ class DockTrack:
         last_pose: the newest odometry pose (None before the first), and ``last_stamp`` its time.
     """
 
-    def __init__(self, config: FilterConfig, noise: MeasurementNoise) -> None:
+    def __init__(self, config: FilterConfig, noise: MeasurementNoise, target: Pose2D | None = None) -> None:
         self.filter = DockFilter(config)
         self.noise = noise
+        # The frame the mission docks in, in the dock frame (a taught charging pose); None: the dock frame itself.
+        self.target = None if target is None or target == Pose2D(0.0, 0.0, 0.0) else target
         self._history = OdometryHistory()
         self.last_pose: Pose2D | None = None
         self.last_stamp = 0.0
@@ -133,15 +135,24 @@ class DockTrack:
         self.last_pose, self.last_stamp = odom.pose, odom.stamp
         self._history.add(odom.stamp, odom.pose)
 
-    def place(self, observation: Observation) -> tuple[Pose2D, Matrix] | None:
-        """Where the robot was (odometry) at the frame's exposure and the frame's covariance; None when the frame
-        has no pose or is older than the history."""
+    def place(self, observation: Observation) -> tuple[Pose2D, DockPose, Matrix] | None:
+        """Where the robot was (odometry) at the frame's exposure, the frame's estimate of the frame the mission
+        docks in (``target``: the taught charging pose; the dock's own without one) and its covariance; None when
+        the frame has no pose or is older than the history.
+
+        The covariance is the dock's: the target sits millimetres from the dock's origin, and its lever arm
+        changes the covariance by far less than the covariance is known to.
+        """
         if observation.pose is None:
             return None
         at = self._history.at(observation.stamp)
         if at is None:
             return None
-        return at, measurement_covariance(observation, self.noise)
+        pose = observation.pose
+        if self.target is not None:
+            seen = Pose2D(pose.x, pose.y, pose.yaw).compose(self.target)
+            pose = DockPose(seen.x, seen.y, seen.theta)
+        return at, pose, measurement_covariance(observation, self.noise)
 
     def update(self, at: Pose2D, estimate: DockPose, covariance: Matrix) -> bool:
         """Fold one placed frame in; False when the gate refused it."""
@@ -168,7 +179,8 @@ class DockTrack:
 
     def dock_at(self, stamp: float) -> tuple[DockPose, Matrix] | None:
         """The filtered dock pose in base_link where the robot was at ``stamp`` (the newest odometry for a later
-        stamp), and its 3x3 covariance; None before the first frame or for a stamp older than the history."""
+        stamp), and its 3x3 covariance; None before the first frame or for a stamp older than the history. With a
+        taught charging pose (``target``) it is the pose of the frame the mission docks in."""
         odom = self._history.at(stamp)
         if self.filter.mean is None or odom is None:
             return None

@@ -96,7 +96,8 @@ class Estimator:
         self, name: str, stamp: float, gray: NDArray[np.uint8], detection: Detection
     ) -> FrameEstimates:
         """Every method's estimate from a detection already made on the (mono8) image."""
-        estimates = run_methods(self.pose_methods, MethodFrame(detection, self.camera, self.modules, gray=gray))
+        frame = MethodFrame(detection, self.camera, self.modules, gray=gray, edge_offset=self.layout.edge_offset)
+        estimates = run_methods(self.pose_methods, frame)
         if self.check is not None and not self.check.done:
             self.check.add(detection, estimates)
         return FrameEstimates(name, stamp, detection, estimates)

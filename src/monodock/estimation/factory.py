@@ -106,7 +106,8 @@ def make_estimator(
 
     Args:
         method: "regression" (the papers'; needs a bundle, the default with one), "pnp" (marker 2 alone),
-            "board" (all visible markers; the default without a bundle) or "fused" (needs a bundle).
+            "board" (all visible markers; the default without a bundle) or "fused" (with a bundle the regression
+            where it helps; without one the refined corners' planar fit alone).
         methods: several of those, run in this order on each frame (the first is the ``method``); not with
             ``method``.
         bundle: a loaded Bundle or its folder.

@@ -28,6 +28,7 @@ from monodock.estimation.fused import FusedEstimator, FusionTables
 from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
 from monodock.estimation.regression import RegressionEstimator
 from monodock.perception.detect import Detection
+from monodock.perception.edge_offset import clipped_roles, offset_detection
 from monodock.perception.refine import refine_detection
 
 if TYPE_CHECKING:
@@ -35,8 +36,10 @@ if TYPE_CHECKING:
 
 __all__ = [
     "BUILDERS",
+    "GEOMETRY_TABLES",
     "METHOD_NAMES",
     "NEEDS_BUNDLE",
+    "USES_BUNDLE",
     "MethodFrame",
     "MethodSetup",
     "PoseMethod",
@@ -59,6 +62,8 @@ class MethodFrame:
         raw: the papers' raw features (FEATURE_NAMES order) as a dataset stores them; None: each method computes
             them from the detection through its own camera.
         earlier: the answers of the methods run before this one on the frame, by name.
+        edge_offset: the layout's edge offset, px (``DockLayout.edge_offset``): the geometric methods' corners,
+            OpenCV's and the refined ones, are corrected by it; the regression learnt from its own.
     """
 
     detection: Detection
@@ -68,15 +73,28 @@ class MethodFrame:
     refined_corners: Detection | None = None
     raw: NDArray[np.float64] | None = None
     earlier: dict[str, PoseEstimate] = field(default_factory=dict)
+    edge_offset: float = 0.0
 
     @property
     def refined(self) -> Detection:
-        """The detection with bias-free corners (``perception.refine``), made once."""
+        """The detection with bias-free corners (``perception.refine``, then the edge offset), made once.
+
+        Markers with clipped pixels keep the refiner's own correction: it measured their edges' shift already.
+        """
         if self.refined_corners is None:
             if self.gray is None:
                 raise ValueError("a MethodFrame needs the image or the refined corners")
-            self.refined_corners = refine_detection(self.gray, self.detection, self.camera, modules=self.modules)
+            refined = refine_detection(self.gray, self.detection, self.camera, modules=self.modules)
+            if self.edge_offset:
+                clipped = clipped_roles(self.gray, refined, modules=self.modules)
+                refined = offset_detection(refined, self.edge_offset, skip=clipped)
+            self.refined_corners = refined
         return self.refined_corners
+
+    @functools.cached_property
+    def geometric(self) -> Detection:
+        """OpenCV's detection with the edge offset taken out of its corners (what pnp and board fit)."""
+        return offset_detection(self.detection, self.edge_offset) if self.edge_offset else self.detection
 
 
 def run_methods(methods: Mapping[str, PoseMethod], frame: MethodFrame) -> dict[str, PoseEstimate]:
@@ -104,8 +122,8 @@ class MethodSetup:
     """What the methods are built from: the calibration, and for the learnt methods a model bundle.
 
     ``tables`` replaces the bundle's fusion tables (the robustness sweep's tables learnt on another calibration);
-    without a bundle it gives the fused method on geometry alone, with no regression (the warm-up, the tests and
-    the benchmarks use it; the command line and ``make_estimator`` ask for a bundle).
+    without a bundle the fused method is geometry alone: the refined corners' planar fit, with no regression and
+    ``tables`` (default ``GEOMETRY_TABLES``), for a robot that has no LiDAR to train a bundle with.
     """
 
     camera: CameraModel
@@ -133,7 +151,7 @@ class GeometricMethod:
     robot: RobotConfig
 
     def estimate(self, frame: MethodFrame) -> PoseEstimate:
-        return self.solve(frame.detection, self.camera, self.layout, self.robot)
+        return self.solve(frame.geometric, self.camera, self.layout, self.robot)
 
 
 @dataclass(frozen=True)
@@ -163,12 +181,15 @@ class FusedMethod:
 
 def _fused(setup: MethodSetup) -> PoseMethod:
     if setup.bundle is None:
-        if setup.tables is None:
-            raise InputError("the fused method needs a model bundle (or, for geometry alone, fusion tables)")
-        return FusedMethod(FusedEstimator(setup.camera, setup.layout, setup.robot, setup.tables))
+        tables = setup.tables if setup.tables is not None else GEOMETRY_TABLES
+        return FusedMethod(FusedEstimator(setup.camera, setup.layout, setup.robot, tables))
     tables = setup.tables if setup.tables is not None else setup.bundle.fusion_tables()
     return FusedMethod(FusedEstimator(setup.camera, setup.layout, setup.robot, tables, setup.regression))
 
+
+# The fused method's tables without a bundle: the refined corners' noise model (sigma_px = 0.22 / sqrt(the
+# marker's side in px), about what training learns on the simulator's default frames), nothing else learnt.
+GEOMETRY_TABLES = FusionTables(0.22)
 
 # The methods by name, in the order the command line lists them.
 BUILDERS: dict[str, Callable[[MethodSetup], PoseMethod]] = {
@@ -178,7 +199,10 @@ BUILDERS: dict[str, Callable[[MethodSetup], PoseMethod]] = {
     "fused": _fused,
 }
 METHOD_NAMES = tuple(BUILDERS)
-NEEDS_BUNDLE = frozenset({"regression", "fused"})
+# The methods that cannot run without a bundle, and those that use one when there is one (fused: geometry alone
+# without; dock-sim trains a bundle for those).
+NEEDS_BUNDLE = frozenset({"regression"})
+USES_BUNDLE = frozenset({"regression", "fused"})
 
 
 def build_methods(names: Sequence[str], setup: MethodSetup) -> dict[str, PoseMethod]:

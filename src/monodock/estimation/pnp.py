@@ -158,6 +158,28 @@ def estimate_single_marker(
     return _result("pnp", _choose(cands), (role,))
 
 
+def _marker_starts(
+    detection: Detection, camera: CameraModel, layout: DockLayout, roles: tuple[str, ...]
+) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Starts (rvec, tvec of the dock in the optical frame) from each marker's own IPPE_SQUARE solutions."""
+    out = []
+    for role in roles:
+        ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+            layout.corners_in_marker(role),
+            detection.observations[role].corners,
+            camera.matrix,
+            camera.dist,
+            flags=cv2.SOLVEPNP_IPPE_SQUARE,
+        )
+        marker_T_dock = transforms.invert(layout.dock_T_marker(role))
+        for r, t in zip(rvecs, tvecs, strict=True) if ok else ():
+            R, _ = cv2.Rodrigues(np.asarray(r))
+            T = transforms.transform(R, np.asarray(t).ravel()) @ marker_T_dock
+            rv, _ = cv2.Rodrigues(T[:3, :3])
+            out.append((np.asarray(rv, dtype=np.float64), T[:3, 3].reshape(3, 1).copy()))
+    return out
+
+
 def estimate_board(
     detection: Detection,
     camera: CameraModel,
@@ -182,6 +204,10 @@ def estimate_board(
     count, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, camera.matrix, camera.dist, flags=cv2.SOLVEPNP_IPPE)
     if count:
         starts += [(np.asarray(r), np.asarray(t)) for r, t in zip(rvecs, tvecs, strict=True)]
+    else:
+        # A surveyed dock's markers are not exactly in one plane (a card standing off, a tilt): IPPE needs one.
+        # Each marker alone is a plane; both of its IPPE solutions, moved to the dock's origin, start the fit.
+        starts += _marker_starts(detection, camera, layout, roles)
     if not starts:
         return PoseEstimate("board", None, "solvePnP failed", roles)
     identity = np.eye(4)

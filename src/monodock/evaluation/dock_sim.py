@@ -44,7 +44,7 @@ from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.consistency import camera_disagreement
 from monodock.estimation.factory import make_estimator
-from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE
+from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE, USES_BUNDLE
 from monodock.evaluation.dock_faults import FAULTS, FaultInjector
 from monodock.evaluation.dock_results import (
     AbsStats,
@@ -95,7 +95,7 @@ __all__ = [
 ALL_METHODS = METHOD_NAMES
 
 # The methods that need the model bundle.
-BUNDLE_METHODS = tuple(m for m in METHOD_NAMES if m in NEEDS_BUNDLE)
+BUNDLE_METHODS = tuple(m for m in METHOD_NAMES if m in USES_BUNDLE)
 
 
 @dataclass(frozen=True)
@@ -121,6 +121,21 @@ class DockSimConfig:
     robot: RobotConfig = field(default_factory=RobotConfig.default)
     nuisances: Nuisances = field(default_factory=Nuisances)
     bundle: Path | None = None  # the regression's model bundle
+    # What the robot believes when the world differs (a wrong world, commissioned or not): the layout and the robot
+    # file its estimator and mission get; None: the world's own. And the wheels, fixed for the world (a robot).
+    believed_layout: DockLayout | None = None
+    believed_robot: RobotConfig | None = None
+    wheel_scale: tuple[float, float] | None = None
+
+    @property
+    def robot_layout(self) -> DockLayout:
+        """The layout the robot's estimator uses."""
+        return self.believed_layout or self.layout
+
+    @property
+    def robot_file(self) -> RobotConfig:
+        """The robot file the robot's estimator and mission use."""
+        return self.believed_robot or self.robot
 
     @property
     def fault_kinds(self) -> tuple[str, ...]:
@@ -203,6 +218,7 @@ class _Environment:
     sim: Simulator
     blind: float
     perceive: dict[str, Perceive]
+    robot: RobotConfig  # the robot file the mission believes (the world's own unless told otherwise)
 
 
 _ENV: dict[int, _Environment] = {}
@@ -224,15 +240,16 @@ def _environment(config: DockSimConfig) -> _Environment:
                     method=m,
                     bundle=bundle if m in BUNDLE_METHODS else None,
                     camera=sim.camera,
-                    layout=sim.layout,
-                    robot=sim.robot,
+                    layout=config.robot_layout,
+                    robot=config.robot_file,
                     warn_camera=False,
                 ),
                 m,
             )
             for m in config.methods
         }
-        _ENV[key] = _Environment(sim, blind_gap(sim.camera, sim.layout, sim.robot), perceive)
+        blind = blind_gap(sim.camera, config.robot_layout, config.robot_file)
+        _ENV[key] = _Environment(sim, blind, perceive, config.robot_file)
     return _ENV[key]
 
 
@@ -256,14 +273,14 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     # Frames in which no marker can be detected (the last centimetres at the face) are not rendered nor detected:
     # the estimator would find nothing in them (``SimulatedRobot.blank_undetectable``), so the mission sees the
     # same observations, at a fraction of the cost.
-    robot = SimulatedRobot(sim, task.start, config.drive, rng, blank_undetectable=True)
+    robot = SimulatedRobot(sim, task.start, config.drive, rng, blank_undetectable=True, wheel_scale=config.wheel_scale)
     mission_config = dataclasses.replace(
         config.mission,
         planner=dataclasses.replace(config.mission.planner, kind=task.planner),
         measurement=MeasurementNoise.for_method(task.method),
         track=dataclasses.replace(config.mission.track, odometry=odometry_noise(config.drive)),
     )
-    mission = DockingMission(mission_config, sim.robot, env.blind)
+    mission = DockingMission(mission_config, env.robot, env.blind)
     faults = FaultInjector(task.fault, robot)
     perceive_s = perceive_cpu_s = 0.0
     inner = _skip_undetectable(robot, env.perceive[task.method])
@@ -354,10 +371,10 @@ def _skip_undetectable(robot: SimulatedRobot, perceive: Perceive) -> Perceive:
 
 def _undock_and_redock(robot: SimulatedRobot, config: DockingConfig, env: _Environment, perceive: Perceive) -> str:
     """From docked: undock to the staging pose, then dock again; what happened, in words."""
-    undock = run_mission(robot, perceive, DockingMission(config, env.sim.robot, env.blind, task="undock"))
+    undock = run_mission(robot, perceive, DockingMission(config, env.robot, env.blind, task="undock"))
     if not undock.succeeded:
         return f"undock failed: {undock.reason}"
-    again = run_mission(robot, perceive, DockingMission(config, env.sim.robot, env.blind))
+    again = run_mission(robot, perceive, DockingMission(config, env.robot, env.blind))
     if not again.docked:
         return f"redock failed: {again.reason}"
     return "redocked" if _inside_tolerances(robot, config) else "redock outside the tolerances"
@@ -408,12 +425,10 @@ def _filter_frame(mission: DockingMission, robot: SimulatedRobot, observation: O
 
 def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialResult]:
     """Every case × trial × method, in ``config.jobs`` worker processes; results in a fixed order."""
-    learnt = any(m in BUNDLE_METHODS for m in config.methods)
-    if learnt and config.bundle is None:
-        raise InputError("the regression and fused methods need a model bundle")
+    if any(m in NEEDS_BUNDLE for m in config.methods) and config.bundle is None:
+        raise InputError("the regression method needs a model bundle")
     sim = config.simulator(config.seed)
-    if learnt:
-        assert config.bundle is not None
+    if any(m in BUNDLE_METHODS for m in config.methods) and config.bundle is not None:
         said = camera_disagreement(load_bundle(config.bundle).camera(), sim.camera, str(config.bundle), "simulated")
         if said is not None:
             logging.getLogger("monodock.input").warning(said)

@@ -470,7 +470,7 @@ def _check_options(options: DetectorOptions) -> None:
     """InputError for options that cannot work, before anything is subscribed."""
     if options.model:
         return
-    if options.method in ("regression", "fused"):
+    if options.method == "regression":
         raise InputError(f"the {options.method} method needs a model bundle (--model, or the parameter model)")
     missing = [k for k in ("layout", "robot") if not getattr(options, k)]
     if missing:

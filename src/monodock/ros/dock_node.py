@@ -510,7 +510,7 @@ def _key_value(key: str, value: str) -> Any:
 
 
 def _check_calibration(options: DockOptions) -> None:
-    if options.method in ("regression", "fused"):
+    if options.method == "regression":
         raise InputError(f"the {options.method} method needs a model bundle (model:=BUNDLE)")
     missing = [k for k in ("layout", "robot") if not getattr(options, k)]
     if missing:

@@ -12,18 +12,31 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core import transforms
+from monodock.core.atomic import atomic_directory
+from monodock.core.images import encode_png
 from monodock.core.layout import ROLES
 from monodock.core.pose import DockPose
+from monodock.errors import ConfigError
+from monodock.recording.messages import quaternion_from_matrix
 from monodock.sim.nuisance import apply_nuisances
 from monodock.sim.render import render_radiance
 from monodock.sim.simulator import PoseDistribution, Simulator
 
-__all__ = ["SurveyShot", "handheld_poses", "render_shot", "robot_poses"]
+__all__ = [
+    "VIEW_KINDS",
+    "SurveyShot",
+    "handheld_poses",
+    "render_shot",
+    "robot_pose_of",
+    "robot_poses",
+    "write_view_folder",
+]
 
 
 @dataclass(frozen=True)
@@ -110,3 +123,34 @@ def robot_pose_of(sim: Simulator, world_T_optical: NDArray[np.float64]) -> DockP
     """The DockPose of the robot whose camera is at ``world_T_optical`` (a robot view's truth)."""
     world_T_base = world_T_optical @ transforms.invert(sim.robot.base_T_optical())
     return DockPose.from_matrix(transforms.invert(world_T_base))
+
+
+VIEW_KINDS = ("handheld", "robot")
+
+
+def write_view_folder(out: str | Path, sim: Simulator, kind: str, count: int, seed: int, *, force: bool = False) -> int:
+    """``count`` survey views (``handheld`` or ``robot``) as a folder, atomically: ``images/view_NNN.png``,
+    ``views.csv`` (each camera's optical frame in the dock frame: position and quaternion; for robot views the true
+    DockPose too) and the camera, layout and robot files the views were rendered with (the world's truth)."""
+    if kind not in VIEW_KINDS:
+        raise ConfigError(f"survey views are {' or '.join(VIEW_KINDS)}, got {kind!r}")
+    rng = np.random.default_rng([seed, 3])
+    poses = handheld_poses(sim, count, rng) if kind == "handheld" else robot_poses(sim, count, rng)
+    with atomic_directory(out, force=force) as tmp:
+        (tmp / "images").mkdir()
+        rows = ["view,kind,x_m,y_m,z_m,qx,qy,qz,qw,dock_x_m,dock_y_m,dock_yaw_deg"]
+        for k, T in enumerate(poses):
+            name = f"view_{k:03d}.png"
+            shot = render_shot(sim, name, T, np.random.default_rng([seed, 4, k]))
+            (tmp / "images" / name).write_bytes(encode_png(shot.image))
+            qx, qy, qz, qw = quaternion_from_matrix(T[:3, :3])
+            truth = robot_pose_of(sim, T) if kind == "robot" else None
+            dock = f"{truth.x:.6f},{truth.y:.6f},{truth.yaw_deg:.5f}" if truth is not None else ",,"
+            rows.append(
+                f"{name},{kind},{T[0, 3]:.6f},{T[1, 3]:.6f},{T[2, 3]:.6f},{qx:.8f},{qy:.8f},{qz:.8f},{qw:.8f},{dock}"
+            )
+        (tmp / "views.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+        sim.camera.save(tmp / "camera.yaml")
+        sim.layout.save(tmp / "layout.yaml")
+        sim.robot.save(tmp / "robot.yaml")
+    return len(poses)
