@@ -266,6 +266,55 @@ def test_layout_dict_round_trip() -> None:
     assert [m.id for m in back.markers] == [11, 42, 99]
 
 
+SURVEYED_LAYOUT_YAML = """\
+dictionary: DICT_4X4_50
+marker_size: 0.10
+edge_offset_px: -0.15
+markers:
+  left:   {id: 1, y: 0.20, z: 0.30, x: -0.004, roll: 0.01, pitch: -0.02, yaw: 0.2, size: 0.098}
+  center: {id: 2, y: 0.00, z: 0.30}
+  right:  {id: 3, y: -0.20, z: 0.30, size: 0.102}
+survey: {views_used: 24, rms_px: 0.03}
+"""
+
+
+def test_surveyed_layout_keys_place_tilt_and_size_each_marker(tmp_path: Path) -> None:
+    """A marker's x, tilt (URDF order about the dock's axes through its centre) and own side move its corners where
+    the geometry says, written out here on its own; the centre keeps the layout's size; the survey's record is read
+    past; the file round-trips."""
+    layout = DockLayout.load(_write(tmp_path, "surveyed.yaml", SURVEYED_LAYOUT_YAML))
+
+    h = 0.098 / 2
+    R = transforms.rotation_from_rpy(0.01, -0.02, 0.2)
+    # The untilted top-left corner sits at (0, +h, +h) from the centre (the robot's left is +y, up is +z).
+    expected = np.array([-0.004, 0.20, 0.30]) + R @ np.array([0.0, h, h])
+    np.testing.assert_allclose(layout.corners_in_dock("left")[0], expected, atol=1e-12)
+    assert layout.side("left") == pytest.approx(0.098)
+    assert layout.side("center") == pytest.approx(0.10)
+    assert layout.side("right") == pytest.approx(0.102)
+    assert layout.edge_offset == pytest.approx(-0.15)
+    assert not layout.flat
+    np.testing.assert_allclose(np.ptp(layout.corners_in_dock("right")[:, 1]), 0.102, atol=1e-12)
+    assert DockLayout.from_dict(layout.to_dict()) == layout
+    assert "survey" not in layout.to_dict()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "pattern"),
+    [
+        ("yaw: 0.2,", "yaw: 1.2,", r"markers\.left\.yaw: must be within"),
+        ("size: 0.098", "size: 3.0", r"markers\.left\.size: must be within"),
+        ("edge_offset_px: -0.15", "edge_offset_px: 7", r"edge_offset_px: must be within"),
+        ("x: -0.004,", "x: near,", r"markers\.left\.x: expected a number"),
+    ],
+    ids=["tilt_beyond_45_deg", "side_beyond_2_m", "edge_offset_beyond_2_px", "x_not_a_number"],
+)
+def test_surveyed_layout_errors_name_the_key(tmp_path: Path, old: str, new: str, pattern: str) -> None:
+    assert old in SURVEYED_LAYOUT_YAML
+    with pytest.raises(ConfigError, match=pattern):
+        DockLayout.load(_write(tmp_path, "bad.yaml", SURVEYED_LAYOUT_YAML.replace(old, new, 1)))
+
+
 # --- robot --------------------------------------------------------------------------------------
 
 GUIDE_ROBOT_YAML = """\

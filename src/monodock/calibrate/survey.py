@@ -72,8 +72,8 @@ VALUES = ("x", "y", "z", "roll", "pitch", "yaw", "size")
 LOSS_SCALE_PX = 0.5
 # A view whose RMS reprojection error is this many times the median view's (and over 1 px) is dropped.
 OUTLIER_VIEW_FACTOR = 5.0
-# Fewest views the survey accepts.
-MIN_VIEWS = 6
+# Fewest views the survey accepts (the standard deviations decide whether they were enough).
+MIN_VIEWS = 4
 
 
 @dataclass(frozen=True)
@@ -648,6 +648,14 @@ def survey_layout(
     """
     limits = limits or SurveyLimits()
     usable = [v for v in views if len(v.corners) >= (1 if robot is not None else 2)]
+    for r in ROLES:
+        alone = sum(1 for v in views if set(v.corners) == {r})
+        if alone and not any(r in v.corners for v in usable):
+            m = nominal.marker(r)
+            raise InputError(
+                f"marker {r} (id {m.id}) is seen only alone ({alone} views): add views that show it beside the "
+                "centre marker"
+            )
     notes = list(skipped) + [
         ViewNote(v.name, tuple(v.corners), False, reason="one marker only") for v in views if v not in usable
     ]

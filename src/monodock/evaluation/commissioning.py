@@ -63,6 +63,7 @@ __all__ = [
 ]
 
 FILE_SETS = ("nominal", "commissioned", "exact")
+DOCKING_VARIANTS = ("nominal/fused", "nominal/board", "commissioned/fused")
 ACCURACY_METHODS = ("fused", "board")
 BAND_EDGES_M = tuple(0.25 + 0.25 * k for k in range(10))
 
@@ -93,10 +94,11 @@ class WorldResult:
         print_scale: the survey's lengths per true length (the print's mean scale, which images cannot see).
         mount_error: per mount field, calibrated minus true (m, rad); ``z`` as the camera's height over the centre
             marker's.
-        teach_error: the taught charging pose minus where the robot truly stood (x, y m, yaw rad).
+        teach_error: the taught charging pose, through the markers into the world's frame, minus where the robot
+            truly stood (x, y m, yaw rad).
         errors: per file set and method, per frame: depth from the camera (m), then the x, y (m) and yaw (rad)
             errors, (N, 4).
-        docking: per file set ("nominal", "commissioned"), the runs.
+        docking: per files and method (``DOCKING_VARIANTS``), the runs.
         odometry_scale: the drive's fitted print-per-odometry length, and the truth's.
     """
 
@@ -137,6 +139,19 @@ def _survey_errors(surveyed: DockLayout, truth: DockLayout) -> tuple[dict[str, o
         ang[r] = _angle_deg(A, B)
     sides = {r: (surveyed.side(r) - truth.side(r)) * 1e3 for r in ROLES}
     return {"position": pos, "scaled": scaled, "angle": ang, "side": sides}, float(scale)
+
+
+def _frame_of(layout: DockLayout, truth: DockLayout) -> Pose2D:
+    """The commissioned dock frame in the world's, on the floor: the rigid fit of the layout's marker corners onto
+    the world's (Kabsch), its floor-plane part."""
+    a = np.concatenate([layout.corners_in_dock(r) for r in ROLES])
+    b = np.concatenate([truth.corners_in_dock(r) for r in ROLES])
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    t = cb - R @ ca
+    return Pose2D(float(t[0]), float(t[1]), math.atan2(R[1, 0], R[0, 0]))
 
 
 def _mount_error(calibrated: RobotConfig, layout: DockLayout, world: WrongWorld) -> dict[str, float]:
@@ -183,7 +198,10 @@ def commission_world(
         _record(Path(tmp) / "teach", backer, teach_route(), 1)
         taught = teach_from_recording(str(Path(tmp) / "teach"), layout, robot, camera=sim.camera)
     survey_err, print_scale = _survey_errors(survey.layout, world.layout)
-    teach_err = (taught.pose.x - home.x, taught.pose.y - home.y, wrap_angle(taught.pose.theta - home.theta))
+    # The taught pose in the world's dock frame, through the markers: the commissioned frame is the survey's (the
+    # face as its markers show it), a few millimetres from the world's (the face itself, which no image shows).
+    seen = _frame_of(layout, world.layout).compose(taught.pose)
+    teach_err = (seen.x - home.x, seen.y - home.y, wrap_angle(seen.theta - home.theta))
     dock_T_target = taught.offset.dock_T_target(robot.front_offset)
     true_target = home.compose(Pose2D(robot.front_offset, 0.0, 0.0))
     errors = _accuracy(sim, world, layout, robot, dock_T_target, true_target, frames, seed)
@@ -204,9 +222,12 @@ def commission_world(
         result = dataclasses.replace(
             result,
             docking={
-                "nominal": _dock(world, world.nominal_layout, world.nominal_robot, ChargingOffset(), docking_trials),
-                "commissioned": _dock(world, layout, robot, taught.offset, docking_trials),
-            },
+                f"nominal/{m}": _dock(
+                    world, world.nominal_layout, world.nominal_robot, ChargingOffset(), docking_trials, m
+                )
+                for m in ("fused", "board")
+            }
+            | {"commissioned/fused": _dock(world, layout, robot, taught.offset, docking_trials, "fused")},
         )
     return result
 
@@ -254,12 +275,12 @@ def _accuracy(
 
 
 def _dock(
-    world: WrongWorld, layout: DockLayout, robot: RobotConfig, offset: ChargingOffset, trials: int
+    world: WrongWorld, layout: DockLayout, robot: RobotConfig, offset: ChargingOffset, trials: int, method: str
 ) -> list[DockingOutcome]:
     """Closed-loop dockings in the world with the files the robot has: every case, ``trials`` starts each."""
     config = DockSimConfig(
         trials=trials,
-        methods=("fused",),
+        methods=(method,),
         seed=world.seed,
         jobs=1,
         layout=world.layout,
@@ -369,7 +390,7 @@ def summarize_worlds(results: Sequence[WorldResult]) -> CommissioningSummary:
         "yaw_max_deg": max((math.degrees(abs(r.teach_error[2])) for r in results), default=math.nan),
     }
     docking: dict[str, dict[str, object]] = {}
-    for k in ("nominal", "commissioned"):
+    for k in DOCKING_VARIANTS:
         runs = [d for r in results for d in r.docking.get(k, [])]
         n = len(runs)
         first = sum(d.charged_first_seat for d in runs)

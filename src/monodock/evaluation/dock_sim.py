@@ -221,13 +221,15 @@ class _Environment:
     robot: RobotConfig  # the robot file the mission believes (the world's own unless told otherwise)
 
 
-_ENV: dict[int, _Environment] = {}
+# The environment of the config last run in this process, with the config itself: an id alone could be reused by
+# a later config once the first is gone (several dock-sims in one process, one after the other).
+_ENV: dict[int, tuple[DockSimConfig, _Environment]] = {}
 
 
 def _environment(config: DockSimConfig) -> _Environment:
     """The simulator and estimators, built once per worker process."""
     key = id(config)
-    if key not in _ENV:
+    if key not in _ENV or _ENV[key][0] is not config:
         _ENV.clear()
         sim = config.simulator()
         learnt = any(m in BUNDLE_METHODS for m in config.methods)
@@ -249,8 +251,8 @@ def _environment(config: DockSimConfig) -> _Environment:
             for m in config.methods
         }
         blind = blind_gap(sim.camera, config.robot_layout, config.robot_file)
-        _ENV[key] = _Environment(sim, blind, perceive, config.robot_file)
-    return _ENV[key]
+        _ENV[key] = (config, _Environment(sim, blind, perceive, config.robot_file))
+    return _ENV[key][1]
 
 
 @dataclass(frozen=True)
