@@ -1,0 +1,74 @@
+"""The reference for marker corners on the real ChArUco photos (tests/data/opencv_contrib): the chessboard's corners.
+
+ChArUco's chessboard corners are X-junctions of two black squares: where they are does not depend on how black
+the ink prints, nor on how a camera renders an edge, only on the geometry. Each marker sits in a white square
+whose neighbouring X-junctions a local homography maps (in undistorted normalised coordinates, where the board's
+plane is a homography away; then back through the lens): its true corners, following the paper's local bends.
+The board: 5 x 7 squares of 40 mm, 20 mm DICT_6X6_250 markers (opencv_contrib's tutorial), printed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from monodock.core.camera import CameraModel
+
+DATA = Path(__file__).resolve().parent / "data" / "opencv_contrib"
+PHOTOS = ("img_00", "img_01", "img_02", "img_03")
+HELD_OUT = "chocclusion_original"
+CAMERA = DATA / "tutorial_camera_charuco.yml"
+DICTIONARY = cv2.aruco.DICT_6X6_250
+
+
+def board() -> cv2.aruco.CharucoBoard:
+    b = cv2.aruco.CharucoBoard((5, 7), 0.04, 0.02, cv2.aruco.getPredefinedDictionary(DICTIONARY))
+    b.setLegacyPattern(False)
+    return b
+
+
+def image(name: str) -> NDArray[np.uint8]:
+    return np.asarray(cv2.imread(str(DATA / f"{name}.jpg"), cv2.IMREAD_GRAYSCALE), dtype=np.uint8)
+
+
+@dataclass(frozen=True)
+class Reference:
+    """One photo's X-junction reference: each interior marker's true corners (4, 2), px, by id."""
+
+    corners: dict[int, NDArray[np.float64]]
+    fit_rms_px: float  # how well the local homographies fit their own X-junctions
+
+
+def reference(gray: NDArray[np.uint8], camera: CameraModel) -> Reference:
+    """The true corners of every marker with four X-junctions within a square of its centre."""
+    b = board()
+    junctions, ids, _, _ = cv2.aruco.CharucoDetector(b).detectBoard(gray)
+    px = junctions.reshape(-1, 2).astype(np.float64)
+    board_xy = b.getChessboardCorners()[ids.ravel(), :2].astype(np.float64)
+    normalised = camera.normalize(px)
+    out: dict[int, NDArray[np.float64]] = {}
+    fits = []
+    for marker_id, obj in zip(b.getIds().ravel(), b.getObjPoints(), strict=True):
+        square = np.asarray(obj, dtype=np.float64)[:, :2]
+        d = np.linalg.norm(board_xy - square.mean(axis=0), axis=1)
+        near = np.argsort(d)[:6]
+        if d[near[3]] > 0.04:  # not four junctions around it: a marker at the board's edge
+            continue
+        H, _ = cv2.findHomography(board_xy[near], normalised[near], 0)
+        back = cv2.perspectiveTransform(board_xy[near].reshape(-1, 1, 2), H).reshape(-1, 2)
+        fits.append(np.linalg.norm(camera.project(np.c_[back, np.ones(len(back))]) - px[near], axis=1))
+        true = cv2.perspectiveTransform(square.reshape(-1, 1, 2), H).reshape(-1, 2)
+        out[int(marker_id)] = camera.project(np.c_[true, np.ones(4)])
+    return Reference(out, float(np.sqrt(np.mean(np.concatenate(fits) ** 2))))
+
+
+def radial_errors(corners: NDArray[np.float64], true: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+    """Each corner's error (4, 2) and the mean of its part along the marker's diagonal (outward positive)."""
+    e = corners - true
+    out = true - true.mean(axis=0)
+    out /= np.linalg.norm(out, axis=1)[:, None]
+    return e, float(np.mean(np.sum(e * out, axis=1)))
