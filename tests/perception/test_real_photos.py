@@ -16,7 +16,7 @@ from monodock.calibrate.survey import SurveyLimits, survey_layout, survey_views
 from monodock.core.camera import CameraModel
 from monodock.core.frame import Frame
 from monodock.core.layout import DockLayout, MarkerSpec
-from monodock.perception.detect import MarkerDetector
+from monodock.perception.detect import Detection, MarkerDetector
 from monodock.perception.edge_offset import detection_edge_offset, estimate_edge_offset, offset_detection
 from monodock.perception.refine import refine_detection
 
@@ -59,7 +59,8 @@ def _refined(name: str, camera: CameraModel) -> tuple[dict[int, np.ndarray], lis
         if "center" in det.unrefined:
             continue
         out[int(marker_id)] = det.observations["center"].corners
-        runs += detection_edge_offset(gray, det, camera, layout)
+        only = Detection({"center": det.observations["center"]}, (), det.image_size)
+        runs += detection_edge_offset(gray, only, camera, layout)
     return out, runs, gray
 
 
