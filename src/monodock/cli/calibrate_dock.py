@@ -45,13 +45,13 @@ def add_layout_parser(calibrate_subparsers: SubParsers) -> None:
         "--max-position-sd",
         type=float_in(0.0, 100.0, low_open=True),
         default=0.3,
-        help="refuse when a marker's position is more uncertain than this, mm (default 0.3)",
+        help="refuse when a marker's position is more uncertain than this, mm, in (0, 100] (default 0.3)",
     )
     p.add_argument(
         "--max-angle-sd",
         type=float_in(0.0, 45.0, low_open=True),
         default=0.15,
-        help="refuse when a marker's tilt is more uncertain than this, degrees (default 0.15)",
+        help="refuse when a marker's tilt is more uncertain than this, degrees, in (0, 45] (default 0.15)",
     )
     p.add_argument("--force", action="store_true", help="overwrite --out")
     p.set_defaults(func=run_layout)

@@ -1,0 +1,853 @@
+"""Accurate marker corners by a photometric fit of the whole printed marker: the dock survey's refiner.
+
+Not the per-frame path (``monodock.perception.refine`` is, at a fraction of a millisecond): this fits every
+black/white edge of the marker, its code included, to the pixels, for a few milliseconds per marker, and
+measures the print's edge offset on the way. It is the corner study's "photometric fit with grid lines free"
+(``/work/corner_study``): on opencv_contrib's ChArUco photos (26 px markers, JPEG) its corners' radial bias
+against the board's X-junctions was within 0.04 px on every view, with the lowest view-specific noise of the
+methods tried; on exact renders 0.025 px rms.
+
+The model of the image over the marker and a margin of quiet zone around it:
+
+    I(p) = W(p) (1 - C(p)) + D C(p),        W(p) = w0 + w1 dx + w2 dy   (the white may slope: vignetting)
+
+C(p) in [0, 1] is pixel p's black coverage: the marker's square (its outer border) less its white code cells,
+
+    C = Square(u, v) - sum_IJ R[J, I] A_I(u) B_J(v)
+
+where u, v in [0, M] are module coordinates (M modules a side, border included) through a homography of the
+undistorted normalised coordinates (the marker is flat; only the lens bends its lines in pixels). Every
+black/white boundary is moved towards the white by the offset ``delta`` px (> 0: black looks thicker than
+printed; ink spread, sharpening), and blurred by an isotropic Gaussian of sigma ``s`` px (optics, pixel area,
+demosaicing, JPEG in one number). Why it is exact along the edges, without rendering or supersampling:
+
+* Near a pixel, homography and lens are affine, so a Gaussian of s px is, in module coordinates, one of
+  s |grad u| along u and s |grad v| along v (dropping the covariance's off-diagonal term, which only pixels at
+  cell corners see): the blur is separable, each axis a difference of normal CDFs.
+* The dilated (or eroded) white cells are a union of axis-aligned rectangles on a refined grid: each grid line
+  l becomes a strip [l - d, l + d] (d = |delta| |grad u|), each cell a core between strips; a core keeps its
+  cell's colour, a strip is white where any adjacent cell is (white grown, delta < 0) or where all are (white
+  shrunk, delta > 0). A_I(u), B_J(v) are the blurred indicators of the refined cells, R the refined pattern.
+
+Why the grid lines are free (each interior line l = 1..M-1 has its own offset in u and in v, in modules): the
+offset moves every edge towards the white, so it is told apart from the geometry only by edges of both
+polarities on one line. With the grid tied to the outline, the fit would also assume that each cell is exactly
+side / M, and printed boards are not (a rasterised print's code grid is often ~1.5 % larger, its last border
+cell thinner): that error would leak into the offset and the outline (+0.1 px radial bias in the study). Free,
+the lines absorb the print's cell placement, the offset comes from the interior lines, and the outline from
+the outer edges corrected by it.
+
+The levels w0, w1, w2, D enter linearly and are solved by linear least squares at each evaluation (variable
+projection); Levenberg-Marquardt sees only the corners (8 numbers, normalised coordinates times the focal
+lengths: ~px), the blur, the offset (unless given) and the 2 (M - 1) grid lines, with Kaufman's projected
+Jacobian. The Jacobian leaves out how the blur's scale (|grad u|, |grad v|) follows the geometry, as the
+study's prototype does: a hair's difference in the path, none in the corners at 0.001 px. The residual itself
+is exact. The pixels fitted are those within ``BAND_PX`` of a black/white boundary (and inside the marker plus
+``MARGIN`` modules), chosen once from the starting corners, so that the cost is a fixed sum.
+
+The coverage and its Jacobian, and the choice of pixels (with each pixel's undistortion by Newton's method on
+``monodock.core.lens.project``, whose Jacobian the blur's scale needs anyway), are compiled kernels
+(``monodock.core.compiled``); the 20-30 parameter solve is numpy.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from monodock.core.camera import CameraModel
+from monodock.core.compiled import inlined, kernel
+from monodock.core.layout import DockLayout
+from monodock.core.lens import lens_of, project
+from monodock.errors import InputError
+from monodock.perception.detect import Detection, MarkerObservation
+
+__all__ = ["MarkerFit", "fit_detection", "fit_marker"]
+
+F64 = NDArray[np.float64]
+
+ROI_PAD_PX = 10  # the pixels considered reach this far beyond the starting corners' bounding box ...
+MARGIN = 1.5  # ... and this many modules beyond the marker (the quiet zone's white pins the white level)
+BAND_PX = 3.0  # fitted: the pixels within this distance of a black/white boundary (the flat insides of big
+# cells only pin the levels, which the band's plateaus do as well; on 3-px modules the band keeps ~all)
+SIGMA0_PX = 0.5  # the blur's start
+MAX_EVALUATIONS = 40  # of the model and its Jacobian; the study's fits needed 6-12
+STEP_TOL = 1e-3  # converged: no corner, nor the blur or offset, moves more than this (px) ...
+COST_TOL = 1e-9  # ... or the cost falls by less than this fraction
+MIN_MODULE_PX = 1.5  # a smaller marker is not fitted: its cells' edges blur into each other
+MIN_PIXELS_PER_PARAMETER = 4
+# The study's sanity checks: a blur that is no blur or a smear, or corners that ran away from the start.
+BLUR_RANGE_PX = (0.03, 5.0)
+MAX_MOVE_PX = 3.0
+# And two of its own, for patches with no marker on them: too little contrast, or a fit that explains little.
+MIN_CONTRAST = 12.0  # grey levels, white minus black
+MAX_RMS_FRACTION = 0.25  # of the contrast
+MAX_OFFSET_MODULES = 0.45  # the refined grid's strips of two lines must not meet
+DT_SAMPLES = 16  # the edge-distance map's samples per module ...
+DT_PAD = 3  # ... and its quiet zone, modules
+SQRT1_2 = 1.0 / math.sqrt(2.0)
+INV_SQRT2PI = 1.0 / math.sqrt(2.0 * math.pi)
+Z_SATURATED = 8.5  # |z| beyond which the normal CDF is 0 or 1 to double precision (1e-17)
+# Abramowitz & Stegun 7.1.26: erfc(x) = (a1 k + ... + a5 k^5) exp(-x^2), k = 1 / (1 + p x), x >= 0, to 1.5e-7
+_AS_P = 0.3275911
+_AS_A1, _AS_A2, _AS_A3, _AS_A4, _AS_A5 = 0.254829592, -0.284496736, 1.421413741, -1.453152027, 1.061405429
+
+
+@dataclass(frozen=True)
+class MarkerFit:
+    """One marker's photometric fit.
+
+    Attributes:
+        corners: the outer border's corners as printed (the edge offset taken out), shape (4, 2), pixels,
+            ArUco order TL, TR, BR, BL.
+        offset_px: the edge offset, px: how far every black/white edge appears moved towards the white (> 0:
+            black looks thicker than printed); fitted, or the one given.
+        blur_px: the edges' blur, the sigma of a Gaussian, px.
+        rms: the intensity residual, grey levels.
+        converged: whether the solver met its tolerances; False when it ran out of evaluations with the fit
+            still improving (kept, as the study kept it: Levenberg-Marquardt only ever lowers the cost).
+    """
+
+    corners: F64
+    offset_px: float
+    blur_px: float
+    rms: float
+    converged: bool
+
+
+def fit_marker(
+    gray: NDArray[np.uint8],
+    corners: NDArray[np.float64],
+    camera: CameraModel,
+    bits: NDArray[np.integer[Any]] | NDArray[np.bool_],
+    *,
+    offset_px: float | None = None,
+) -> MarkerFit | None:
+    """Fit one marker's printed pattern to the image, from its detected (or refined) corners.
+
+    Args:
+        gray: the image, 8-bit single channel (``monodock.perception.detect.as_gray``), the camera's size.
+        corners: the starting corners (4, 2), pixels, ArUco order TL, TR, BR, BL; within a pixel or so of the
+            truth (OpenCV's or ``monodock.perception.refine``'s).
+        camera: the camera that took the image (its lens maps the pixels to where the marker is flat).
+        bits: the marker's cells, border included, as ``DockLayout.marker_bits`` gives them: 0 black,
+            1 white, shape (M, M), row 0 the side from corner 0 to corner 1.
+        offset_px: the edge offset to hold fixed (px, > 0: black thicker), e.g. pooled over many markers;
+            None fits it per marker.
+
+    Returns:
+        The fit, or None when the marker cannot be fitted: too small, a corner off the image, too few pixels,
+        a singular or non-finite solve, or a result that fails the sanity checks (blur outside
+        ``BLUR_RANGE_PX``, a corner moved more than ``MAX_MOVE_PX``, too little contrast, a poor fit).
+
+    Raises:
+        InputError: on an image, corners, cells or offset of the wrong form.
+    """
+    img = _check_image(gray, camera)
+    start = _check_corners(corners)
+    black = _black_cells(bits)
+    if offset_px is not None and not math.isfinite(offset_px):
+        raise InputError(f"offset_px must be a finite number of pixels or None, got {offset_px}")
+    return _fit(img, start, camera, black, offset_px)
+
+
+def fit_detection(
+    gray: NDArray[np.uint8],
+    detection: Detection,
+    camera: CameraModel,
+    layout: DockLayout,
+    *,
+    offset_px: float | None = None,
+) -> Detection:
+    """The detection with each marker's corners from ``fit_marker``; the roles that could not be fitted keep
+    their corners and are listed in ``unrefined``.
+
+    Args:
+        gray: the image the detection was made on.
+        detection: the markers, with OpenCV's or refined corners as the start.
+        camera: the camera that took the image.
+        layout: the dock layout, for each marker's cells.
+        offset_px: the edge offset to hold fixed for every marker, or None to fit it per marker.
+
+    Raises:
+        InputError: on an image or offset of the wrong form.
+    """
+    img = _check_image(gray, camera)
+    if offset_px is not None and not math.isfinite(offset_px):
+        raise InputError(f"offset_px must be a finite number of pixels or None, got {offset_px}")
+    observations = dict(detection.observations)
+    failed = []
+    for role, o in detection.observations.items():
+        c = np.asarray(o.corners, dtype=np.float64)
+        fit = None
+        if c.shape == (4, 2) and np.isfinite(c).all():  # as refine_detection: a bad quad is not fitted, no error
+            fit = _fit(img, c, camera, _black_cells(layout.marker_bits(o.marker_id)), offset_px)
+        if fit is None:
+            failed.append(role)
+        else:
+            observations[role] = MarkerObservation(o.role, o.marker_id, fit.corners)
+    return replace(detection, observations=observations, unrefined=tuple(failed))
+
+
+# --- the fit ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Pixels:
+    """The fitted pixels: normalised coordinates (N, 2), d(normalised)/d(pixel) (N, 2, 2), the white's slope
+    basis (N, 2) and the grey levels (N,)."""
+
+    xn: F64
+    jn: F64
+    dxy: F64
+    obs: F64
+
+
+@dataclass(frozen=True)
+class _State:
+    """The model at one parameter vector: cost (half the squared residual), rms, levels, and the projected
+    normal matrix and gradient of the free parameters."""
+
+    cost: float
+    rms: float
+    levels: F64
+    normal: F64
+    gradient: F64
+
+
+class _Model:
+    """The photometric model of one marker over its fixed pixels. Full parameters q: the corners' shifts (8,
+    normalised times the focal lengths), blur, offset, then the grid lines' offsets in u and in v (M - 1 each)."""
+
+    def __init__(self, pixels: _Pixels, start_n: F64, focal: F64, black: F64, offset_px: float | None) -> None:
+        self.pixels = pixels
+        self.start_n = start_n
+        self.focal = focal
+        M = black.shape[0]
+        self.grow, self.shrink = _white_patterns(black.tobytes(), M)
+        self.q0 = np.zeros(10 + 2 * (M - 1))
+        self.q0[8] = SIGMA0_PX
+        if offset_px is None:
+            self.free = np.arange(self.q0.size)
+        else:
+            self.q0[9] = offset_px
+            self.free = np.delete(np.arange(self.q0.size), 9)
+        # Each parameter's largest move in one step (px; the grid lines in modules): a Gauss-Newton step
+        # beyond them is a line jumping to a neighbouring edge, which only costs rejected evaluations.
+        self.max_step = np.r_[np.full(8, 0.5), 0.2, 0.2, np.full(2 * (M - 1), 0.1)][self.free]
+        n = pixels.obs.size
+        self._J, self._Jm, self._r = np.empty((n, self.q0.size)), np.empty((n, self.free.size)), np.empty(n)
+
+    def corners_n(self, q: F64) -> F64:
+        return np.asarray(self.start_n + q[:8].reshape(4, 2) / self.focal)
+
+    def evaluate(self, q: F64) -> _State | None:
+        """The model at q, or None where it cannot be evaluated (a degenerate quad, singular levels)."""
+        px = self.pixels
+        pattern = self.shrink if q[9] >= 0.0 else self.grow
+        ok, cost, levels, correction = _evaluate(
+            q, self.free, self.corners_n(q), self.focal, px.xn, px.jn, px.dxy, px.obs, pattern, self._J, self._Jm,
+            self._r,
+        )  # fmt: skip
+        if not ok:
+            return None
+        normal = self._Jm.T @ self._Jm - correction
+        return _State(cost, math.sqrt(2.0 * cost / px.obs.size), levels, normal, self._Jm.T @ self._r)
+
+
+def _fit(
+    gray: NDArray[np.uint8], start: F64, camera: CameraModel, black: F64, offset_px: float | None
+) -> MarkerFit | None:
+    M = black.shape[0]
+    height, width = gray.shape
+    module_px = float(np.mean(np.linalg.norm(start - np.roll(start, -1, axis=0), axis=1))) / M
+    if module_px < MIN_MODULE_PX:
+        return None
+    if np.any(start < -0.5) or np.any(start[:, 0] > width - 0.5) or np.any(start[:, 1] > height - 0.5):
+        return None  # the corner's neighbourhood is not in the picture
+    if offset_px is not None and abs(offset_px) > MAX_OFFSET_MODULES * module_px:
+        return None
+    start_n = camera.normalize(start)
+    try:
+        pixels = _pixels(gray, start, start_n, camera, black, module_px)
+    except np.linalg.LinAlgError:
+        return None
+    model = _Model(pixels, start_n, np.array([camera.fx, camera.fy]), black, offset_px)
+    if pixels.obs.size < MIN_PIXELS_PER_PARAMETER * (model.free.size + 4):
+        return None
+    try:
+        result = _levenberg_marquardt(model)
+    except np.linalg.LinAlgError:
+        return None
+    if result is None:
+        return None
+    q, state, converged = result
+    corners = camera.project(np.column_stack([model.corners_n(q), np.ones(4)]))
+    blur, offset = float(q[8]), float(q[9])
+    contrast = float(state.levels[0] - state.levels[3])  # white minus black at the pixels' centre
+    ok = (
+        bool(np.all(np.isfinite(corners)))
+        and BLUR_RANGE_PX[0] < blur < BLUR_RANGE_PX[1]
+        and float(np.max(np.linalg.norm(corners - start, axis=1))) < MAX_MOVE_PX
+        and contrast > MIN_CONTRAST
+        and state.rms < MAX_RMS_FRACTION * contrast
+        and abs(offset) < MAX_OFFSET_MODULES * module_px
+    )
+    return MarkerFit(corners, offset, blur, state.rms, converged) if ok else None
+
+
+def _levenberg_marquardt(model: _Model) -> tuple[F64, _State, bool] | None:
+    """Minimise the model's cost from ``model.q0``: the parameters, their state and whether it converged;
+    None if the start cannot be evaluated.
+
+    Marquardt's scaling by the largest diagonal of the normal matrix seen so far (MINPACK's, which the study's
+    scipy fit ran), Nielsen's update of the damping, each step damped further until it is within
+    ``model.max_step``. Converged when a step moves no corner and the offset by more than ``STEP_TOL`` px, or
+    lowers the cost by less than ``COST_TOL`` of it: the grid lines may still creep (a line with few edges
+    along it is loosely held), but the corners have stopped.
+    """
+    q = model.q0.copy()
+    state = model.evaluate(q)
+    if state is None:
+        return None
+    scale = np.diag(state.normal).copy()
+    lam, nu = 1e-3, 2.0
+    watched = np.flatnonzero(model.free <= 9)  # the corners, the blur and the offset
+    for _ in range(MAX_EVALUATIONS - 1):
+        scale = np.maximum(scale, np.diag(state.normal))
+        # A parameter that moves no pixel (a grid line with no edge along it) keeps a tiny damping: no step.
+        damping = np.diag(np.maximum(scale, 1e-9 * max(float(scale.max()), 1e-300)))
+        for _ in range(12):
+            step = np.linalg.solve(state.normal + lam * damping, state.gradient)
+            if np.all(np.abs(step) <= model.max_step):
+                break
+            lam *= 4.0
+        trial_q = q.copy()
+        trial_q[model.free] += step
+        small = float(np.max(np.abs(step[watched]))) < STEP_TOL
+        trial = model.evaluate(trial_q)
+        if trial is not None and trial.cost < state.cost:
+            predicted = float(step @ state.gradient - 0.5 * step @ state.normal @ step)
+            gain = (state.cost - trial.cost) / max(predicted, 1e-300)
+            done = small or state.cost - trial.cost < COST_TOL * state.cost
+            q, state = trial_q, trial
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * min(gain, 1.0) - 1.0) ** 3)
+            nu = 2.0
+            if done:
+                return q, state, True
+        else:
+            if small:  # at the minimum: even a tiny step does not lower the cost
+                return q, state, True
+            lam *= nu
+            nu *= 2.0
+    return q, state, False
+
+
+def _pixels(
+    gray: NDArray[np.uint8], start: F64, start_n: F64, camera: CameraModel, black: F64, module_px: float
+) -> _Pixels:
+    """The pixels to fit: within ``BAND_PX`` of a black/white boundary of the marker where the starting
+    corners put it, inside the marker plus ``MARGIN`` modules and the corners' box plus ``ROI_PAD_PX``.
+
+    The undistortion is per pixel and costs the most, so a cheap first cut (the corners' homography in pixels,
+    ignoring the lens, with a slack of twice what the lens bends the marker's lines) keeps it to the band.
+    """
+    M = black.shape[0]
+    height, width = gray.shape
+    lo = np.maximum(np.floor(start.min(axis=0) - ROI_PAD_PX).astype(int), 0)
+    hi = np.minimum(np.ceil(start.max(axis=0) + ROI_PAD_PX).astype(int), (width - 1, height - 1))
+    square = np.array([[0.0, 0.0], [M, 0.0], [M, M], [0.0, M]])
+    G0 = _homography(start_n, square)
+    H_px = _homography(start, square)
+    # How far the lens moves module points off the pixel homography's, over the marker and its margin.
+    t = np.linspace(-MARGIN, M + MARGIN, 7)
+    grid = np.array([(a, b) for a in t for b in t])
+    h = np.column_stack([grid, np.ones(len(grid))]) @ np.linalg.inv(G0).T
+    px = camera.project(np.column_stack([h[:, :2] / h[:, 2:], np.ones(len(h))]))
+    hp = np.column_stack([px, np.ones(len(px))]) @ H_px.T
+    bend = float(np.max(np.linalg.norm(hp[:, :2] / hp[:, 2:] - grid, axis=1))) * module_px
+    roi = np.array(gray[lo[1] : hi[1] + 1, lo[0] : hi[0] + 1], dtype=np.uint8)  # a writable copy: one compilation
+    xy, xn, jn, obs = _select_pixels(
+        roi, float(lo[0]), float(lo[1]), lens_of(camera), H_px, G0, _edge_distance_map(black.tobytes(), M),
+        module_px, 0.5 + 2.0 * bend, float(M),
+    )  # fmt: skip
+    if len(obs) == 0:
+        return _Pixels(xn, jn, xy, obs)
+    spread = max(float(np.ptp(xy, axis=0).max()) / 2.0, 1.0)
+    return _Pixels(xn, jn, (xy - xy.mean(axis=0)) / spread, obs)
+
+
+# --- checks ----------------------------------------------------------------------------------------
+
+
+def _check_image(gray: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint8]:
+    if not isinstance(gray, np.ndarray) or gray.dtype != np.uint8 or gray.ndim != 2:
+        shape = getattr(gray, "shape", None)
+        dtype = getattr(gray, "dtype", type(gray).__name__)
+        raise InputError(f"marker fit needs an 8-bit single-channel image (as_gray), got {dtype} of shape {shape}")
+    if (gray.shape[1], gray.shape[0]) != camera.size:
+        raise InputError(
+            f"image is {gray.shape[1]}x{gray.shape[0]} but camera '{camera.name}' is {camera.width}x{camera.height}"
+        )
+    return gray
+
+
+def _check_corners(corners: NDArray[np.float64]) -> F64:
+    c = np.asarray(corners, dtype=np.float64)
+    if c.shape != (4, 2) or not np.isfinite(c).all():
+        raise InputError(f"marker corners must be 4 finite (x, y) pixels, got an array of shape {c.shape}")
+    return c
+
+
+def _black_cells(bits: NDArray[np.integer[Any]] | NDArray[np.bool_]) -> F64:
+    """1 = black, from monodock's cells (0 black, 1 white), checked: square, 0/1 and a black border."""
+    b = np.asarray(bits)
+    if b.ndim != 2 or b.shape[0] != b.shape[1] or b.shape[0] < 3 or not np.isin(b, (0, 1)).all():
+        raise InputError(f"marker cells must be a square array of 0 (black) and 1 (white), got shape {b.shape}")
+    black = 1.0 - b.astype(np.float64)
+    if not (black[0].all() and black[-1].all() and black[:, 0].all() and black[:, -1].all()):
+        raise InputError("marker cells must include the black border (DockLayout.marker_bits: 0 black, 1 white)")
+    return black
+
+
+# --- geometry --------------------------------------------------------------------------------------
+
+
+def _dlt(src: F64, dst: F64) -> tuple[F64, F64]:
+    A = np.zeros((8, 8))
+    b = np.zeros(8)
+    for k in range(4):
+        x, y = src[k]
+        u, v = dst[k]
+        A[2 * k] = (x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y)
+        A[2 * k + 1] = (0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y)
+        b[2 * k], b[2 * k + 1] = u, v
+    return A, b
+
+
+def _homography(src: F64, dst: F64) -> F64:
+    """The 3x3 H (h33 = 1) with H src_k ~ dst_k for 4 point pairs; LinAlgError if three are in line."""
+    A, b = _dlt(src, dst)
+    return np.append(np.linalg.solve(A, b), 1.0).reshape(3, 3)
+
+
+@functools.lru_cache(maxsize=64)
+def _white_patterns(black_bytes: bytes, M: int) -> tuple[F64, F64]:
+    """The refined grid's white code (R_grow, R_shrink), (2M+1, 2M+1), row v, column u: index 2l is the strip
+    of grid line l, 2i+1 the core of cell i. Only the code counts: the border and the outside are not white
+    here (the square accounts for them)."""
+    black = np.frombuffer(black_bytes, dtype=np.float64).reshape(M, M)
+    P = np.zeros((M + 2, M + 2))
+    P[1:-1, 1:-1] = 1.0 - black
+    P[1, :] = P[-2, :] = P[:, 1] = P[:, -2] = 0.0  # the border ring is black by definition
+    # The padded cells each refined index touches: a core (odd) one cell, a strip (even) the two beside it.
+    index = np.arange(2 * M + 1)
+    lo, hi = index // 2 + index % 2, index // 2 + 1
+    corners = np.stack([P[np.ix_(a, b)] for a in (lo, hi) for b in (lo, hi)])
+    grow, shrink = corners.max(axis=0), corners.min(axis=0)
+    grow.flags.writeable = shrink.flags.writeable = False
+    return grow, shrink
+
+
+@functools.lru_cache(maxsize=64)
+def _edge_distance_map(black_bytes: bytes, M: int) -> NDArray[np.float32]:
+    """Distance (modules) to the nearest black/white boundary of the marker (outline included), sampled at
+    ``DT_SAMPLES`` per module over the marker and ``DT_PAD`` modules around it, sample (i, j) at module
+    (j + 0.5) / S - pad, (i + 0.5) / S - pad."""
+    black = np.frombuffer(black_bytes, dtype=np.float64).reshape(M, M)
+    S = DT_SAMPLES
+    big = np.zeros(((M + 2 * DT_PAD) * S,) * 2, np.uint8)
+    big[DT_PAD * S : (DT_PAD + M) * S, DT_PAD * S : (DT_PAD + M) * S] = np.kron(black, np.ones((S, S)))
+    dist = cv2.distanceTransform(big, cv2.DIST_L2, 5) + cv2.distanceTransform(1 - big, cv2.DIST_L2, 5)
+    out = np.asarray(dist / S, dtype=np.float32)
+    out.flags.writeable = False
+    return out
+
+
+# --- kernels ---------------------------------------------------------------------------------------
+
+
+@inlined
+def _apply(H: F64, x: float, y: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    return (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w, (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+
+
+@inlined
+def _distance_at(dist: NDArray[np.float32], u: float, v: float) -> float:  # pragma: no cover - compiled
+    """``_edge_distance_map`` at module (u, v), bilinear (as ``cv2.remap``); 99 off the map."""
+    n = dist.shape[0]
+    x, y = (u + DT_PAD) * DT_SAMPLES - 0.5, (v + DT_PAD) * DT_SAMPLES - 0.5
+    if not (x >= 0.0 and y >= 0.0 and x <= n - 1 and y <= n - 1):
+        return 99.0
+    i, j = min(int(y), n - 2), min(int(x), n - 2)
+    ay, ax = y - i, x - j
+    top = dist[i, j] + ax * (dist[i, j + 1] - dist[i, j])
+    bottom = dist[i + 1, j] + ax * (dist[i + 1, j + 1] - dist[i + 1, j])
+    return float(top + ay * (bottom - top))
+
+
+@kernel
+def _select_pixels(
+    roi: NDArray[np.uint8], x0: float, y0: float, lens: F64, H_px: F64, G0: F64, dist: NDArray[np.float32],
+    module_px: float, slack_px: float, M: float,
+) -> tuple[F64, F64, F64, F64]:  # pragma: no cover - compiled  # fmt: skip
+    """The fitted pixels of a region of interest whose top-left pixel is (x0, y0): their pixel coordinates
+    (N, 2), normalised coordinates (N, 2), d(normalised)/d(pixel) (N, 2, 2), [normalised axis, pixel axis],
+    and grey levels (N,).
+
+    A pixel is kept when its module coordinates through ``G0`` (normalised -> modules) lie within ``MARGIN`` of
+    the marker and its edge distance (``dist``, modules) times ``module_px`` is under ``BAND_PX``; the same
+    test through ``H_px`` (pixels -> modules, no lens) with ``slack_px`` to spare comes first, so that only
+    candidates are undistorted. Undistortion: Newton's method on the lens (``project``), from the previous
+    pixel's solution; a pixel where it does not converge is left out.
+    """
+    h, w = roi.shape
+    n_max = h * w
+    xy, xn, obs = np.empty((n_max, 2)), np.empty((n_max, 2)), np.empty(n_max)
+    jn = np.empty((n_max, 2, 2))
+    lo, hi = -MARGIN, M + MARGIN
+    slack = slack_px / module_px
+    fx, skew, cx, fy, cy = lens[0], lens[1], lens[2], lens[3], lens[4]
+    n = 0
+    have, xs, ys, pu, pv, ia, ib, ic, id_ = False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    for i in range(h):
+        for j in range(w):
+            px, py = x0 + j, y0 + i
+            ua, va = _apply(H_px, px, py)
+            if not (lo - slack < ua < hi + slack and lo - slack < va < hi + slack):
+                continue
+            if _distance_at(dist, ua, va) * module_px >= BAND_PX + slack_px:
+                continue
+            # Newton from the last undistorted pixel moved by its inverse Jacobian (one or two steps), or from
+            # the pinhole's inverse.
+            if have:
+                dx, dy = px - pu, py - pv
+                x, y = xs + ia * dx + ib * dy, ys + ic * dx + id_ * dy
+            else:
+                y = (py - cy) / fy
+                x = (px - cx - skew * y) / fx
+            found = False
+            for _ in range(30):
+                u, v, a, b, _z0, c, d, _z1 = project(lens, x, y, 1.0)
+                ru, rv = u - px, v - py
+                det = a * d - b * c
+                if not abs(det) > 1e-12:
+                    break
+                ia, ib, ic, id_ = d / det, -b / det, -c / det, a / det
+                if abs(ru) + abs(rv) < 1e-9:
+                    found = True
+                    break
+                x -= ia * ru + ib * rv
+                y -= ic * ru + id_ * rv
+            have = found
+            if not found:
+                continue
+            xs, ys, pu, pv = x, y, px, py
+            u, v = _apply(G0, x, y)
+            if not (lo < u < hi and lo < v < hi) or _distance_at(dist, u, v) * module_px >= BAND_PX:
+                continue
+            xy[n, 0], xy[n, 1], xn[n, 0], xn[n, 1], obs[n] = px, py, x, y, roi[i, j]
+            jn[n, 0, 0], jn[n, 0, 1], jn[n, 1, 0], jn[n, 1, 1] = ia, ib, ic, id_
+            n += 1
+    return xy[:n].copy(), xn[:n].copy(), jn[:n].copy(), obs[:n].copy()
+
+
+@inlined
+def _solve_in_place(A: F64, B: F64) -> bool:  # noqa: PLR0912 # pragma: no cover - compiled
+    """A X = B for a small square A, by Gaussian elimination with partial pivoting; X into B, A destroyed.
+    False if A is singular to working precision. (numba's np.linalg needs scipy's LAPACK, which the robot side
+    does not load.)"""
+    n, m = A.shape[0], B.shape[1]
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            scale = max(scale, abs(A[i, j]))
+    for c in range(n):
+        p, best = c, abs(A[c, c])
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > best:
+                p, best = r, abs(A[r, c])
+        if not best > 1e-13 * scale:
+            return False
+        if p != c:
+            for k in range(n):
+                A[c, k], A[p, k] = A[p, k], A[c, k]
+            for k in range(m):
+                B[c, k], B[p, k] = B[p, k], B[c, k]
+        for r in range(c + 1, n):
+            f = A[r, c] / A[c, c]
+            if f != 0.0:
+                for k in range(c, n):
+                    A[r, k] -= f * A[c, k]
+                for k in range(m):
+                    B[r, k] -= f * B[c, k]
+    for c in range(n - 1, -1, -1):
+        for k in range(m):
+            total = B[c, k]
+            for j in range(c + 1, n):
+                total -= A[c, j] * B[j, k]
+            B[c, k] = total / A[c, c]
+    return True
+
+
+@inlined
+def _square_homography(cn: F64, M: float) -> tuple[bool, F64, F64]:  # pragma: no cover - compiled
+    """The homography G (3, 3) from the corners cn (4, 2) onto the square [0, M]^2 (ArUco order), and
+    d(g0..g7)/d(cn: x0 y0 x1 y1 ...) (8, 8): the DLT A g = b, so dg = -A^-1 (dA g)."""
+    A, b = np.zeros((8, 8)), np.zeros((8, 1))
+    for k in range(4):
+        x, y = cn[k, 0], cn[k, 1]
+        u = M if k in {1, 2} else 0.0
+        v = M if k >= 2 else 0.0
+        A[2 * k, 0], A[2 * k, 1], A[2 * k, 2], A[2 * k, 6], A[2 * k, 7] = x, y, 1.0, -u * x, -u * y
+        A[2 * k + 1, 3], A[2 * k + 1, 4], A[2 * k + 1, 5], A[2 * k + 1, 6], A[2 * k + 1, 7] = x, y, 1.0, -v * x, -v * y
+        b[2 * k, 0], b[2 * k + 1, 0] = u, v
+    A2 = A.copy()
+    G = np.empty((3, 3))
+    D = np.zeros((8, 8))
+    if not _solve_in_place(A, b):
+        return False, G, D
+    g = b[:, 0]
+    for k in range(4):
+        u = M if k in {1, 2} else 0.0
+        v = M if k >= 2 else 0.0
+        D[2 * k, 2 * k] = -(g[0] - u * g[6])
+        D[2 * k + 1, 2 * k] = -(g[3] - v * g[6])
+        D[2 * k, 2 * k + 1] = -(g[1] - u * g[7])
+        D[2 * k + 1, 2 * k + 1] = -(g[4] - v * g[7])
+    ok = _solve_in_place(A2, D)
+    for i in range(8):
+        G[i // 3, i % 3] = g[i]
+    G[2, 2] = 1.0
+    return ok, G, D
+
+
+@inlined
+def _normal(z: float) -> tuple[float, float]:  # pragma: no cover - compiled
+    """The standard normal's CDF and density at z. The CDF by Abramowitz & Stegun 7.1.26 (to 1e-7: a
+    hundred-thousandth of a grey level on these edges), which shares the density's exponential: a third of
+    the cost of math.erfc and math.exp, and these run a few times per pixel and evaluation."""
+    if z > Z_SATURATED:
+        return 1.0, 0.0
+    if z < -Z_SATURATED:
+        return 0.0, 0.0
+    e = math.exp(-0.5 * z * z)
+    x = abs(z) * SQRT1_2
+    k = 1.0 / (1.0 + _AS_P * x)
+    tail = 0.5 * k * (_AS_A1 + k * (_AS_A2 + k * (_AS_A3 + k * (_AS_A4 + k * _AS_A5)))) * e
+    return (1.0 - tail if z >= 0.0 else tail), INV_SQRT2PI * e
+
+
+@inlined
+def _square_axis(
+    t: float, g: float, s: float, delta: float, M: int
+) -> tuple[float, float, float, float]:  # pragma: no cover
+    """One axis of the dilated square [-d, M + d] blurred: F and dF/dt, dF/ds, dF/ddelta."""
+    st = s * g
+    z1, z2 = (t + delta * g) / st, (t - M - delta * g) / st
+    P1, p1 = _normal(z1)
+    P2, p2 = _normal(z2)
+    return P1 - P2, (p1 - p2) / st, -(p1 * z1 - p2 * z2) / s, (p1 + p2) / s
+
+
+@inlined
+def _white_axis(
+    t: float, g: float, s: float, delta: float, off: F64, reach: float, A: F64, A_t: F64, A_s: F64, A_d: F64,
+    P_t: F64,
+) -> tuple[int, int, int, int]:  # pragma: no cover - compiled  # fmt: skip
+    """One axis of the refined cells, blurred: A (2M+1,) and dA/dt, dA/ds, dA/ddelta, and dP/dt (2M+2,) at
+    the breakpoints l + off_l -+ |delta| g (for the grid lines' derivatives).
+
+    Only the lines within ``reach`` (modules: the largest offset plus Z_SATURATED blurs, before the dilation)
+    of t are evaluated: the others' breakpoints are 0 or 1 to double precision. Returns the window of refined
+    cells where A or a derivative is not 0 (first, last; empty if first > last), outside which A and its
+    derivatives are 0 but not written, and the lines evaluated (first, last), outside which P_t is not written.
+    """
+    M = off.shape[0] - 1
+    inv_st = 1.0 / (s * g)
+    inv_s = 1.0 / s
+    d = abs(delta) * g
+    dd = g if delta >= 0.0 else -g  # d(breakpoint l -+ d)/d(delta) = -+ sign(delta) g
+    reach_t = reach + d + Z_SATURATED * s * g
+    l0, l1 = max(math.ceil(t - reach_t), 0), min(math.floor(t + reach_t), M)
+    # the breakpoints of the lines before l0 are all 1: t is beyond them
+    P_prev = 1.0 if l0 > 0 else 0.0
+    pt_prev = ps_prev = pd_prev = 0.0
+    first, last = A.shape[0], -1
+    for line in range(l0, l1 + 1):
+        centre = line + off[line]
+        for side in range(2):
+            k = 2 * line + side
+            z = (t - (centre + d if side else centre - d)) * inv_st
+            P, p = _normal(z)
+            pt = p * inv_st
+            ps = -p * z * inv_s
+            pd = -pt * dd if side else pt * dd
+            P_t[k] = pt
+            if k > 0:
+                A[k - 1], A_t[k - 1], A_s[k - 1], A_d[k - 1] = P_prev - P, pt_prev - pt, ps_prev - ps, pd_prev - pd
+                if P_prev != P or pt != 0.0 or pt_prev != 0.0:
+                    first = min(first, k - 1)
+                    last = k - 1
+            P_prev, pt_prev, ps_prev, pd_prev = P, pt, ps, pd
+    k = 2 * (l1 + 1)  # the next breakpoint, 0 like all after it
+    if 0 < k <= 2 * M and (P_prev != 0.0 or pt_prev != 0.0):
+        A[k - 1], A_t[k - 1], A_s[k - 1], A_d[k - 1] = P_prev, pt_prev, ps_prev, pd_prev
+        first = min(first, k - 1)
+        last = k - 1
+    return first, last, l0, l1
+
+
+@kernel
+def _evaluate(  # noqa: PLR0912, PLR0915
+    q: F64, free: NDArray[np.intp], cn: F64, focal: F64, xn: F64, jn: F64, dxy: F64, obs: F64, R: F64, J: F64,
+    Jm: F64, r: F64,
+) -> tuple[bool, float, F64, F64]:  # pragma: no cover - compiled  # fmt: skip
+    """The model at the full parameters q, the corners at cn (4, 2, normalised): whether it could be
+    evaluated, the cost (half the squared residual), the levels (w0, w1, w2, D) and Kaufman's correction of
+    the normal matrix (F, F); into the scratch arrays: dC/dq (N, Q) into J, the residual into r (N,) and the
+    model's derivatives with respect to the free parameters ``free`` (F,) at the current levels into Jm (N, F).
+
+    The variable-projection problem's normal matrix is then Jm^T Jm - correction, its gradient Jm^T r (r is
+    orthogonal to the levels' basis). q: the corners' shifts (8, normalised times ``focal``), blur, offset,
+    the grid lines in u (M - 1), in v (M - 1); R: the refined white pattern for the offset's sign.
+    """
+    n = xn.shape[0]
+    M = (q.shape[0] - 8) // 2
+    nr = 2 * M + 1
+    nf = free.shape[0]
+    s, delta = q[8], q[9]
+    off_u, off_v = np.zeros(M + 1), np.zeros(M + 1)
+    reach_u = reach_v = 0.0
+    for line in range(1, M):
+        off_u[line], off_v[line] = q[9 + line], q[8 + M + line]
+        reach_u, reach_v = max(reach_u, abs(off_u[line])), max(reach_v, abs(off_v[line]))
+    levels = np.zeros(4)
+    correction = np.zeros((nf, nf))
+    ok, G, dg = _square_homography(cn, float(M))
+    if not ok:
+        return False, np.inf, levels, correction
+    for k in range(8):
+        for m in range(8):
+            dg[m, k] /= focal[k % 2]
+    A, A_t, A_s, A_d = np.empty(nr), np.empty(nr), np.empty(nr), np.empty(nr)
+    B, B_t, B_s, B_d = np.empty(nr), np.empty(nr), np.empty(nr), np.empty(nr)
+    PA_t, PB_t = np.empty(nr + 1), np.empty(nr + 1)
+    AR, BR = np.empty(nr), np.empty(nr)
+    gram, rhs = np.zeros((4, 4)), np.zeros((4, 1))
+    for i in range(n):
+        x, y = xn[i, 0], xn[i, 1]
+        w = G[2, 0] * x + G[2, 1] * y + 1.0
+        iw = 1.0 / w
+        u = (G[0, 0] * x + G[0, 1] * y + G[0, 2]) * iw
+        v = (G[1, 0] * x + G[1, 1] * y + G[1, 2]) * iw
+        j00, j01 = (G[0, 0] - u * G[2, 0]) * iw, (G[0, 1] - u * G[2, 1]) * iw
+        j10, j11 = (G[1, 0] - v * G[2, 0]) * iw, (G[1, 1] - v * G[2, 1]) * iw
+        # |grad u|, |grad v| in pixels: the blur's scale along each module axis
+        gu = math.hypot(j00 * jn[i, 0, 0] + j01 * jn[i, 1, 0], j00 * jn[i, 0, 1] + j01 * jn[i, 1, 1])
+        gv = math.hypot(j10 * jn[i, 0, 0] + j11 * jn[i, 1, 0], j10 * jn[i, 0, 1] + j11 * jn[i, 1, 1])
+        Fu, Fu_t, Fu_s, Fu_d = _square_axis(u, gu, s, delta, M)
+        Fv, Fv_t, Fv_s, Fv_d = _square_axis(v, gv, s, delta, M)
+        a0, a1, la0, la1 = _white_axis(u, gu, s, delta, off_u, reach_u, A, A_t, A_s, A_d, PA_t)
+        b0, b1, lb0, lb1 = _white_axis(v, gv, s, delta, off_v, reach_v, B, B_t, B_s, B_d, PB_t)
+        # AR = R A, BR = B^T R, where they are used: within a cell of the other axis' window (the grid lines'
+        # derivatives reach a cell beyond it); elsewhere 0, so that a 0 derivative times them stays 0.
+        for k in range(nr):
+            AR[k] = 0.0
+            BR[k] = 0.0
+        for m in range(max(b0 - 1, 0), min(b1 + 3, nr)):
+            total = 0.0
+            for k in range(a0, a1 + 1):
+                total += R[m, k] * A[k]
+            AR[m] = total
+        for m in range(max(a0 - 1, 0), min(a1 + 3, nr)):
+            total = 0.0
+            for k in range(b0, b1 + 1):
+                total += B[k] * R[k, m]
+            BR[m] = total
+        white = white_t = white_s = white_d = white_v = 0.0
+        for k in range(a0, a1 + 1):
+            white += A[k] * BR[k]
+            white_t += A_t[k] * BR[k]
+            white_s += A_s[k] * BR[k]
+            white_d += A_d[k] * BR[k]
+        for k in range(b0, b1 + 1):
+            white_v += B_t[k] * AR[k]
+            white_s += B_s[k] * AR[k]
+            white_d += B_d[k] * AR[k]
+        c = Fu * Fv - white
+        Cu = (Fu_t * Fv - white_t) * iw
+        Cv = (Fu * Fv_t - white_v) * iw
+        # dC/dcorner_k through the homography: du/dg = (x, y, 1, 0, 0, 0, -u x, -u y) / w, dv/dg likewise.
+        for k in range(8):
+            ga = x * dg[0, k] + y * dg[1, k] + dg[2, k]
+            gb = x * dg[3, k] + y * dg[4, k] + dg[5, k]
+            gc = x * dg[6, k] + y * dg[7, k]
+            J[i, k] = Cu * (ga - u * gc) + Cv * (gb - v * gc)
+        J[i, 8] = Fu_s * Fv + Fu * Fv_s - white_s
+        J[i, 9] = Fu_d * Fv + Fu * Fv_d - white_d
+        # Moving line l moves its two breakpoints 2l, 2l+1, which changes only refined cells 2l-1 .. 2l+1.
+        for line in range(1, M):
+            e0, e1 = 2 * line, 2 * line + 1
+            J[i, 9 + line] = (
+                PA_t[e0] * (BR[e0] - BR[e0 - 1]) + PA_t[e1] * (BR[e1] - BR[e0]) if la0 <= line <= la1 else 0.0
+            )
+            J[i, 8 + M + line] = (
+                PB_t[e0] * (AR[e0] - AR[e0 - 1]) + PB_t[e1] * (AR[e1] - AR[e0]) if lb0 <= line <= lb1 else 0.0
+            )
+        # The levels' basis: white (1 - C), its slopes, black C.
+        r[i] = c
+        basis = (1.0 - c, (1.0 - c) * dxy[i, 0], (1.0 - c) * dxy[i, 1], c)
+        for a_ in range(4):
+            rhs[a_, 0] += basis[a_] * obs[i]
+            for b_ in range(4):
+                gram[a_, b_] += basis[a_] * basis[b_]
+    gram_inv = np.eye(4)
+    work = gram.copy()
+    if not _solve_in_place(work, gram_inv):
+        return False, np.inf, levels, correction
+    for a_ in range(4):
+        for b_ in range(4):
+            levels[a_] += gram_inv[a_, b_] * rhs[b_, 0]
+    w0, w1, w2, black = levels[0], levels[1], levels[2], levels[3]
+    cost = 0.0
+    AtJ = np.zeros((4, nf))
+    for i in range(n):
+        c = r[i]
+        white_level = w0 + w1 * dxy[i, 0] + w2 * dxy[i, 1]
+        res = obs[i] - (white_level * (1.0 - c) + black * c)
+        r[i] = res
+        cost += 0.5 * res * res
+        # Kaufman's variable projection: the model's derivatives at the current levels; their part in the
+        # levels' span comes off through the correction below, so the solver need not carry the levels.
+        dm = black - white_level
+        b0, b1, b2, b3 = 1.0 - c, (1.0 - c) * dxy[i, 0], (1.0 - c) * dxy[i, 1], c
+        for f in range(nf):
+            val = J[i, free[f]] * dm
+            Jm[i, f] = val
+            AtJ[0, f] += b0 * val
+            AtJ[1, f] += b1 * val
+            AtJ[2, f] += b2 * val
+            AtJ[3, f] += b3 * val
+    # correction = AtJ^T gram^-1 AtJ
+    P = np.zeros((4, nf))
+    for a_ in range(4):
+        for f in range(nf):
+            total = 0.0
+            for b_ in range(4):
+                total += gram_inv[a_, b_] * AtJ[b_, f]
+            P[a_, f] = total
+    for f in range(nf):
+        for e in range(f, nf):
+            total = 0.0
+            for a_ in range(4):
+                total += AtJ[a_, f] * P[a_, e]
+            correction[f, e] = correction[e, f] = total
+    return bool(np.isfinite(cost)), cost, levels, correction
