@@ -1,8 +1,9 @@
 """Accurate marker corners by a photometric fit of the whole printed marker: the dock survey's refiner.
 
 Not the per-frame path (``monodock.perception.refine`` is, at a fraction of a millisecond): this fits every
-black/white edge of the marker, its code included, to the pixels, for a few milliseconds per marker, and
-measures the print's edge offset on the way. It is the corner study's "photometric fit with grid lines free"
+black/white edge of the marker, its code included, to the pixels, for ~10 ms per marker (the 25-40 px
+ones; a 200 px marker ~20 ms: the cost follows the edges' length), and measures the print's edge offset on
+the way. It is the corner study's "photometric fit with grid lines free"
 (``/work/corner_study``): on opencv_contrib's ChArUco photos (26 px markers, JPEG) its corners' radial bias
 against the board's X-junctions was within 0.04 px on every view, with the lowest view-specific noise of the
 methods tried; on exact renders 0.025 px rms.
@@ -41,9 +42,10 @@ The levels w0, w1, w2, D enter linearly and are solved by linear least squares a
 projection); Levenberg-Marquardt sees only the corners (8 numbers, normalised coordinates times the focal
 lengths: ~px), the blur, the offset (unless given) and the 2 (M - 1) grid lines, with Kaufman's projected
 Jacobian. The Jacobian leaves out how the blur's scale (|grad u|, |grad v|) follows the geometry, as the
-study's prototype does: a hair's difference in the path, none in the corners at 0.001 px. The residual itself
-is exact. The pixels fitted are those within ``BAND_PX`` of a black/white boundary (and inside the marker plus
-``MARGIN`` modules), chosen once from the starting corners, so that the cost is a fixed sum.
+study's prototype does, so that both stop at the same point (on the photos the corners agree with the
+prototype's to 0.003 px typically, 0.013 px at most). The residual itself is exact. The pixels fitted are
+those within ``BAND_PX`` of a black/white boundary (and inside the marker plus ``MARGIN`` modules), chosen
+once from the starting corners, so that the cost is a fixed sum.
 
 The coverage and its Jacobian, and the choice of pixels (with each pixel's undistortion by Newton's method on
 ``monodock.core.lens.project``, whose Jacobian the blur's scale needs anyway), are compiled kernels
@@ -77,7 +79,7 @@ MARGIN = 1.5  # ... and this many modules beyond the marker (the quiet zone's wh
 BAND_PX = 3.0  # fitted: the pixels within this distance of a black/white boundary (the flat insides of big
 # cells only pin the levels, which the band's plateaus do as well; on 3-px modules the band keeps ~all)
 SIGMA0_PX = 0.5  # the blur's start
-MAX_EVALUATIONS = 40  # of the model and its Jacobian; the study's fits needed 6-12
+MAX_EVALUATIONS = 40  # of the model and its Jacobian; the photos' markers take 5-20, the simulator's ~5
 STEP_TOL = 1e-3  # converged: no corner, nor the blur or offset, moves more than this (px) ...
 COST_TOL = 1e-9  # ... or the cost falls by less than this fraction
 MIN_MODULE_PX = 1.5  # a smaller marker is not fitted: its cells' edges blur into each other
@@ -229,7 +231,9 @@ class _Model:
         self.pixels = pixels
         self.start_n = start_n
         self.focal = focal
+        self.focal_per_shift = np.tile(focal, 4)  # the shifts are normalised times the focal lengths
         M = black.shape[0]
+        self.square = np.array([[0.0, 0.0], [M, 0.0], [M, M], [0.0, M]])
         self.grow, self.shrink = _white_patterns(black.tobytes(), M)
         self.q0 = np.zeros(10 + 2 * (M - 1))
         self.q0[8] = SIGMA0_PX
@@ -251,8 +255,12 @@ class _Model:
         """The model at q, or None where it cannot be evaluated (a degenerate quad, singular levels)."""
         px = self.pixels
         pattern = self.shrink if q[9] >= 0.0 else self.grow
+        try:
+            G, dg = _homography_and_jacobian(self.corners_n(q), self.square)
+        except np.linalg.LinAlgError:
+            return None
         ok, cost, levels, correction = _evaluate(
-            q, self.free, self.corners_n(q), self.focal, px.xn, px.jn, px.dxy, px.obs, pattern, self._J, self._Jm,
+            q, self.free, G, dg / self.focal_per_shift, px.xn, px.jn, px.dxy, px.obs, pattern, self._J, self._Jm,
             self._r,
         )  # fmt: skip
         if not ok:
@@ -420,21 +428,30 @@ def _black_cells(bits: NDArray[np.integer[Any]] | NDArray[np.bool_]) -> F64:
 
 
 def _dlt(src: F64, dst: F64) -> tuple[F64, F64]:
+    """The DLT system A h = b of the homography h (h33 = 1) with H src_k ~ dst_k for 4 point pairs."""
+    x, y, u, v = src[:, 0], src[:, 1], dst[:, 0], dst[:, 1]
     A = np.zeros((8, 8))
-    b = np.zeros(8)
-    for k in range(4):
-        x, y = src[k]
-        u, v = dst[k]
-        A[2 * k] = (x, y, 1.0, 0.0, 0.0, 0.0, -u * x, -u * y)
-        A[2 * k + 1] = (0.0, 0.0, 0.0, x, y, 1.0, -v * x, -v * y)
-        b[2 * k], b[2 * k + 1] = u, v
-    return A, b
+    A[0::2, 0], A[0::2, 1], A[0::2, 2], A[0::2, 6], A[0::2, 7] = x, y, 1.0, -u * x, -u * y
+    A[1::2, 3], A[1::2, 4], A[1::2, 5], A[1::2, 6], A[1::2, 7] = x, y, 1.0, -v * x, -v * y
+    return A, np.asarray(dst, dtype=np.float64).ravel()
 
 
 def _homography(src: F64, dst: F64) -> F64:
     """The 3x3 H (h33 = 1) with H src_k ~ dst_k for 4 point pairs; LinAlgError if three are in line."""
     A, b = _dlt(src, dst)
     return np.append(np.linalg.solve(A, b), 1.0).reshape(3, 3)
+
+
+def _homography_and_jacobian(src: F64, dst: F64) -> tuple[F64, F64]:
+    """``_homography`` and d(h0..h7)/d(src: x0 y0 x1 y1 ...), (8, 8): A h = b, so dh = -A^-1 (dA h)."""
+    A, b = _dlt(src, dst)
+    h = np.linalg.solve(A, b)
+    u, v = dst[:, 0], dst[:, 1]
+    dAh = np.zeros((8, 8))
+    even, odd = np.arange(0, 8, 2), np.arange(1, 8, 2)
+    dAh[even, even], dAh[odd, even] = h[0] - u * h[6], h[3] - v * h[6]
+    dAh[even, odd], dAh[odd, odd] = h[1] - u * h[7], h[4] - v * h[7]
+    return np.append(h, 1.0).reshape(3, 3), np.asarray(-np.linalg.solve(A, dAh), dtype=np.float64)
 
 
 @functools.lru_cache(maxsize=64)
@@ -559,11 +576,11 @@ def _select_pixels(
     return xy[:n].copy(), xn[:n].copy(), jn[:n].copy(), obs[:n].copy()
 
 
-@inlined
+@kernel
 def _solve_in_place(A: F64, B: F64) -> bool:  # noqa: PLR0912 # pragma: no cover - compiled
     """A X = B for a small square A, by Gaussian elimination with partial pivoting; X into B, A destroyed.
-    False if A is singular to working precision. (numba's np.linalg needs scipy's LAPACK, which the robot side
-    does not load.)"""
+    False if A is singular to working precision. (np.linalg in a kernel needs scipy's LAPACK bindings, and the
+    robot side must not depend on scipy.)"""
     n, m = A.shape[0], B.shape[1]
     scale = 0.0
     for i in range(n):
@@ -597,39 +614,7 @@ def _solve_in_place(A: F64, B: F64) -> bool:  # noqa: PLR0912 # pragma: no cover
     return True
 
 
-@inlined
-def _square_homography(cn: F64, M: float) -> tuple[bool, F64, F64]:  # pragma: no cover - compiled
-    """The homography G (3, 3) from the corners cn (4, 2) onto the square [0, M]^2 (ArUco order), and
-    d(g0..g7)/d(cn: x0 y0 x1 y1 ...) (8, 8): the DLT A g = b, so dg = -A^-1 (dA g)."""
-    A, b = np.zeros((8, 8)), np.zeros((8, 1))
-    for k in range(4):
-        x, y = cn[k, 0], cn[k, 1]
-        u = M if k in {1, 2} else 0.0
-        v = M if k >= 2 else 0.0
-        A[2 * k, 0], A[2 * k, 1], A[2 * k, 2], A[2 * k, 6], A[2 * k, 7] = x, y, 1.0, -u * x, -u * y
-        A[2 * k + 1, 3], A[2 * k + 1, 4], A[2 * k + 1, 5], A[2 * k + 1, 6], A[2 * k + 1, 7] = x, y, 1.0, -v * x, -v * y
-        b[2 * k, 0], b[2 * k + 1, 0] = u, v
-    A2 = A.copy()
-    G = np.empty((3, 3))
-    D = np.zeros((8, 8))
-    if not _solve_in_place(A, b):
-        return False, G, D
-    g = b[:, 0]
-    for k in range(4):
-        u = M if k in {1, 2} else 0.0
-        v = M if k >= 2 else 0.0
-        D[2 * k, 2 * k] = -(g[0] - u * g[6])
-        D[2 * k + 1, 2 * k] = -(g[3] - v * g[6])
-        D[2 * k, 2 * k + 1] = -(g[1] - u * g[7])
-        D[2 * k + 1, 2 * k + 1] = -(g[4] - v * g[7])
-    ok = _solve_in_place(A2, D)
-    for i in range(8):
-        G[i // 3, i % 3] = g[i]
-    G[2, 2] = 1.0
-    return ok, G, D
-
-
-@inlined
+@kernel
 def _normal(z: float) -> tuple[float, float]:  # pragma: no cover - compiled
     """The standard normal's CDF and density at z. The CDF by Abramowitz & Stegun 7.1.26 (to 1e-7: a
     hundred-thousandth of a grey level on these edges), which shares the density's exponential: a third of
@@ -645,7 +630,7 @@ def _normal(z: float) -> tuple[float, float]:  # pragma: no cover - compiled
     return (1.0 - tail if z >= 0.0 else tail), INV_SQRT2PI * e
 
 
-@inlined
+@kernel
 def _square_axis(
     t: float, g: float, s: float, delta: float, M: int
 ) -> tuple[float, float, float, float]:  # pragma: no cover
@@ -657,7 +642,7 @@ def _square_axis(
     return P1 - P2, (p1 - p2) / st, -(p1 * z1 - p2 * z2) / s, (p1 + p2) / s
 
 
-@inlined
+@kernel
 def _white_axis(
     t: float, g: float, s: float, delta: float, off: F64, reach: float, A: F64, A_t: F64, A_s: F64, A_d: F64,
     P_t: F64,
@@ -707,17 +692,18 @@ def _white_axis(
 
 @kernel
 def _evaluate(  # noqa: PLR0912, PLR0915
-    q: F64, free: NDArray[np.intp], cn: F64, focal: F64, xn: F64, jn: F64, dxy: F64, obs: F64, R: F64, J: F64,
+    q: F64, free: NDArray[np.intp], G: F64, dg: F64, xn: F64, jn: F64, dxy: F64, obs: F64, R: F64, J: F64,
     Jm: F64, r: F64,
 ) -> tuple[bool, float, F64, F64]:  # pragma: no cover - compiled  # fmt: skip
-    """The model at the full parameters q, the corners at cn (4, 2, normalised): whether it could be
-    evaluated, the cost (half the squared residual), the levels (w0, w1, w2, D) and Kaufman's correction of
-    the normal matrix (F, F); into the scratch arrays: dC/dq (N, Q) into J, the residual into r (N,) and the
-    model's derivatives with respect to the free parameters ``free`` (F,) at the current levels into Jm (N, F).
+    """The model at the full parameters q, given the corners' homography G (normalised -> modules) and its
+    derivatives dg (8, 8) with respect to the corners' shifts q[:8]: whether it could be evaluated, the cost
+    (half the squared residual), the levels (w0, w1, w2, D) and Kaufman's correction of the normal matrix
+    (F, F); into the scratch arrays: dC/dq (N, Q) into J, the residual into r (N,) and the model's derivatives
+    with respect to the free parameters ``free`` (F,) at the current levels into Jm (N, F).
 
     The variable-projection problem's normal matrix is then Jm^T Jm - correction, its gradient Jm^T r (r is
-    orthogonal to the levels' basis). q: the corners' shifts (8, normalised times ``focal``), blur, offset,
-    the grid lines in u (M - 1), in v (M - 1); R: the refined white pattern for the offset's sign.
+    orthogonal to the levels' basis). q: the corners' shifts (8), blur, offset, the grid lines in u (M - 1),
+    in v (M - 1); R: the refined white pattern for the offset's sign.
     """
     n = xn.shape[0]
     M = (q.shape[0] - 8) // 2
@@ -731,12 +717,6 @@ def _evaluate(  # noqa: PLR0912, PLR0915
         reach_u, reach_v = max(reach_u, abs(off_u[line])), max(reach_v, abs(off_v[line]))
     levels = np.zeros(4)
     correction = np.zeros((nf, nf))
-    ok, G, dg = _square_homography(cn, float(M))
-    if not ok:
-        return False, np.inf, levels, correction
-    for k in range(8):
-        for m in range(8):
-            dg[m, k] /= focal[k % 2]
     A, A_t, A_s, A_d = np.empty(nr), np.empty(nr), np.empty(nr), np.empty(nr)
     B, B_t, B_s, B_d = np.empty(nr), np.empty(nr), np.empty(nr), np.empty(nr)
     PA_t, PB_t = np.empty(nr + 1), np.empty(nr + 1)
