@@ -48,9 +48,11 @@ def add_parser(subparsers: SubParsers) -> None:
                    help="the ruler of lengths: the printed markers (default) or the wheels")  # fmt: skip
     p.add_argument("--max-views", type=int_in(6, 1000), default=40, help="survey views used, 6-1000 (default 40)")
     p.add_argument("--max-position-sd", type=float_in(0.0, 100.0, low_open=True), default=0.3,
-                   help="refuse a survey whose marker positions are more uncertain, mm, in (0, 100] (default 0.3)")  # fmt: skip
+                   help="refuse a survey whose marker positions are more uncertain, mm, "
+                        "in (0, 100] (default 0.3)")  # fmt: skip
     p.add_argument("--max-angle-sd", type=float_in(0.0, 45.0, low_open=True), default=0.15,
-                   help="refuse a survey whose marker tilts are more uncertain, degrees, in (0, 45] (default 0.15)")  # fmt: skip
+                   help="refuse a survey whose marker tilts are more uncertain, degrees, "
+                        "in (0, 45] (default 0.15)")  # fmt: skip
     p.add_argument("--docked-at-start", action="store_true",
                    help="the teach recording has no battery state and starts on the contacts")  # fmt: skip
     p.add_argument("--force", action="store_true", help="replace --out")
