@@ -37,10 +37,21 @@ def image(name: str) -> NDArray[np.uint8]:
 
 @dataclass(frozen=True)
 class Reference:
-    """One photo's X-junction reference: each interior marker's true corners (4, 2), px, by id."""
+    """One photo's X-junction reference: each interior marker's true corners (4, 2), px, by id; its local
+    homography (the board's plane, m, to undistorted normalised coordinates) and its printed square (4, 2), m,
+    in the board's plane."""
 
     corners: dict[int, NDArray[np.float64]]
     fit_rms_px: float  # how well the local homographies fit their own X-junctions
+    homographies: dict[int, NDArray[np.float64]]
+    squares: dict[int, NDArray[np.float64]]
+
+    def corners_at(self, camera: CameraModel, marker_id: int, shift: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The marker's corners (4, 2), px, with it moved by ``shift`` (2,) m in the board's plane: where the
+        print placed it, when that is known from other photos."""
+        square = (self.squares[marker_id] + shift).reshape(-1, 1, 2)
+        true = cv2.perspectiveTransform(square, self.homographies[marker_id]).reshape(-1, 2)
+        return camera.project(np.c_[true, np.ones(4)])
 
 
 def reference(gray: NDArray[np.uint8], camera: CameraModel) -> Reference:
@@ -51,6 +62,8 @@ def reference(gray: NDArray[np.uint8], camera: CameraModel) -> Reference:
     board_xy = b.getChessboardCorners()[ids.ravel(), :2].astype(np.float64)
     normalised = camera.normalize(px)
     out: dict[int, NDArray[np.float64]] = {}
+    homographies: dict[int, NDArray[np.float64]] = {}
+    squares: dict[int, NDArray[np.float64]] = {}
     fits = []
     for marker_id, obj in zip(b.getIds().ravel(), b.getObjPoints(), strict=True):
         square = np.asarray(obj, dtype=np.float64)[:, :2]
@@ -63,7 +76,9 @@ def reference(gray: NDArray[np.uint8], camera: CameraModel) -> Reference:
         fits.append(np.linalg.norm(camera.project(np.c_[back, np.ones(len(back))]) - px[near], axis=1))
         true = cv2.perspectiveTransform(square.reshape(-1, 1, 2), H).reshape(-1, 2)
         out[int(marker_id)] = camera.project(np.c_[true, np.ones(4)])
-    return Reference(out, float(np.sqrt(np.mean(np.concatenate(fits) ** 2))))
+        homographies[int(marker_id)] = H
+        squares[int(marker_id)] = square
+    return Reference(out, float(np.sqrt(np.mean(np.concatenate(fits) ** 2))), homographies, squares)
 
 
 def radial_errors(corners: NDArray[np.float64], true: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:

@@ -11,12 +11,15 @@ of that world and on closed-loop dockings in it:
 - the mount: each field against the world's, the height as the camera's height over the centre marker's (what a
   drive on a flat floor can measure);
 - the estimates, by 25 cm band of depth from the camera, for the fused method (geometry alone: no LiDAR, no
-  bundle) and board PnP, with three sets of files: the nominal ones, the commissioned ones, the world's exact ones;
+  bundle) and board PnP, with four sets of files: the nominal ones, the commissioned ones, the world's exact ones,
+  and the survey's shape alone (``surveyed``: the surveyed layout at the world's print scale and centre height,
+  with the world's true robot), which parts the survey's error from the ruler's and the mount's;
 - docking: the mission with the nominal and with the commissioned files (the taught charging pose included):
   docked, charging at the first seat, and the final error against the physical contacts.
 
 Commissioned estimates are compared in the frame the mission docks in (the taught charging frame), placed in the
-world by where the robot truly stood when it was taught; nominal and exact ones in the dock frame.
+world by where the robot truly stood when it was taught; the survey's alone in its own dock frame (the face as its
+markers show it), placed in the world by its markers; nominal and exact ones in the dock frame.
 """
 
 from __future__ import annotations
@@ -62,7 +65,7 @@ __all__ = [
     "wilson",
 ]
 
-FILE_SETS = ("nominal", "commissioned", "exact")
+FILE_SETS = ("nominal", "commissioned", "surveyed", "exact")
 DOCKING_VARIANTS = ("nominal/board", "commissioned/fused")
 ACCURACY_METHODS = ("fused", "board")
 BAND_EDGES_M = tuple(0.25 + 0.25 * k for k in range(10))
@@ -154,6 +157,25 @@ def _frame_of(layout: DockLayout, truth: DockLayout) -> Pose2D:
     return Pose2D(float(t[0]), float(t[1]), math.atan2(R[1, 0], R[0, 0]))
 
 
+def _at_world_scale(surveyed: DockLayout, truth: DockLayout) -> DockLayout:
+    """The surveyed layout with the print's overall scale divided out (about the centre marker) and the centre
+    marker at the world's height: the survey's shape alone, what no image can tell set from the truth."""
+    scale = math.exp(np.mean([math.log(surveyed.side(r) / truth.side(r)) for r in ROLES]))
+    c = surveyed.marker("center")
+    z0 = truth.marker("center").z
+    markers = tuple(
+        dataclasses.replace(
+            m,
+            x=(m.x - c.x) / scale + c.x,
+            y=m.y / scale,
+            z=z0 + (m.z - c.z) / scale,
+            size=surveyed.side(m.role) / scale,
+        )
+        for m in surveyed.markers
+    )
+    return dataclasses.replace(surveyed, markers=markers)  # type: ignore[arg-type]
+
+
 def _mount_error(calibrated: RobotConfig, layout: DockLayout, world: WrongWorld) -> dict[str, float]:
     m, t = calibrated.camera_mount, world.robot.camera_mount
     out = {k: float(getattr(m, k) - getattr(t, k)) for k in ("x", "y", "roll", "pitch", "yaw")}
@@ -204,7 +226,7 @@ def commission_world(
     teach_err = (seen.x - home.x, seen.y - home.y, wrap_angle(seen.theta - home.theta))
     dock_T_target = taught.offset.dock_T_target(robot.front_offset)
     true_target = home.compose(Pose2D(robot.front_offset, 0.0, 0.0))
-    errors = _accuracy(sim, world, layout, robot, dock_T_target, true_target, frames, seed)
+    errors = _accuracy(sim, world, (layout, robot), (dock_T_target, true_target), survey.layout, frames, seed)
     w = world.wheel_scale
     result = WorldResult(
         seed=seed,
@@ -236,17 +258,22 @@ def commission_world(
 def _accuracy(
     sim: Simulator,
     world: WrongWorld,
-    layout: DockLayout,
-    robot: RobotConfig,
-    dock_T_target: Pose2D,
-    true_target: Pose2D,
+    commissioned: tuple[DockLayout, RobotConfig],
+    targets: tuple[Pose2D, Pose2D],
+    surveyed: DockLayout,
     frames: int,
     seed: int,
 ) -> dict[str, dict[str, NDArray[np.float64]]]:
-    """Per file set and method, each frame's depth and error (module docstring: which frame each is judged in)."""
+    """Per file set and method, each frame's depth and error (module docstring: which frame each is judged in).
+
+    ``targets``: the taught target in the commissioned dock frame, and where it truly is in the world's."""
+    dock_T_target, true_target = targets
+    shape = _at_world_scale(surveyed, world.layout)
+    world_T_shape = _frame_of(shape, world.layout)
     files = {
         "nominal": (world.nominal_layout, world.nominal_robot),
-        "commissioned": (layout, robot),
+        "commissioned": commissioned,
+        "surveyed": (shape, world.robot),
         "exact": (world.layout, world.robot),
     }
     estimators = {
@@ -269,6 +296,9 @@ def _accuracy(
                 if k == "commissioned":
                     est = Pose2D(e.x, e.y, e.yaw).compose(dock_T_target)
                     ref = Pose2D(truth.x, truth.y, truth.yaw).compose(true_target)
+                elif k == "surveyed":
+                    est = Pose2D(e.x, e.y, e.yaw)
+                    ref = Pose2D(truth.x, truth.y, truth.yaw).compose(world_T_shape)
                 else:
                     est, ref = Pose2D(e.x, e.y, e.yaw), Pose2D(truth.x, truth.y, truth.yaw)
                 rows[k][m].append([depth, est.x - ref.x, est.y - ref.y, wrap_angle(est.theta - ref.theta)])
