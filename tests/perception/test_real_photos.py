@@ -134,9 +134,7 @@ def test_the_photometric_fit_s_corners_are_within_a_quarter_pixel_once_the_print
         return np.mean(on_board, axis=0)
 
     for n in names:
-        errors = [
-            radial_errors(c, truth[n].corners_at(camera, i, shift(n, i, PHOTOS))) for i, c in fits[n].items()
-        ]
+        errors = [radial_errors(c, truth[n].corners_at(camera, i, shift(n, i, PHOTOS))) for i, c in fits[n].items()]
         assert len(errors) >= 3, n
         rms = math.sqrt(np.mean([np.sum(e**2, axis=1).mean() for e, _ in errors]))
         bias = float(np.mean([b for _, b in errors]))
