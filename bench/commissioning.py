@@ -99,7 +99,7 @@ def _figure(s: CommissioningSummary, path: Path) -> None:
 
     centres = [0.375 + 0.25 * b for b in range(len(s.bands))]
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    colours = {"nominal": "tab:red", "commissioned": "tab:green", "surveyed": "tab:orange", "exact": "tab:blue"}
+    colours = {"nominal": "tab:red", "commissioned": "tab:green", "layout": "tab:orange", "exact": "tab:blue"}
     for ax, key, label in zip(
         axes, ("x_mm", "y_mm", "yaw_deg"), ("depth (mm)", "lateral (mm)", "yaw (deg)"), strict=True
     ):
@@ -109,7 +109,7 @@ def _figure(s: CommissioningSummary, path: Path) -> None:
         ax.set_ylabel(f"MAE {label}")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"fused (geometry alone) in {s.worlds} wrong worlds: nominal, commissioned, survey alone, exact files")
+    fig.suptitle(f"fused (geometry alone) in {s.worlds} wrong worlds: nominal, commissioned, layout alone, exact files")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -12,13 +12,13 @@ of that world and on closed-loop dockings in it:
   drive on a flat floor can measure);
 - the estimates, by 25 cm band of depth from the camera, for the fused method (geometry alone: no LiDAR, no
   bundle) and board PnP, with four sets of files: the nominal ones, the commissioned ones, the world's exact ones,
-  and the survey's shape alone (``surveyed``: the surveyed layout at the world's print scale and centre height,
-  with the world's true robot), which parts the survey's error from the ruler's and the mount's;
+  and the commissioned layout alone (``layout``: the survey's, leaned by the drive, at the world's print scale and
+  centre height, with the world's true robot), which parts the layout's error from the ruler's and the mount's;
 - docking: the mission with the nominal and with the commissioned files (the taught charging pose included):
   docked, charging at the first seat, and the final error against the physical contacts.
 
 Commissioned estimates are compared in the frame the mission docks in (the taught charging frame), placed in the
-world by where the robot truly stood when it was taught; the survey's alone in its own dock frame (the face as its
+world by where the robot truly stood when it was taught; the layout alone in its own dock frame (the face as its
 markers show it), placed in the world by its markers; nominal and exact ones in the dock frame.
 """
 
@@ -65,7 +65,7 @@ __all__ = [
     "wilson",
 ]
 
-FILE_SETS = ("nominal", "commissioned", "surveyed", "exact")
+FILE_SETS = ("nominal", "commissioned", "layout", "exact")
 DOCKING_VARIANTS = ("nominal/board", "commissioned/fused")
 ACCURACY_METHODS = ("fused", "board")
 BAND_EDGES_M = tuple(0.25 + 0.25 * k for k in range(10))
@@ -103,6 +103,8 @@ class WorldResult:
             errors, (N, 4).
         docking: per files and method (``DOCKING_VARIANTS``), the runs.
         odometry_scale: the drive's fitted print-per-odometry length, and the truth's.
+        mount_sd: per mount field, the standard deviation the calibration states (m, rad): with ``mount_error``,
+            whether its stated uncertainty is honest.
     """
 
     seed: int
@@ -116,6 +118,7 @@ class WorldResult:
     errors: dict[str, dict[str, NDArray[np.float64]]] = field(repr=False)
     docking: dict[str, list[DockingOutcome]] = field(default_factory=dict)
     odometry_scale: tuple[float, float] = (math.nan, math.nan)
+    mount_sd: dict[str, float] = field(default_factory=dict)
 
 
 def _relative(layout: DockLayout, role: str) -> NDArray[np.float64]:
@@ -158,8 +161,8 @@ def _frame_of(layout: DockLayout, truth: DockLayout) -> Pose2D:
 
 
 def _at_world_scale(surveyed: DockLayout, truth: DockLayout) -> DockLayout:
-    """The surveyed layout with the print's overall scale divided out (about the centre marker) and the centre
-    marker at the world's height: the survey's shape alone, what no image can tell set from the truth."""
+    """The commissioned layout with the print's overall scale divided out (about the centre marker) and the centre
+    marker at the world's height: its shape and lean alone, what no image can tell set from the truth."""
     scale = math.exp(np.mean([math.log(surveyed.side(r) / truth.side(r)) for r in ROLES]))
     c = surveyed.marker("center")
     z0 = truth.marker("center").z
@@ -226,7 +229,7 @@ def commission_world(
     teach_err = (seen.x - home.x, seen.y - home.y, wrap_angle(seen.theta - home.theta))
     dock_T_target = taught.offset.dock_T_target(robot.front_offset)
     true_target = home.compose(Pose2D(robot.front_offset, 0.0, 0.0))
-    errors = _accuracy(sim, world, (layout, robot), (dock_T_target, true_target), survey.layout, frames, seed)
+    errors = _accuracy(sim, world, (layout, robot), (dock_T_target, true_target), frames, seed)
     w = world.wheel_scale
     result = WorldResult(
         seed=seed,
@@ -239,6 +242,7 @@ def commission_world(
         teach_error=(float(teach_err[0]), float(teach_err[1]), float(teach_err[2])),
         errors=errors,
         odometry_scale=(mount.odometry_scale, float(np.mean(w)) * print_scale),
+        mount_sd={k: float(mount.sd[k]) for k in ("x", "y", "z", "roll", "pitch", "yaw")},
     )
     if docking_trials:
         result = dataclasses.replace(
@@ -260,7 +264,6 @@ def _accuracy(
     world: WrongWorld,
     commissioned: tuple[DockLayout, RobotConfig],
     targets: tuple[Pose2D, Pose2D],
-    surveyed: DockLayout,
     frames: int,
     seed: int,
 ) -> dict[str, dict[str, NDArray[np.float64]]]:
@@ -268,12 +271,12 @@ def _accuracy(
 
     ``targets``: the taught target in the commissioned dock frame, and where it truly is in the world's."""
     dock_T_target, true_target = targets
-    shape = _at_world_scale(surveyed, world.layout)
+    shape = _at_world_scale(commissioned[0], world.layout)
     world_T_shape = _frame_of(shape, world.layout)
     files = {
         "nominal": (world.nominal_layout, world.nominal_robot),
         "commissioned": commissioned,
-        "surveyed": (shape, world.robot),
+        "layout": (shape, world.robot),
         "exact": (world.layout, world.robot),
     }
     estimators = {
@@ -296,7 +299,7 @@ def _accuracy(
                 if k == "commissioned":
                     est = Pose2D(e.x, e.y, e.yaw).compose(dock_T_target)
                     ref = Pose2D(truth.x, truth.y, truth.yaw).compose(true_target)
-                elif k == "surveyed":
+                elif k == "layout":
                     est = Pose2D(e.x, e.y, e.yaw)
                     ref = Pose2D(truth.x, truth.y, truth.yaw).compose(world_T_shape)
                 else:
@@ -415,6 +418,10 @@ def summarize_worlds(results: Sequence[WorldResult]) -> CommissioningSummary:
         mount[f"{k}_max_mm"] = max((abs(r.mount_error[k]) * 1e3 for r in results), default=math.nan)
     for k in ("roll", "pitch", "yaw"):
         mount[f"{k}_max_deg"] = max((math.degrees(abs(r.mount_error[k])) for r in results), default=math.nan)
+    for k in ("x", "y", "roll", "pitch", "yaw"):
+        mount[f"{k}_max_error_per_sd"] = max(
+            (abs(r.mount_error[k]) / r.mount_sd[k] for r in results if r.mount_sd.get(k, 0.0) > 0.0), default=math.nan
+        )
     teach = {
         "x_max_mm": max((abs(r.teach_error[0]) * 1e3 for r in results), default=math.nan),
         "y_max_mm": max((abs(r.teach_error[1]) * 1e3 for r in results), default=math.nan),
