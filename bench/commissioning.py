@@ -104,7 +104,8 @@ def _figure(s: CommissioningSummary, path: Path) -> None:
         axes, ("x_mm", "y_mm", "yaw_deg"), ("depth (mm)", "lateral (mm)", "yaw (deg)"), strict=True
     ):
         for k in FILE_SETS:
-            ax.semilogy(centres, s.mae[k]["fused"][key], "o-", color=colours[k], label=f"fused, {k} files")
+            name = "fused, the commissioned layout alone" if k == "layout" else f"fused, {k} files"
+            ax.semilogy(centres, s.mae[k]["fused"][key], "o-", color=colours[k], label=name)
         ax.set_xlabel("depth from the camera (m)")
         ax.set_ylabel(f"MAE {label}")
         ax.grid(True, which="both", alpha=0.3)
