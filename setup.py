@@ -1,0 +1,69 @@
+"""monodock's build: the package (pyproject.toml says the rest) and the ROS 2 interfaces it speaks with Nav2 and tf2.
+
+nav2_msgs (DockRobot, UndockRobot) and tf2_msgs (TFMessage) are not among the ros-kilted-* wheels on PyPI, so the
+install builds them from their upstream definitions with those wheels' own generators (interfaces/build.py,
+interfaces/README.md): the build's requirements are interfaces/build-requirements.txt, every version pinned, and
+the generated packages install beside monodock, with their type-support libraries inside them. A machine that
+cannot build them (no C compiler) still gets monodock, with a warning: everything but the Nav2 action servers and
+TF then works.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+from setuptools import setup
+from setuptools.dist import Distribution
+
+ROOT = Path(__file__).resolve().parent
+GENERATED = ROOT / "build" / "ros_interfaces"
+INTERFACE_PACKAGES = {
+    "tf2_msgs": ("tf2_msgs", "tf2_msgs.msg"),
+    "nav2_msgs": ("nav2_msgs", "nav2_msgs.action"),
+}
+BINARIES = ["*.so", "type_description/*.json", "LICENSE*"]
+
+
+def _requirements() -> list[str]:
+    lines = (ROOT / "interfaces" / "build-requirements.txt").read_text(encoding="utf-8").splitlines()
+    return [line.strip() for line in lines if line.strip() and not line.startswith("#")]
+
+
+def _build_interfaces() -> tuple[str, ...]:
+    """The interface packages built into GENERATED; none before the build requirements are installed (pip and uv
+    first ask setup.py what to install), and none, with a warning, where they cannot be built."""
+    if importlib.util.find_spec("ament_package") is None:
+        return ()
+    try:
+        sys.path.insert(0, str(ROOT / "interfaces"))
+        from build import build_interfaces  # noqa: PLC0415 - interfaces/build.py, on the path just above
+
+        return build_interfaces(GENERATED)
+    except Exception as exc:  # any failure: monodock installs without them, and says so
+        print(f"warning: monodock's ROS 2 interfaces were not built ({exc}); the Nav2 action servers and TF "
+              "will be unavailable (interfaces/README.md)", file=sys.stderr)  # fmt: skip
+        return ()
+
+
+class BinaryDistribution(Distribution):
+    """The interface packages hold compiled extension modules: the wheel is for this platform."""
+
+    def has_ext_modules(self) -> bool:
+        return True
+
+
+def _monodock_packages() -> list[str]:
+    src = ROOT / "src"
+    return sorted(".".join(init.parent.relative_to(src).parts) for init in (src / "monodock").rglob("__init__.py"))
+
+
+built = _build_interfaces()
+setup(
+    packages=[*_monodock_packages(), *(p for name in built for p in INTERFACE_PACKAGES[name])],
+    package_dir={"": "src", **{name: str((GENERATED / name).relative_to(ROOT)) for name in built}},
+    package_data={"monodock": ["py.typed"], **dict.fromkeys(built, BINARIES)},
+    setup_requires=_requirements(),
+    distclass=BinaryDistribution if built else Distribution,
+)
