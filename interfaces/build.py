@@ -36,15 +36,18 @@ SOURCES = {
     "nav2_msgs": ("action/DockRobot.action", "action/UndockRobot.action"),
 }
 STAMP = "BUILD_STAMP"
-# Appended to each generated package's __init__.py (rosidl's dispatch reads LD_LIBRARY_PATH when it loads a type).
-LIBRARY_PATH_LINES = """
-# monodock (interfaces/build.py): rosidl's type-support dispatch looks this package's libraries up on
-# LD_LIBRARY_PATH when it first loads a type; they sit beside this file.
+# Appended to each generated package's __init__.py. rosidl's type-support dispatch dlopen()s each package's
+# libraries by file name when a node first uses a type; the dynamic loader searches the LD_LIBRARY_PATH the process
+# started with, which does not hold this folder, but it first matches names against the libraries already loaded
+# (their SONAME is their file name). So they are loaded here, from beside this file, once.
+LIBRARY_PRELOAD_LINES = """
+# monodock (interfaces/build.py): load this package's type-support libraries from beside this file, so that rosidl's
+# dispatch, which dlopen()s them by file name, finds them loaded (LD_LIBRARY_PATH does not hold this folder).
+import ctypes as _ctypes
+import glob as _glob
 import os as _os
 
-_os.environ["LD_LIBRARY_PATH"] = _os.pathsep.join(
-    [_os.path.dirname(__file__)] + [p for p in _os.environ.get("LD_LIBRARY_PATH", "").split(_os.pathsep) if p]
-)
+_LIBRARIES = [_ctypes.CDLL(_p) for _p in sorted(_glob.glob(_os.path.join(_os.path.dirname(__file__), "lib*.so")))]
 """
 
 
@@ -121,7 +124,7 @@ def _gather(name: str, install: Path, out: Path, patchelf: str, log: Path, env: 
     for licence in sorted((HERE / "upstream" / name).glob("LICENSE*")):
         shutil.copy2(licence, target / licence.name)
     init = target / "__init__.py"
-    init.write_text(init.read_text(encoding="utf-8") + LIBRARY_PATH_LINES, encoding="utf-8")
+    init.write_text(init.read_text(encoding="utf-8") + LIBRARY_PRELOAD_LINES, encoding="utf-8")
 
 
 def build_interfaces(out: Path, *, jobs: int | None = None) -> tuple[str, ...]:

@@ -30,7 +30,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,6 +54,7 @@ from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
+from monodock.ros.dock_actions import DOCK_ACTION, UNDOCK_ACTION, DockActions
 from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
 from monodock.ros.parameters import (
     Parameter,
@@ -85,6 +86,8 @@ class DockOptions(EstimatorOptions):
     config: str = ""
     odom_timeout: float = 1.0
     sensor_timeout: float = 1.0
+    dock_id: str = "dock"
+    dock_type: str = "monodock"
 
 
 # One per DockOptions field, of the same name, all read once at start-up (the docking config's keys are parameters
@@ -110,6 +113,8 @@ PARAMETERS: dict[str, Parameter] = {
     "sensor_timeout": Parameter(
         "battery, contact and rear range readings older than this count as absent, s", positive=True
     ),
+    "dock_id": Parameter("this dock's name for Nav2's DockRobot goals (use_dock_id: true with it, or empty)"),
+    "dock_type": Parameter("this dock's type for DockRobot and UndockRobot goals (it, or empty)"),
 }
 
 
@@ -293,8 +298,21 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         self._thread: threading.Thread | None = None
         self._mission: DockingMission | None = None
         self._cancel: str | None = None  # why the running mission must stop, set by another thread
+        self._on_done: Callable[[MissionResult | None, str], None] | None = None  # the running mission's caller
         self._state = ""
         self._publish_state("idle")
+        self.actions = self._action_servers()
+
+    def _action_servers(self) -> DockActions | None:
+        """Nav2's DockRobot/UndockRobot servers, when the interfaces were built at install time."""
+        try:
+            return DockActions(self, self.start_mission, self.cancel_mission)
+        except ImportError as exc:
+            self.get_logger().warning(
+                f"no {DOCK_ACTION}/{UNDOCK_ACTION} action servers: {exc} (nav2_msgs is built when monodock is "
+                "installed; interfaces/README.md). The ~/dock and ~/undock services work."
+            )
+            return None
 
     # --- set-up -----------------------------------------------------------------------------
 
@@ -336,32 +354,47 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
     # --- services ---------------------------------------------------------------------------
 
     def _start(self, task: str, response: Any) -> Any:
-        with self._lock:
-            if self._thread is not None and self._thread.is_alive():
-                self._cancel = f"cancelled by a {task} request"
-                response.success, response.message = True, f"cancelled the running {self._mission_task()} mission"
-                return response
-            try:
-                config = self.docking_config()
-                if task == "undock" and not self._docked():
-                    raise InputError(
-                        "not docked: no docking mission ended docked and the charger does not report charging"
-                    )
-            except MonodockError as exc:
-                response.success, response.message = False, str(exc)
-                return response
-            self._cancel = None
-            self._thread = threading.Thread(target=self._run, args=(task, config), name=f"monodock-{task}")
-            self._thread.start()
+        """A Trigger request: a call while a mission runs cancels it (and starts nothing)."""
+        if self.cancel_mission(f"cancelled by a {task} request"):
+            response.success, response.message = True, f"cancelled the running {self._mission_task()} mission"
+            return response
+        try:
+            self.start_mission(task)
+        except MonodockError as exc:
+            response.success, response.message = False, str(exc)
+            return response
         response.success, response.message = True, f"{task} started"
         return response
 
-    def _on_cancel(self, _request: Any, response: Any) -> Any:
+    def start_mission(self, task: str, on_done: Callable[[MissionResult | None, str], None] | None = None) -> None:
+        """Start a dock or undock mission in its thread; ``on_done(result, error)`` is called when it ends.
+
+        Raises:
+            InputError: a mission runs already, the docking config is invalid, or an undock while not docked.
+        """
+        with self._lock:
+            if self._thread is not None and self._thread.is_alive():
+                raise InputError(f"a {self._mission_task()} mission is running: cancel it first")
+            config = self.docking_config()
+            if task == "undock" and not self._docked():
+                raise InputError("not docked: no docking mission ended docked and the charger does not report charging")
+            self._cancel = None
+            self._on_done = on_done
+            self._thread = threading.Thread(target=self._run, args=(task, config), name=f"monodock-{task}")
+            self._thread.start()
+
+    def cancel_mission(self, why: str) -> bool:
+        """Ask the running mission to stop (it commands zero velocity and ends CANCELLED); False if none runs."""
         with self._lock:
             if self._thread is None or not self._thread.is_alive():
-                response.success, response.message = False, "no mission is running"
-                return response
-            self._cancel = "cancelled by request"
+                return False
+            self._cancel = why
+            return True
+
+    def _on_cancel(self, _request: Any, response: Any) -> Any:
+        if not self.cancel_mission("cancelled by request"):
+            response.success, response.message = False, "no mission is running"
+            return response
         response.success, response.message = True, f"cancelled the running {self._mission_task()} mission"
         return response
 
@@ -393,12 +426,15 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
     def _run(self, task: str, config: DockingConfig) -> None:
         """One mission, start to end, in the mission thread; zero velocity whatever happens."""
         robot = self.robot
+        result: MissionResult | None = None
+        error = ""
         try:
             self._ensure_estimator()
             estimator = self.estimator
             assert estimator is not None
             if not robot.wait_for_odometry(max(2.0, self.options.odom_timeout)) or robot.now() <= 0.0:
-                self._publish_result(task, None, f"no odometry on {self.options.odom_topic}")
+                error = f"no odometry on {self.options.odom_topic}"
+                self._publish_result(task, None, error)
                 return
             blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
             mission = DockingMission(config, estimator.robot, blind, task=task)
@@ -408,10 +444,14 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             result = run_mission(robot, make_perceive(estimator, self.method), mission, on_tick=self._on_tick)
             self._publish_result(task, result, "")
         except MonodockError as exc:
-            self._publish_result(task, None, str(exc))
+            error = str(exc)
+            self._publish_result(task, None, error)
         finally:
             robot.watch(False)
             robot.send_velocity(0.0, 0.0)
+            on_done, self._on_done = self._on_done, None
+            if on_done is not None:
+                on_done(result, error)
 
     def _on_tick(self, mission: DockingMission, odom: Odometry) -> None:
         """After each control step: stop on cancel or lost odometry; publish the state and the dock filter's pose."""
@@ -424,6 +464,8 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         if mission.state.value != self._state:
             self._publish_state(mission.state.value)
         self._publish_pose(mission, odom)
+        if self.actions is not None:
+            self.actions.feedback(mission)
 
     def _publish_state(self, state: str) -> None:
         self._state = state
@@ -481,6 +523,8 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         if thread is not None:
             thread.join(timeout=5.0)
         self.robot.stop_and_flush()
+        if self.actions is not None:
+            self.actions.shutdown()
 
 
 def _result_values(result: MissionResult, front_offset: float) -> dict[str, str]:
