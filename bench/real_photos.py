@@ -40,9 +40,8 @@ from numpy.typing import NDArray
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from charuco import CAMERA, DICTIONARY, HELD_OUT, PHOTOS, Reference, image, radial_errors, reference
+from charuco import CAMERA, DICTIONARY, HELD_OUT, PHOTOS, Reference, image, one_marker_dock, radial_errors, reference
 from monodock.core.camera import CameraModel
-from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.perception.detect import Detection, MarkerDetector, MarkerObservation
 from monodock.perception.edge_offset import detection_edge_offset, estimate_edge_offset, offset_detection
 from monodock.perception.marker_fit import fit_marker
@@ -50,19 +49,6 @@ from monodock.perception.refine import refine_detection
 
 METHODS = ("SUBPIX", "refined", "refined + edge offset", "photometric fit")
 F64 = NDArray[np.float64]
-
-
-def _one_marker_dock(marker_id: int) -> DockLayout:
-    """A dock whose centre marker is ``marker_id``: monodock refines any board marker as it refines a dock's."""
-    return DockLayout(
-        "DICT_6X6_250",
-        0.02,
-        (
-            MarkerSpec("left", (marker_id + 1) % 250, 0.08, 0.3),
-            MarkerSpec("center", marker_id, 0.0, 0.3),
-            MarkerSpec("right", (marker_id + 2) % 250, -0.08, 0.3),
-        ),
-    )
 
 
 def _markers(name: str, camera: CameraModel) -> tuple[dict[int, dict[str, F64]], list[F64]]:
@@ -77,7 +63,7 @@ def _markers(name: str, camera: CameraModel) -> tuple[dict[int, dict[str, F64]],
     runs: list[F64] = []
     for quad, marker_id in zip(quads, ids.ravel(), strict=True):
         i = int(marker_id)
-        layout = _one_marker_dock(i)
+        layout = one_marker_dock(i)
         det = MarkerDetector(layout).detect(gray)
         if "center" not in det.observations:
             continue

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
+from monodock.core.layout import DockLayout, MarkerSpec
 
 DATA = Path(__file__).resolve().parent / "data" / "opencv_contrib"
 PHOTOS = ("img_00", "img_01", "img_02", "img_03")
@@ -29,6 +30,19 @@ def board() -> cv2.aruco.CharucoBoard:
     b = cv2.aruco.CharucoBoard((5, 7), 0.04, 0.02, cv2.aruco.getPredefinedDictionary(DICTIONARY))
     b.setLegacyPattern(False)
     return b
+
+
+def one_marker_dock(marker_id: int) -> DockLayout:
+    """A dock whose centre marker is the board's ``marker_id``: monodock refines any board marker as a dock's."""
+    return DockLayout(
+        "DICT_6X6_250",
+        0.02,
+        (
+            MarkerSpec("left", (marker_id + 1) % 250, 0.08, 0.30),
+            MarkerSpec("center", marker_id, 0.0, 0.30),
+            MarkerSpec("right", (marker_id + 2) % 250, -0.08, 0.30),
+        ),
+    )
 
 
 def image(name: str) -> NDArray[np.uint8]:

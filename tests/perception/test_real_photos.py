@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from charuco import CAMERA, DICTIONARY, HELD_OUT, PHOTOS, image, radial_errors, reference
+from charuco import CAMERA, DICTIONARY, HELD_OUT, PHOTOS, image, one_marker_dock, radial_errors, reference
 from monodock.calibrate.survey import SurveyLimits, survey_layout, survey_views
 from monodock.core.camera import CameraModel
 from monodock.core.frame import Frame
@@ -44,15 +44,7 @@ def _refined(name: str, camera: CameraModel) -> tuple[dict[int, np.ndarray], lis
     del quads
     for marker_id in ids.ravel():
         # Each marker as the centre of a one-marker dock, refined as monodock refines any dock marker.
-        layout = DockLayout(
-            "DICT_6X6_250",
-            0.02,
-            (
-                MarkerSpec("left", (int(marker_id) + 1) % 250, 0.08, 0.30),
-                MarkerSpec("center", int(marker_id), 0.0, 0.30),
-                MarkerSpec("right", (int(marker_id) + 2) % 250, -0.08, 0.30),
-            ),
-        )
+        layout = one_marker_dock(int(marker_id))
         det = MarkerDetector(layout).detect(gray)
         if "center" not in det.observations:
             continue
@@ -116,7 +108,7 @@ def test_the_photometric_fit_s_corners_are_within_a_quarter_pixel_once_the_print
     for n in names:
         gray = image(n)
         for marker_id in truth[n].corners:
-            layout = _one_marker_dock(marker_id)
+            layout = one_marker_dock(marker_id)
             det = MarkerDetector(layout).detect(gray)
             if "center" in det.observations:
                 fit = fit_marker(gray, det.observations["center"].corners, camera, layout.marker_bits(marker_id))
@@ -140,18 +132,6 @@ def test_the_photometric_fit_s_corners_are_within_a_quarter_pixel_once_the_print
         bias = float(np.mean([b for _, b in errors]))
         assert abs(bias) < 0.05, (n, bias)
         assert rms < (0.32 if n == "img_02" else 0.25), (n, rms)
-
-
-def _one_marker_dock(marker_id: int) -> DockLayout:
-    return DockLayout(
-        "DICT_6X6_250",
-        0.02,
-        (
-            MarkerSpec("left", (marker_id + 1) % 250, 0.08, 0.30),
-            MarkerSpec("center", marker_id, 0.0, 0.30),
-            MarkerSpec("right", (marker_id + 2) % 250, -0.08, 0.30),
-        ),
-    )
 
 
 def offset_detection_of(corners: np.ndarray, offset_px: float) -> np.ndarray:

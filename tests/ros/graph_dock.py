@@ -31,6 +31,7 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
+from graph_processes import DOCK, SIM, stop_nodes
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import BatteryState, Image
 from std_msgs.msg import String
@@ -55,12 +56,8 @@ else:
 robot_config.save(folder / "robot.yaml")
 start = json.dumps(spec["start"])
 
-# Each node gets SIGTERM when this driver ends, however it ends (PR_SET_PDEATHSIG): none outlives its run.
-ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
-SIM = ORPHANS_END + "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv)"
 sim_params = [f"{k}:={v}" for k, v in {"start": start, "seed": 1, **spec.get("sim", {})}.items()]
 sim = subprocess.Popen([sys.executable, "-c", SIM, "--ros-args", *[a for kv in sim_params for a in ("-p", kv)]])
-DOCK = ORPHANS_END + "from monodock.cli.ros_nodes import dock_main; import sys; sys.exit(dock_main(sys.argv[1:]))"
 dock_args = ["--method", "board", "--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml")]
 # The sim's clock (/clock): under load the simulation may fall behind the wall clock, and the mission must time
 # its frames and odometry on the clock that stamped them, as with any simulator.
@@ -235,16 +232,7 @@ for step in spec["steps"]:
         spin_for(3.0)
 
 recorded = None if recorder is None else recorder.stop()  # first: the bag holds the run to its end
-for process in (dock, sim):
-    if process.poll() is None:
-        process.send_signal(signal.SIGINT)
-for process in (dock, sim):
-    try:
-        # Generous: on a starved CI host a node's DDS teardown after SIGINT took over 20 s once (stop 33's CI).
-        process.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()  # a killed node's exit code is -9, not None
+stop_nodes(dock, sim)
 emit("end", dock=dock.returncode, sim=sim.returncode, recorder=recorded)
 node.destroy_node()
 rclpy.shutdown()

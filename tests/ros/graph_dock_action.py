@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import signal
 import subprocess
 import sys
 import tempfile
@@ -24,6 +23,7 @@ from typing import Any
 import rclpy
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped
+from graph_processes import DOCK, SIM, stop_nodes
 from nav2_msgs.action import DockRobot, UndockRobot
 from rclpy.action import ActionClient
 from sensor_msgs.msg import BatteryState
@@ -37,13 +37,9 @@ DockLayout.default().save(folder / "layout.yaml")
 robot_config = RobotConfig.default()
 robot_config.save(folder / "robot.yaml")
 
-# Each node gets SIGTERM when this driver ends, however it ends (PR_SET_PDEATHSIG): none outlives its run.
-ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
-SIM = ORPHANS_END + "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv)"
 sim = subprocess.Popen(
     [sys.executable, "-c", SIM, "--ros-args", "-p", f"start:={json.dumps(spec['start'])}", "-p", "seed:=1"]
 )
-DOCK = ORPHANS_END + "from monodock.cli.ros_nodes import dock_main; import sys; sys.exit(dock_main(sys.argv[1:]))"
 dock_args = ["--method", "board", "--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml")]
 dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args, "--ros-args", "-p", "use_sim_time:=true"])
 
@@ -131,15 +127,7 @@ for step in spec["goals"] if ready else []:
         charging=bool(battery) and battery[-1] == BatteryState.POWER_SUPPLY_STATUS_CHARGING,
     )
 
-for process in (dock, sim):
-    if process.poll() is None:
-        process.send_signal(signal.SIGINT)
-for process in (dock, sim):
-    try:
-        process.wait(timeout=60)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()
+stop_nodes(dock, sim)
 emit("end", dock=dock.returncode, sim=sim.returncode)
 node.destroy_node()
 rclpy.shutdown()
