@@ -142,18 +142,26 @@ class DockActions:
         ]
         self._executor = MultiThreadedExecutor(num_threads=3, context=node.context)
         self._executor.add_node(self.actions_node)
+        self._serving = threading.Event()
+        self._serving.set()
         self._thread = threading.Thread(target=self._spin, name="monodock-actions", daemon=True)
         self._thread.start()
 
     def _spin(self) -> None:
+        """Serve the actions until ``shutdown``: its own loop, so that it ends before the executor is shut down (rclpy's
+        ``Executor.shutdown`` destroys the wait's guard condition at once, under a thread still waiting on it)."""
         from rclpy.executors import ExternalShutdownException  # type: ignore[import-not-found, unused-ignore]
 
         with contextlib.suppress(ExternalShutdownException):
-            self._executor.spin()
+            while self._serving.is_set() and self.node.context.ok():
+                self._executor.spin_once(timeout_sec=0.1)
 
     def shutdown(self) -> None:
-        """Stop serving (the node is going away): the executor and the actions' node."""
-        self._executor.shutdown(timeout_sec=2.0)
+        """Stop serving (the node is going away): the spin loop, then the executor (its goals' threads joined), then
+        the servers and their node."""
+        self._serving.clear()
+        self._thread.join(timeout=5.0)
+        self._executor.shutdown(timeout_sec=5.0)
         for server in self.servers:
             server.destroy()
         self.actions_node.destroy_node()
