@@ -13,8 +13,9 @@ from typing import Any
 import rclpy
 from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import BatteryState, CameraInfo, Image, Range
+from tf2_msgs.msg import TFMessage
 
 NODE = "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv, duration=9.0)"
 sim = subprocess.Popen(
@@ -29,6 +30,28 @@ seen: dict[str, list[float]] = {k: [] for k in ("image", "camera_info", "odom", 
 truth: list[tuple[float, float]] = []
 sizes: list[tuple[int, int, str]] = []
 sent: list[float] = []
+odometry: dict[float, list[float]] = {}  # stamp -> x, y, qz, qw of each odometry message
+tf: list[tuple[str, str, float, list[float]]] = []  # /tf: parent, child, stamp, x, y, z, qx, qy, qz, qw
+tf_static: list[tuple[str, str, list[float]]] = []
+
+
+def transform(t: Any) -> list[float]:
+    r, q = t.transform.translation, t.transform.rotation
+    return [r.x, r.y, r.z, q.x, q.y, q.z, q.w]
+
+
+def on_odometry(msg: Any) -> None:
+    seen["odom"].append(stamp(msg))
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    odometry[stamp(msg)] = [p.x, p.y, q.z, q.w]
+
+
+def on_tf(msg: Any) -> None:
+    tf.extend((t.header.frame_id, t.child_frame_id, stamp(t), transform(t)) for t in msg.transforms)
+
+
+def on_tf_static(msg: Any) -> None:
+    tf_static.extend((t.header.frame_id, t.child_frame_id, transform(t)) for t in msg.transforms)
 
 
 def stamp(msg: Any) -> float:
@@ -48,7 +71,11 @@ def on_truth(msg: Any) -> None:
 sensor = qos_profile_sensor_data
 node.create_subscription(Image, "image", on_image, sensor)
 node.create_subscription(CameraInfo, "camera_info", lambda m: seen["camera_info"].append(stamp(m)), sensor)
-node.create_subscription(Odometry, "odom", lambda m: seen["odom"].append(stamp(m)), 10)
+node.create_subscription(Odometry, "odom", on_odometry, 10)
+node.create_subscription(TFMessage, "/tf", on_tf, 100)
+node.create_subscription(
+    TFMessage, "/tf_static", on_tf_static, QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+)
 node.create_subscription(PoseStamped, "ground_truth", on_truth, 10)
 node.create_subscription(BatteryState, "battery_state", lambda m: seen["battery"].append(stamp(m)), 10)
 node.create_subscription(Range, "rear_range", lambda m: seen["range"].append(m.range), sensor)
@@ -75,4 +102,10 @@ print(json.dumps({"kind": "image", "sizes": sorted(set(sizes))}))
 print(json.dumps({"kind": "image_rate", "hz": rate}))
 print(json.dumps({"kind": "truth", "x": xs, "last": truth[-1][1] if truth else None}))
 print(json.dumps({"kind": "timeline", "sent": sent[:1] + sent[-1:], "moving": moving[:1] + moving[-1:]}))
+# Each /tf odom -> base_link against the odometry of the same stamp: the largest difference in x, y, qz, qw.
+paired = [(values, odometry[t]) for _, _, t, values in tf if t in odometry]
+gap = max((abs(a - b) for v, o in paired for a, b in zip([v[0], v[1], v[5], v[6]], o, strict=True)), default=None)
+frames = sorted({(parent, child) for parent, child, _, _ in tf})
+print(json.dumps({"kind": "tf", "count": len(tf), "paired": len(paired), "gap": gap, "frames": frames}))
+print(json.dumps({"kind": "tf_static", "transforms": tf_static}))
 print(json.dumps({"kind": "sim", "returncode": sim.returncode, "stderr": err[-2000:]}))

@@ -6,8 +6,10 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from monodock.core.robot import RobotConfig
 from private_graph import can_isolate, run_private_graph
 
 HERE = Path(__file__).parent
@@ -36,6 +38,33 @@ def test_the_simulated_robot_publishes_and_drives() -> None:
     # 2 s at 0.1 m/s, then stopped by the cmd_vel time-out: about 0.2 m, and it does not keep going. The commands
     # span 2 s of wall clock; a busy machine runs the simulation slower, so fewer simulated seconds of them.
     assert 0.12 < moved < 0.3
+    # /tf: odom -> base_link with every odometry message, the same pose at the same stamp.
+    tf = run.first("tf")
+    assert tf["frames"] == [["odom", "base_link"]]
+    assert tf["count"] > 250
+    assert tf["paired"] > 250
+    assert tf["gap"] < 1e-9
+    # /tf_static (latched, heard after the fact): base_link -> camera_link -> camera_optical_frame, which composed is
+    # the optical frame the simulator renders from (the default robot file's mount and REP 103's optical rotation).
+    static = {(parent, child): values for parent, child, values in run.first("tf_static")["transforms"]}
+    assert set(static) == {("base_link", "camera_link"), ("camera_link", "camera_optical_frame")}
+    base_T_optical = _matrix(static["base_link", "camera_link"]) @ _matrix(
+        static["camera_link", "camera_optical_frame"]
+    )
+    np.testing.assert_allclose(base_T_optical, RobotConfig.default().base_T_optical(), atol=1e-9)
+
+
+def _matrix(values: list[float]) -> np.ndarray:
+    """A 4x4 transform from translation x, y, z and quaternion x, y, z, w."""
+    x, y, z, qx, qy, qz, qw = values
+    T = np.eye(4)
+    T[:3, :3] = [
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ]
+    T[:3, 3] = [x, y, z]
+    return T
 
 
 @pytest.mark.parametrize(

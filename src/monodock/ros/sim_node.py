@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -56,6 +57,8 @@ class SimSettings:
     nuisances: str = "default"  # the camera's: "default" (a cheap indoor webcam) or "clean" (the exact render)
     frame_id: str = "base_link"
     camera_frame_id: str = "camera_optical_frame"
+    odom_frame: str = "odom"
+    camera_frame: str = "camera_link"
 
 
 # SimSettings' parameters: read once, at start-up (writable as they always were, though a change does nothing).
@@ -74,6 +77,11 @@ PARAMETERS: dict[str, Parameter] = {
         read_only=False,
         choices=("default", "clean"),
     ),
+    # Frames (two simulated robots on one graph need their own): odometry's, /tf's and the images'.
+    "frame_id": Parameter("the robot's base frame (odometry's child, /tf's odom -> this)", read_only=False),
+    "odom_frame": Parameter("the odometry frame (odometry's and /tf's parent)", read_only=False),
+    "camera_frame": Parameter("the camera body's frame (x forward, y left, z up) on /tf_static", read_only=False),
+    "camera_frame_id": Parameter("the images' frame, the camera's optical frame, on /tf_static", read_only=False),
 }
 
 
@@ -84,6 +92,24 @@ def _stamp(msg_time: Any, seconds: float) -> Any:
 
 def _quaternion(q: Any, yaw: float) -> Any:
     q.x, q.y, q.z, q.w = 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
+    return q
+
+
+def _quaternion_of(q: Any, R: NDArray[np.float64]) -> Any:
+    """q (x, y, z, w) set from the rotation matrix R (the largest of the four terms first, for precision)."""
+    t = np.trace(R)
+    terms = [t, R[0, 0] - R[1, 1] - R[2, 2], R[1, 1] - R[0, 0] - R[2, 2], R[2, 2] - R[0, 0] - R[1, 1]]
+    k = int(np.argmax(terms))
+    r = math.sqrt(max(0.0, 1.0 + terms[k])) * 2.0
+    if k == 0:
+        w, x, y, z = 0.25 * r, (R[2, 1] - R[1, 2]) / r, (R[0, 2] - R[2, 0]) / r, (R[1, 0] - R[0, 1]) / r
+    elif k == 1:
+        w, x, y, z = (R[2, 1] - R[1, 2]) / r, 0.25 * r, (R[0, 1] + R[1, 0]) / r, (R[0, 2] + R[2, 0]) / r
+    elif k == 2:
+        w, x, y, z = (R[0, 2] - R[2, 0]) / r, (R[0, 1] + R[1, 0]) / r, 0.25 * r, (R[1, 2] + R[2, 1]) / r
+    else:
+        w, x, y, z = (R[1, 0] - R[0, 1]) / r, (R[0, 2] + R[2, 0]) / r, (R[1, 2] + R[2, 1]) / r, 0.25 * r
+    q.x, q.y, q.z, q.w = float(x), float(y), float(z), float(w)
     return q
 
 
@@ -138,6 +164,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.pub_range = self.create_publisher(Range, "rear_range", qos_sensor)
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
         self.create_subscription(Twist, "cmd_vel", self._on_cmd_vel, 1)  # the latest command wins: no backlog
+        self.pub_tf = self._tf_publishers(sim.robot)
         # Faults on demand (std_srvs/SetBool, true silences): a camera or an odometry that stops publishing.
         from std_srvs.srv import SetBool  # type: ignore[import-not-found, unused-ignore]
 
@@ -154,6 +181,37 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self._executor = SingleThreadedExecutor()  # its own: rclpy.spin_once adds and removes the node every call
         self._executor.add_node(self)
         self._nothing_ready = (TimeoutException, ShutdownException, ExternalShutdownException)
+
+    def _tf_publishers(self, robot: RobotConfig) -> Any:
+        """/tf (odom -> base_link, with each odometry) and, latched, /tf_static (base_link -> camera_link -> the
+        optical frame, from the robot file the simulator renders with); None without tf2_msgs (built at install)."""
+        try:
+            from tf2_msgs.msg import TFMessage  # type: ignore[import-not-found, unused-ignore]
+        except ImportError as exc:
+            self.get_logger().warning(f"no /tf: {exc} (tf2_msgs is built when monodock is installed)")
+            return None
+        from geometry_msgs.msg import TransformStamped  # type: ignore[import-not-found, unused-ignore]
+        from rclpy.qos import DurabilityPolicy, QoSProfile  # type: ignore[import-not-found, unused-ignore]
+
+        self.msgs.update(TFMessage=TFMessage, TransformStamped=TransformStamped)
+        s = self.settings
+        link_T_optical = np.eye(4)
+        link_T_optical[:3, :3] = np.linalg.inv(robot.base_T_camera_link()[:3, :3]) @ robot.base_T_optical()[:3, :3]
+        static = TFMessage()
+        for parent, child, T in (
+            (s.frame_id, s.camera_frame, robot.base_T_camera_link()),
+            (s.camera_frame, s.camera_frame_id, link_T_optical),
+        ):
+            t = TransformStamped()
+            _stamp(t.header.stamp, self.epoch)
+            t.header.frame_id, t.child_frame_id = parent, child
+            move = t.transform.translation
+            move.x, move.y, move.z = (float(v) for v in T[:3, 3])
+            _quaternion_of(t.transform.rotation, T[:3, :3])
+            static.transforms.append(t)
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.create_publisher(TFMessage, "/tf_static", latched).publish(static)
+        return self.create_publisher(TFMessage, "/tf", 100)
 
     def _silencer(self, name: str) -> Any:
         def on_request(request: Any, response: Any) -> Any:
@@ -237,11 +295,18 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
     def _publish_odometry(self, odom: Odometry, stamp: float) -> None:
         o = self.msgs["Odometry"]()
         _stamp(o.header.stamp, stamp)
-        o.header.frame_id, o.child_frame_id = "odom", self.settings.frame_id
+        o.header.frame_id, o.child_frame_id = self.settings.odom_frame, self.settings.frame_id
         o.pose.pose.position.x, o.pose.pose.position.y = odom.pose.x, odom.pose.y
         _quaternion(o.pose.pose.orientation, odom.pose.theta)
         o.twist.twist.linear.x, o.twist.twist.angular.z = odom.linear, odom.angular
         self.pub_odom.publish(o)
+        if self.pub_tf is not None:
+            t = self.msgs["TransformStamped"]()
+            t.header = o.header
+            t.child_frame_id = o.child_frame_id
+            t.transform.translation.x, t.transform.translation.y = odom.pose.x, odom.pose.y
+            t.transform.rotation = o.pose.pose.orientation
+            self.pub_tf.publish(self.msgs["TFMessage"](transforms=[t]))
 
     def _publish_truth_and_sensors(self, stamp: float) -> None:
         m, robot = self.msgs, self.robot
