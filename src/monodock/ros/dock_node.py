@@ -372,6 +372,11 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         Raises:
             InputError: a mission runs already, the docking config is invalid, or an undock while not docked.
         """
+        # A cancelled mission reports its end (on_done) just before its thread ends: a caller that waited for that
+        # report (a preempting goal) must not find the thread still alive.
+        ending = self._thread
+        if ending is not None and ending.is_alive() and self._cancel is not None:
+            ending.join(timeout=5.0)
         with self._lock:
             if self._thread is not None and self._thread.is_alive():
                 raise InputError(f"a {self._mission_task()} mission is running: cancel it first")
