@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -96,20 +97,8 @@ def _quaternion(q: Any, yaw: float) -> Any:
 
 
 def _quaternion_of(q: Any, R: NDArray[np.float64]) -> Any:
-    """q (x, y, z, w) set from the rotation matrix R (the largest of the four terms first, for precision)."""
-    t = np.trace(R)
-    terms = [t, R[0, 0] - R[1, 1] - R[2, 2], R[1, 1] - R[0, 0] - R[2, 2], R[2, 2] - R[0, 0] - R[1, 1]]
-    k = int(np.argmax(terms))
-    r = math.sqrt(max(0.0, 1.0 + terms[k])) * 2.0
-    if k == 0:
-        w, x, y, z = 0.25 * r, (R[2, 1] - R[1, 2]) / r, (R[0, 2] - R[2, 0]) / r, (R[1, 0] - R[0, 1]) / r
-    elif k == 1:
-        w, x, y, z = (R[2, 1] - R[1, 2]) / r, 0.25 * r, (R[0, 1] + R[1, 0]) / r, (R[0, 2] + R[2, 0]) / r
-    elif k == 2:
-        w, x, y, z = (R[0, 2] - R[2, 0]) / r, (R[0, 1] + R[1, 0]) / r, 0.25 * r, (R[1, 2] + R[2, 1]) / r
-    else:
-        w, x, y, z = (R[1, 0] - R[0, 1]) / r, (R[0, 2] + R[2, 0]) / r, (R[1, 2] + R[2, 1]) / r, 0.25 * r
-    q.x, q.y, q.z, q.w = float(x), float(y), float(z), float(w)
+    """q (x, y, z, w) set from the rotation matrix R."""
+    q.x, q.y, q.z, q.w = (float(v) for v in Rotation.from_matrix(R).as_quat())
     return q
 
 
