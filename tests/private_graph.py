@@ -48,6 +48,9 @@ class GraphRun:
     def first(self, kind: str) -> dict[str, Any]:
         return next(r for r in self.records if r.get("kind") == kind)
 
+    def all(self, kind: str) -> list[dict[str, Any]]:
+        return [r for r in self.records if r.get("kind") == kind]
+
 
 def run_private_graph(
     script: Path | str, *args: str, timeout: float = 240.0, env: dict[str, str] | None = None

@@ -48,20 +48,21 @@ def planar(msg: Any) -> tuple[float, float, float]:
 
 class Listener:
     """Poses (with their arrival), ground truth and the detector's /diagnostics, subscribed on ``node``; with
-    ``images``, the arrival of each camera image too (by stamp)."""
+    ``images``, the arrival of each camera image too (by stamp); with ``namespace``, the detector's in it."""
 
-    def __init__(self, node: Any, *, images: bool = False) -> None:
+    def __init__(self, node: Any, *, images: bool = False, namespace: str = "") -> None:
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import PoseStamped
         from rclpy.qos import qos_profile_sensor_data
         from sensor_msgs.msg import Image
 
+        self.detector = f"{namespace.strip('/')}/monodock_detector".lstrip("/")  # its /diagnostics status's name
         self.truth: dict[int, tuple[float, float, float]] = {}
         self.poses: list[dict[str, Any]] = []
         self.diagnostics: list[dict[str, Any]] = []
         self.image_arrival: dict[int, float] = {}
         node.create_subscription(PoseStamped, "ground_truth", self._on_truth, DEEP)
-        node.create_subscription(PoseStamped, "detected_dock_pose", self._on_pose, DEEP)
+        node.create_subscription(PoseStamped, f"{namespace}/detected_dock_pose".lstrip("/"), self._on_pose, DEEP)
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 100)
         if images:
             node.create_subscription(Image, "image", self._on_image, qos_profile_sensor_data)
@@ -80,7 +81,7 @@ class Listener:
 
     def _on_diagnostics(self, msg: Any) -> None:
         for s in msg.status:
-            if s.name.startswith("monodock_detector"):
+            if s.name.startswith(self.detector):
                 values = {v.key: v.value for v in s.values}
                 self.diagnostics.append({"t": time.time(), "level": s.level[0], "message": s.message, **values})
 

@@ -29,6 +29,7 @@ from monodock.estimation.bundle import Bundle, load_bundle
 from monodock.estimation.estimator import FrameEstimates
 from monodock.estimation.factory import make_estimator
 from monodock.estimation.methods import MethodSetup, PoseMethod, build_methods
+from monodock.estimation.overlay import draw_overlay
 from monodock.evaluation.dock_sim import DockSimConfig, run_dock_sim, summarize
 from monodock.evaluation.heldout import HeldoutResult, HeldoutSummary, evaluate_heldout
 from monodock.evaluation.selftrain import SelfTrainConfig, simulate_and_train
@@ -40,7 +41,6 @@ from monodock.perception.features import DEFAULT_MARKER_SETS
 from monodock.report.demo import DemoPage, DockingRun, FrameView, LidarOverlay, lidar_settings, write_demo_report
 from monodock.report.docking import write_dock_files
 from monodock.report.html import plain
-from monodock.report.overlay import draw_overlay
 from monodock.report.training import write_training_report
 from monodock.sim import Nuisances, SimFrame, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive

@@ -17,10 +17,10 @@ from monodock.core.atomic import check_writable
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator, FrameEstimates
 from monodock.estimation.methods import METHOD_NAMES
+from monodock.estimation.overlay import draw_overlay
 from monodock.io.frames import FrameSource, open_frames
 from monodock.io.live import Draw, LiveStats, run_live
 from monodock.io.nav2 import UNSTAMPED_BAG, PoseStampedBagWriter
-from monodock.report.overlay import draw_overlay
 
 __all__ = ["add_parser", "run"]
 

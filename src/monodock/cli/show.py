@@ -9,8 +9,8 @@ from pathlib import Path
 from monodock.cli.options import SubParsers, add_calibration, load_calibration
 from monodock.core.atomic import check_writable, write_bytes_atomic
 from monodock.estimation.estimator import Estimator
+from monodock.estimation.overlay import estimates_png
 from monodock.io.frames import read_image
-from monodock.report.overlay import estimates_png
 
 __all__ = ["add_parser", "run"]
 

@@ -24,7 +24,7 @@ from monodock.cli.options import (
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.errors import MonodockError
 from monodock.estimation.estimator import Estimator
-from monodock.report.overlay import estimates_png
+from monodock.estimation.overlay import estimates_png
 from monodock.sim import Nuisances, PoseDistribution, RoomGeometry, SimFrame, Simulator
 from monodock.sim.continuous import DRIVES, commissioning_route, record_drive, teach_route, teach_start
 from monodock.sim.diffdrive import SimulatedRobot

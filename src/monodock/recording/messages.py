@@ -357,14 +357,23 @@ def _field(msg: Any, *names: str) -> Any:
     raise DecodeError(f"message has no field {names[0]}")
 
 
-def camera_from_msg(msg: Any, name: str = "camera") -> CameraModel | None:
+def camera_from_msg(msg: Any, name: str = "camera", *, rectified: bool = False) -> CameraModel | None:
     """CameraModel of a sensor_msgs/CameraInfo (ROS 1 K/D or ROS 2 k/d); None when K is all zero (uncalibrated).
+
+    With ``rectified`` the images are image_proc's ``image_rect``: the camera is P's left 3x3 with no distortion,
+    as image_geometry's PinholeCameraModel projects rectified points.
 
     Raises:
         DecodeError: the message holds a calibration that is not valid; the text says why.
     """
     K = [float(v) for v in np.asarray(_field(msg, "k", "K"), dtype=np.float64).ravel()]
     D = [float(v) for v in np.asarray(_field(msg, "d", "D"), dtype=np.float64).ravel()]
+    if rectified and any(K):
+        P = np.asarray(_field(msg, "p", "P"), dtype=np.float64).ravel()
+        if P.size != 12 or not np.all(np.isfinite(P)) or P[0] <= 0 or P[5] <= 0:
+            raise DecodeError("camera_info has no valid projection matrix P for rectified images", "calibration")
+        K = [float(v) for v in P.reshape(3, 4)[:, :3].ravel()]
+        D = []
     if not all(math.isfinite(v) for v in K + D):
         raise DecodeError("camera_info has NaN or infinite values in K or D", "calibration")
     if not any(K):

@@ -14,8 +14,8 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
+from monodock.estimation.overlay import draw_overlay
 from monodock.perception.detect import Detection
-from monodock.report.overlay import draw_overlay
 from monodock.report.plotting import plt
 
 __all__ = ["coverage_png", "overlay_png"]

@@ -40,14 +40,17 @@ from typing import Any
 
 import numpy as np
 
+from monodock.core import transforms
 from monodock.core.camera import CameraModel
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator
+from monodock.estimation.overlay import draw_overlay
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
 from monodock.ros.parameters import Parameter, declare_options
+from monodock.ros.tf import CameraMountFromTF, set_transform
 
 __all__ = [
     "CALIBRATION_GRACE",
@@ -63,6 +66,9 @@ __all__ = [
 ]
 
 NODE_NAME = "monodock_detector"
+# Why an image is not estimated, when nothing is wrong (/diagnostics' no_estimate_reason, level OK).
+IDLE_STOPPED = "stopped (~/start or ~/toggle starts detection)"
+IDLE_UNWATCHED = "idle: nothing subscribes to the poses, the dock frame or the debug image"
 WARNING_PERIOD = 10.0  # s between two warnings of one kind of fault
 MISMATCH_TOLERANCE = 0.01  # camera_info and the camera in use disagree beyond 1 %
 # A camera publishes each image just before its camera_info: images without a calibration are a fault only once
@@ -80,6 +86,11 @@ class DetectorOptions(EstimatorOptions):
         frame_id: the frame of the published poses.
         max_stamp_age: images older than this by the node's clock are skipped, s; 0: no limit.
         diagnostics_period: s between two /diagnostics messages.
+        dock_frame: broadcast each pose on /tf as ``frame_id`` -> this frame; "": no broadcast.
+        active: estimate from the start; False: only after ``~/start`` (or ``~/toggle``, Nav2's
+            ``detector_service_name``).
+        debug_image_topic: sensor_msgs/Image of each estimated frame with the markers, corners, dock axes, pose
+            and sigma drawn; drawn only while something subscribes.
     """
 
     image_topic: str = "image"
@@ -89,6 +100,9 @@ class DetectorOptions(EstimatorOptions):
     frame_id: str = "base_link"
     max_stamp_age: float = 1.0
     diagnostics_period: float = 1.0
+    dock_frame: str = ""
+    active: bool = True
+    debug_image_topic: str = "~/debug_image"
 
 
 # One per DetectorOptions field, of the same name; read-only ones are read once, at start-up.
@@ -102,6 +116,11 @@ PARAMETERS: dict[str, Parameter] = {
         "images older than this by the node's clock are skipped, s (0: no limit)", read_only=False, bounds=(0.0, 3600.0)
     ),
     "diagnostics_period": Parameter("seconds between two /diagnostics messages", bounds=(0.1, 60.0)),
+    "dock_frame": Parameter("broadcast each pose on /tf as frame_id -> this frame (for RViz); empty: none"),
+    "active": Parameter(
+        "estimate from the start; false: only after ~/start or ~/toggle (Nav2's detector_service_name)"
+    ),
+    "debug_image_topic": Parameter("the image with markers, corners, dock axes and the pose drawn (while subscribed)"),
 }
 
 
@@ -164,6 +183,7 @@ class _Period:
     poses: int = 0
     dropped: int = 0
     refused: int = 0
+    idle: int = 0  # images not estimated: stopped, or nothing subscribes
     latencies: list[float] = field(default_factory=list)
 
 
@@ -186,6 +206,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             Quaternion,
         )
         from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # type: ignore[import-not-found, unused-ignore]
+        from std_srvs.srv import Trigger  # type: ignore[import-not-found, unused-ignore]
 
         self._msg = {
             "PoseStamped": PoseStamped,
@@ -197,6 +218,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             "DiagnosticArray": DiagnosticArray,
             "DiagnosticStatus": DiagnosticStatus,
             "KeyValue": KeyValue,
+            "Image": Image,
         }
         self.options = declare_options(self, options, PARAMETERS)
         o = self.options
@@ -213,8 +235,11 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             self.method, self.camera = self.estimator.method, self.estimator.camera
             self.camera_source = "camera file" if o.camera else "model bundle"
             self.estimator.warm_up()
+            self._file_robot = self.estimator.robot
         else:  # a bad layout or robot file fails now, at start-up, rather than at the first camera_info
-            o.estimator(CameraModel.default())
+            self._file_robot = o.estimator(CameraModel.default()).robot
+        tolerance = (o.mount_tolerance_m, o.mount_tolerance_deg)
+        self.mount = CameraMountFromTF(self, o.frame_id, source=o.camera_mount_source, tolerance=tolerance)
         self._mismatch_reported = False
         self.msgtype = m.COMPRESSED_IMAGE if o.image_is_compressed else m.IMAGE
         self._lock = threading.Lock()  # the counters below, shared by both threads
@@ -230,6 +255,12 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         self.failure: BaseException | None = None
         self.publisher = self.create_publisher(PoseStamped, o.pose_topic, 10)
         self.covariance_publisher = self.create_publisher(PoseWithCovarianceStamped, o.pose_covariance_topic, 10)
+        self.debug_publisher = self.create_publisher(Image, o.debug_image_topic, rclpy.qos.qos_profile_sensor_data)
+        self.tf_publisher = self._tf_publisher() if o.dock_frame else None
+        self.active = o.active
+        self.create_service(Trigger, "~/start", lambda _request, response: self._switch(response, True))
+        self.create_service(Trigger, "~/stop", lambda _request, response: self._switch(response, False))
+        self.create_service(Trigger, "~/toggle", lambda _request, response: self._switch(response, not self.active))
         self.diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # Sensor-data QoS (best effort, the last few) matches reliable and best-effort publishers alike.
         sensor = rclpy.qos.qos_profile_sensor_data
@@ -240,20 +271,56 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         self._worker = threading.Thread(target=self._work, name="monodock_detector estimation", daemon=True)
         self._worker.start()
 
-    # --- parameters that change live ----------------------------------------------------------------
+    def _tf_publisher(self) -> Any:
+        """/tf for the dock frame, or None without tf2_msgs (built when monodock is installed)."""
+        try:
+            from tf2_msgs.msg import TFMessage  # type: ignore[import-not-found, unused-ignore]
+        except ImportError as exc:
+            self.get_logger().warning(f"no dock frame on /tf: {exc} (tf2_msgs is built when monodock is installed)")
+            return None
+        from geometry_msgs.msg import TransformStamped  # type: ignore[import-not-found, unused-ignore]
+
+        self._msg.update(TFMessage=TFMessage, TransformStamped=TransformStamped)
+        return self.create_publisher(TFMessage, "/tf", 100)
+
+    # --- parameters that change live, and on-demand detection ---------------------------------------
 
     def _on_parameters(self, parameters: list[Any]) -> None:
         for p in parameters:
             if p.name == "frame_id":
-                self.frame_id = str(p.value)
+                self.frame_id = self.mount.base_frame = str(p.value)
             elif p.name == "max_stamp_age":
                 self.max_stamp_age = float(p.value)
+
+    def _switch(self, response: Any, on: bool) -> Any:
+        """~/start, ~/stop and ~/toggle (Nav2's ``detector_service_name`` calls one Trigger to start detection and
+        again to stop it): estimate from the next image on, or estimate nothing."""
+        was, self.active = self.active, on
+        if on and not was:
+            self._last_stamp = None  # images went by unchecked while stopped
+        response.success = True
+        response.message = (
+            ("detection started" if on else "detection stopped")
+            if was != on
+            else ("detection already " + ("running" if on else "stopped"))
+        )
+        self.get_logger().info(response.message)
+        return response
+
+    def _idle(self) -> str:
+        """Why this image need not be estimated ("" when it must): stopped, or nothing subscribes to the output."""
+        if not self.active:
+            return IDLE_STOPPED
+        wanted = (self.publisher, self.covariance_publisher, self.debug_publisher, self.tf_publisher)
+        if any(p is not None and p.get_subscription_count() > 0 for p in wanted):
+            return ""
+        return IDLE_UNWATCHED
 
     # --- the executor's thread: check, then leave the newest image in the mailbox --------------------
 
     def _on_camera_info(self, msg: Any) -> None:
         try:
-            camera = m.camera_from_msg(msg)
+            camera = m.camera_from_msg(msg, rectified=self.options.image_is_rectified)
         except m.DecodeError as exc:
             self._warnings.warn("camera_info", f"camera_info skipped: {exc}")
             return
@@ -276,8 +343,14 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
 
     def _on_image(self, msg: Any) -> None:
         stamp = m.header_stamp(msg)
+        idle = self._idle()
         with self._lock:
             self._period.images += 1
+            if idle:
+                self._period.idle += 1
+                self.reason = idle
+        if idle:
+            return
         fault = self._check_image(msg, stamp)
         if fault is not None:
             self._refuse(*fault)
@@ -285,7 +358,8 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         self._last_stamp = stamp
         with self._ready:
             replaced = self._pending is not None
-            self._pending = msg
+            # Whether to draw it is asked here: the worker calls no rclpy but publish (rclpy may be shutting down).
+            self._pending = (msg, self.debug_publisher.get_subscription_count() > 0)
             self._ready.notify()
         if replaced:
             with self._lock:
@@ -343,9 +417,11 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
                         self._ready.wait()
                     if self._stopping:
                         return
-                    msg, self._pending = self._pending, None
-                self._estimate(msg)
+                    (msg, draw), self._pending = self._pending, None
+                self._estimate(msg, draw)
         except Exception as exc:  # a bug, not a bad message: stop the node loudly rather than go quiet
+            if not rclpy.ok():
+                return  # shutting down under an estimate: its publisher went away, nothing is wrong
             self.failure = exc
             rclpy.try_shutdown()
 
@@ -356,19 +432,23 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             self._ready.notify()
         self._worker.join(timeout=10.0)
 
-    def _estimator(self) -> Estimator:
-        if self.estimator is None:  # first image after camera_info: built here, off the executor's thread
-            self.estimator = self.options.estimator(self.camera)
+    def _estimator(self, frame_id: str) -> Estimator:
+        """The estimator for an image in ``frame_id``: built at the first image after camera_info (here, off the
+        executor's thread), and again when /tf_static gives that frame another camera mount."""
+        robot = self.mount.robot(self._file_robot, frame_id)
+        if self.estimator is None or self.estimator.robot != robot:
+            self.estimator = self.options.estimator(self.camera, robot)
             self.method = self.estimator.method
             self.estimator.warm_up()
             self.get_logger().info(f"estimating with {self.method}")
         return self.estimator
 
-    def _estimate(self, msg: Any) -> None:
+    def _estimate(self, msg: Any, draw: bool = False) -> None:
         stamp = m.header_stamp(msg)
         try:
             image = m.decode_image(msg, self.msgtype)
-            result = self._estimator().estimate(str(stamp), stamp, image)
+            estimator = self._estimator(msg.header.frame_id)
+            result = estimator.estimate(str(stamp), stamp, image)
         except m.DecodeError as exc:
             self._refuse(exc.kind, f"image skipped: {exc}", f"bad image: {exc}")
             return
@@ -377,6 +457,8 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             return
         est = result.estimates[self.method]
         markers = len(result.detection.roles_seen) if result.detection is not None else 0
+        if result.detection is not None and draw:
+            self._publish_debug_image(msg, image, result.detection, est, estimator)
         if est.pose is None:
             with self._lock:
                 self.markers, self.reason = markers, est.reason
@@ -399,6 +481,12 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         out.header.frame_id = self.frame_id
         out.pose = pose
         self.publisher.publish(out)
+        if self.tf_publisher is not None:
+            dock = transforms.planar(est.pose.x, est.pose.y, est.pose.yaw)
+            t = set_transform(
+                self._msg["TransformStamped"](), self.frame_id, self.options.dock_frame, dock, out.header.stamp
+            )
+            self.tf_publisher.publish(self._msg["TFMessage"](transforms=[t]))
         if est.covariance is None:
             return
         try:
@@ -410,6 +498,17 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         with_cov.header = out.header
         with_cov.pose = self._msg["PoseWithCovariance"](pose=pose, covariance=covariance)
         self.covariance_publisher.publish(with_cov)
+
+    def _publish_debug_image(self, msg: Any, image: Any, detection: Any, est: Any, estimator: Estimator) -> None:
+        """The image as bgr8 with the markers, corners, dock axes and the pose (with sigma) drawn; its header is the
+        image's (stamp and the camera's frame)."""
+        picture = draw_overlay(image, detection, estimator.layout, estimator.camera, estimator.robot, est, scale=1.0)
+        out = self._msg["Image"]()
+        out.header = msg.header
+        out.height, out.width = int(picture.shape[0]), int(picture.shape[1])
+        out.encoding, out.is_bigendian, out.step = "bgr8", 0, int(picture.shape[1]) * 3
+        out.data = np.ascontiguousarray(picture).tobytes()
+        self.debug_publisher.publish(out)
 
     # --- /diagnostics -------------------------------------------------------------------------------------
 
@@ -423,7 +522,9 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         level, message = self._status(period, reason)
         status = self._msg["DiagnosticStatus"]()
         status.level = bytes([level])
-        status.name = f"{self.get_name()}: dock pose"
+        status.name = (
+            f"{self.get_fully_qualified_name().lstrip('/')}: dock pose"  # ns/monodock_detector: several robots
+        )
         status.message = message
         status.hardware_id = self.options.subscribed_image_topic
         values = {
@@ -449,6 +550,8 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         ok, warn, error = 0, 1, 2
         if period.images == 0:
             return warn, f"no images on {self.options.subscribed_image_topic}"
+        if period.idle == period.images:
+            return ok, reason
         if period.poses == 0:
             if self.camera is None or period.refused == period.images:
                 return error, reason

@@ -38,6 +38,7 @@ import numpy as np
 
 from monodock.core.camera import CameraModel
 from monodock.core.pose2d import Pose2D
+from monodock.core.robot import RobotConfig
 from monodock.dock.config import docking_config_from_dict, docking_config_to_dict, load_docking_config
 from monodock.dock.controller import (
     DockingConfig,
@@ -65,6 +66,7 @@ from monodock.ros.parameters import (
     unflatten,
 )
 from monodock.ros.shutdown import ShutdownFlag
+from monodock.ros.tf import CameraMountFromTF
 
 __all__ = ["PARAMETERS", "DockNode", "DockOptions", "Ros2Robot", "run_dock"]
 
@@ -156,6 +158,7 @@ class Ros2Robot:
         self._charging_states = {BatteryState.POWER_SUPPLY_STATUS_CHARGING, BatteryState.POWER_SUPPLY_STATUS_FULL}
         self.odom, self.battery, self.contact_msg, self.rear = (_Latest() for _ in range(4))
         self._frame: CameraFrame | None = None
+        self.image_frame_id = ""  # the newest image's frame, for the camera mount from /tf_static
         self.active = False  # a mission is running: decode images (an idle node decodes nothing)
         compressed = options.image_is_compressed
         self._msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
@@ -213,6 +216,7 @@ class Ros2Robot:
 
     def _on_image(self, msg: Any) -> None:
         """Decode while a mission runs (only good frames are kept: a malformed image never hides the last good one)."""
+        self.image_frame_id = str(msg.header.frame_id)
         if not self.active:
             return
         try:
@@ -273,6 +277,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         self._config_declared = False
         self.estimator: Estimator | None = None
         self.method = ""
+        self._file_robot: RobotConfig | None = None  # the robot file's (or the bundle's), before /tf_static
         self._camera_info = _Latest()
         if self.options.model or self.options.camera:
             self._make_estimator(None)
@@ -286,6 +291,9 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         refuse_unknown_overrides(self)
         self.add_on_set_parameters_callback(self._check_new_parameters)
         self.robot = Ros2Robot(self, self.options)
+        o = self.options
+        tolerance = (o.mount_tolerance_m, o.mount_tolerance_deg)
+        self.mount = CameraMountFromTF(self, o.frame_id, source=o.camera_mount_source, tolerance=tolerance)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_state = self.create_publisher(String, "~/state", latched)
         self.pub_result = self.create_publisher(DiagnosticStatus, "~/result", latched)
@@ -346,10 +354,24 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
-    def _make_estimator(self, camera: CameraModel | None) -> None:
-        self.estimator = self.options.estimator(camera)
+    def _make_estimator(self, camera: CameraModel | None, robot: RobotConfig | None = None) -> None:
+        self.estimator = self.options.estimator(camera, robot)
         self.method = self.estimator.method
         self.estimator.warm_up()
+        if robot is None:
+            self._file_robot = self.estimator.robot
+
+    def _mount_from_tf(self) -> None:
+        """The estimator with the camera mount /tf_static gives the images' frame (``camera_mount_source``; waits a
+        little for the first image, whose frame it needs)."""
+        assert self.estimator is not None
+        assert self._file_robot is not None
+        end = time.monotonic() + self.options.sensor_timeout
+        while not self.robot.image_frame_id and time.monotonic() < end:
+            time.sleep(0.02)
+        robot = self.mount.robot(self._file_robot, self.robot.image_frame_id)
+        if robot != self.estimator.robot:
+            self._make_estimator(self.estimator.camera, robot)
 
     # --- services ---------------------------------------------------------------------------
 
@@ -418,7 +440,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         camera = None
         while camera is None and time.monotonic() < end:
             msg = self._camera_info.value
-            camera = None if msg is None else m.camera_from_msg(msg)
+            camera = None if msg is None else m.camera_from_msg(msg, rectified=self.options.image_is_rectified)
             if camera is None:
                 time.sleep(0.02)
         if camera is None:
@@ -435,6 +457,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         error = ""
         try:
             self._ensure_estimator()
+            self._mount_from_tf()
             estimator = self.estimator
             assert estimator is not None
             if not robot.wait_for_odometry(max(2.0, self.options.odom_timeout)) or robot.now() <= 0.0:

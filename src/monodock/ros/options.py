@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from monodock.core.camera import CameraModel
+from monodock.core.robot import RobotConfig
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
 from monodock.ros.parameters import Parameter
@@ -23,6 +24,11 @@ class EstimatorOptions:
         camera, layout, robot: calibration files (with a bundle: camera and robot override it).
         refinement: OpenCV's ArUco corner refinement.
         image_topic: sensor_msgs/Image, or CompressedImage with ``compressed`` (or a topic ending in /compressed).
+        image_is_rectified: the images are rectified (image_proc's image_rect): the camera from camera_info is its
+            projection matrix P with no distortion.
+        camera_mount_source: "tf": base_link -> the images' frame from /tf_static when it is there (monodock.ros.tf),
+            else the robot file's; "robot": the robot file's, checked against /tf_static.
+        mount_tolerance_m, mount_tolerance_deg: /tf_static and the robot file disagree beyond these: a warning.
     """
 
     model: str | None = None
@@ -31,8 +37,12 @@ class EstimatorOptions:
     layout: str | None = None
     robot: str | None = None
     refinement: str = "subpix"
-    image_topic: str = "/camera/image_raw"
+    image_topic: str = "image"
     compressed: bool = False
+    image_is_rectified: bool = False
+    camera_mount_source: str = "tf"
+    mount_tolerance_m: float = 0.01
+    mount_tolerance_deg: float = 0.5
 
     @property
     def image_is_compressed(self) -> bool:
@@ -47,14 +57,15 @@ class EstimatorOptions:
             return f"{topic}/compressed"
         return self.image_topic
 
-    def estimator(self, camera: CameraModel | None = None) -> Estimator:
-        """The Estimator of these options; ``camera`` (from camera_info) stands in for a missing camera file."""
+    def estimator(self, camera: CameraModel | None = None, robot: RobotConfig | None = None) -> Estimator:
+        """The Estimator of these options; ``camera`` (from camera_info) stands in for a missing camera file,
+        ``robot`` (the robot file's with the camera mount from /tf_static) for the robot file."""
         return make_estimator(
             method=self.method,
             bundle=self.model,
             camera=camera if camera is not None else self.camera,
             layout=self.layout,
-            robot=self.robot,
+            robot=robot if robot is not None else self.robot,
             refinement=self.refinement,
         )
 
@@ -72,4 +83,18 @@ ESTIMATOR_PARAMETERS: dict[str, Parameter] = {
     "refinement": Parameter("OpenCV's ArUco corner refinement", choices=REFINEMENTS),
     "image_topic": Parameter("sensor_msgs/Image topic; with compressed, its /compressed sub-topic is subscribed"),
     "compressed": Parameter("subscribe to image_topic/compressed (sensor_msgs/CompressedImage)"),
+    "image_is_rectified": Parameter(
+        "the images are rectified (image_rect): the camera from camera_info is its P, with no distortion"
+    ),
+    "camera_mount_source": Parameter(
+        "tf: base_link -> the images' frame from /tf_static when it is there, else the robot file's; "
+        "robot: the robot file's (checked against /tf_static)",
+        choices=("tf", "robot"),
+    ),
+    "mount_tolerance_m": Parameter(
+        "warn once when /tf_static and the robot file place the camera further apart than this, m", positive=True
+    ),
+    "mount_tolerance_deg": Parameter(
+        "warn once when /tf_static and the robot file turn the camera apart by more than this, degrees", positive=True
+    ),
 }

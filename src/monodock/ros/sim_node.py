@@ -23,8 +23,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -36,6 +34,7 @@ from monodock.recording.messages import split_stamp
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.parameters import Parameter, declare_options
 from monodock.ros.shutdown import ShutdownFlag
+from monodock.ros.tf import set_transform
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances
 from monodock.sim.realtime import RealTimeRunner
@@ -93,12 +92,6 @@ def _stamp(msg_time: Any, seconds: float) -> Any:
 
 def _quaternion(q: Any, yaw: float) -> Any:
     q.x, q.y, q.z, q.w = 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
-    return q
-
-
-def _quaternion_of(q: Any, R: NDArray[np.float64]) -> Any:
-    """q (x, y, z, w) set from the rotation matrix R."""
-    q.x, q.y, q.z, q.w = (float(v) for v in Rotation.from_matrix(R).as_quat())
     return q
 
 
@@ -191,13 +184,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             (s.frame_id, s.camera_frame, robot.base_T_camera_link()),
             (s.camera_frame, s.camera_frame_id, link_T_optical),
         ):
-            t = TransformStamped()
-            _stamp(t.header.stamp, self.epoch)
-            t.header.frame_id, t.child_frame_id = parent, child
-            move = t.transform.translation
-            move.x, move.y, move.z = (float(v) for v in T[:3, 3])
-            _quaternion_of(t.transform.rotation, T[:3, :3])
-            static.transforms.append(t)
+            static.transforms.append(set_transform(TransformStamped(), parent, child, T, self.epoch))
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.create_publisher(TFMessage, "/tf_static", latched).publish(static)
         return self.create_publisher(TFMessage, "/tf", 100)

@@ -1,4 +1,8 @@
-"""Pictures a person would rather look at than read: detections, truth and the estimated dock axes."""
+"""Pictures a person would rather look at than read: detections, truth and the estimated dock axes.
+
+OpenCV alone, so the robot side draws them too (the detector's debug image); the reports and the command line use
+the same pictures.
+"""
 
 from __future__ import annotations
 
@@ -77,6 +81,9 @@ def _caption_lines(detection: Detection, estimate: PoseEstimate | None) -> list[
         if estimate.pose is not None:
             p = estimate.pose
             lines.append(f"{estimate.method}: x {p.x:.3f} m  y {p.y:+.3f} m  yaw {p.yaw_deg:+.2f} deg")
+            if estimate.covariance is not None and np.all(np.isfinite(np.diag(estimate.covariance))):
+                sx, sy, syaw = np.sqrt(np.maximum(np.diag(estimate.covariance), 0.0))
+                lines.append(f"sigma: x {sx * 1e3:.1f} mm  y {sy * 1e3:.1f} mm  yaw {np.degrees(syaw):.2f} deg")
         else:
             lines.append(f"{estimate.method}: no estimate ({estimate.reason})")
     if detection.ignored_ids:
