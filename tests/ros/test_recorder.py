@@ -67,8 +67,10 @@ def test_the_default_topics_are_a_docking_run() -> None:
     assert [t.name for t in options.topics] == list(DEFAULT_TOPICS)
     for name in ("image", "camera_info", "odom", "cmd_vel", "ground_truth", "detected_dock_pose"):
         assert name in DEFAULT_TOPICS
-    assert "/monodock_dock/result" in DEFAULT_TOPICS
-    assert "/diagnostics" in DEFAULT_TOPICS
+    assert "monodock_dock/result" in DEFAULT_TOPICS  # the docking node in the recorder's namespace
+    assert {"/diagnostics", "/tf", "/tf_static"} <= set(DEFAULT_TOPICS)  # absolute in every ROS 2 system
+    absolute = {t for t in DEFAULT_TOPICS if t.startswith("/")}
+    assert absolute == {"/diagnostics", "/tf", "/tf_static"}
 
 
 def test_options_survive_the_command_line(tmp_path: Path) -> None:

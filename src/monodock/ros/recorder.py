@@ -61,7 +61,8 @@ __all__ = [
 NODE_NAME = "monodock_recorder"
 
 # What a docking run on the graph is made of (docs/ros2.md, the contract); relative names resolve in the
-# recorder's namespace, as the nodes' do in theirs.
+# recorder's namespace, as the nodes' do in theirs (the docking node's own topics under its name), so a recorder
+# started in a robot's namespace records that robot. /diagnostics and TF are absolute in every ROS 2 system.
 DEFAULT_TOPICS = (
     "image",
     "camera_info",
@@ -70,12 +71,14 @@ DEFAULT_TOPICS = (
     "ground_truth",
     "detected_dock_pose",
     "detected_dock_pose_with_covariance",
-    "/monodock_dock/state",
-    "/monodock_dock/result",
+    "monodock_dock/state",
+    "monodock_dock/result",
     "battery_state",
     "contact",
     "rear_range",
     "/diagnostics",
+    "/tf",
+    "/tf_static",
 )
 
 DISTROS = {"kilted": Stores.ROS2_KILTED, "jazzy": Stores.ROS2_JAZZY, "humble": Stores.ROS2_HUMBLE}
