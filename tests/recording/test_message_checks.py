@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -74,3 +75,29 @@ def test_camera_info_round_trip_uncalibrated_and_invalid() -> None:
     with pytest.raises(m.DecodeError, match="width: must be at least 1") as info:
         m.camera_from_msg(info_msg(camera, width=0))
     assert info.value.kind == "calibration"
+
+
+def test_a_rectified_camera_is_p_without_distortion() -> None:
+    # A wide lens, and image_proc's rectified image of it (P from OpenCV's optimal new camera matrix): points seen
+    # through the lens and then rectified are where the rectified camera projects them.
+    lens = CameraModel(640, 480, CameraModel.default().K, (-0.25, 0.07, 0.001, -0.001, 0.0), "plumb_bob")
+    new_K, _ = cv2.getOptimalNewCameraMatrix(lens.matrix, lens.dist, lens.size, 0.0)
+    P = np.zeros((3, 4))
+    P[:, :3] = new_K
+    msg = info_msg(lens, p=list(P.ravel()))
+    rectified = m.camera_from_msg(msg, rectified=True)
+    assert rectified is not None
+    assert not any(rectified.D)
+    grid = np.array([[x, y, 2.0] for x in np.linspace(-0.9, 0.9, 7) for y in np.linspace(-0.7, 0.7, 5)])
+    seen = lens.project(grid)
+    rectified_pixels = cv2.undistortPoints(seen.reshape(-1, 1, 2), lens.matrix, lens.dist, P=new_K).reshape(-1, 2)
+    np.testing.assert_allclose(rectified.project(grid), rectified_pixels, atol=0.01)
+    # Not rectified, the same message is the lens itself.
+    unrectified = m.camera_from_msg(msg)
+    assert unrectified is not None
+    np.testing.assert_allclose(unrectified.project(grid), seen, atol=1e-9)
+    # Rectified images with no valid P are refused, of the calibration kind.
+    for p in ([0.0] * 12, [math.nan] * 12, [1.0] * 5):
+        with pytest.raises(m.DecodeError, match="no valid projection matrix P") as info:
+            m.camera_from_msg(info_msg(lens, p=p), rectified=True)
+        assert info.value.kind == "calibration"

@@ -62,7 +62,32 @@ def detector_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--diagnostics-period", type=float, default=d.diagnostics_period, help="/diagnostics period, s (%(default)s)"
     )
+    _add_camera_source(p, d)
+    p.add_argument("--dock-frame", default=d.dock_frame, help="broadcast each pose on /tf as FRAME_ID -> this frame")
+    p.add_argument(
+        "--active",
+        action=argparse.BooleanOptionalAction,
+        default=d.active,
+        help="estimate from the start; --no-active: only after ~/start or ~/toggle (Nav2's detector_service_name)",
+    )
+    p.add_argument("--debug-image-topic", default=d.debug_image_topic, help="default: %(default)s")
     return p
+
+
+def _add_camera_source(p: argparse.ArgumentParser, d: DetectorOptions | DockOptions) -> None:
+    """The flags of where the camera model and its mount come from, the same in both nodes."""
+    p.add_argument(
+        "--image-is-rectified", action="store_true", help="rectified images: the camera is camera_info's P, undistorted"
+    )
+    p.add_argument(
+        "--camera-mount-source",
+        choices=("tf", "robot"),
+        default=d.camera_mount_source,
+        help="tf: base_link -> the images' frame from /tf_static when there, else the robot file's (default: "
+        "%(default)s)",
+    )
+    p.add_argument("--mount-tolerance-m", type=float, default=d.mount_tolerance_m, help="default: %(default)s")
+    p.add_argument("--mount-tolerance-deg", type=float, default=d.mount_tolerance_deg, help="default: %(default)s")
 
 
 def dock_parser() -> argparse.ArgumentParser:
@@ -93,6 +118,7 @@ def dock_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", default=d.config, help="docking config YAML (docs/docking.md), read before parameters")
     p.add_argument("--odom-timeout", type=float, default=d.odom_timeout, help="odometry older than this: stop, s")
     p.add_argument("--sensor-timeout", type=float, default=d.sensor_timeout, help="other sensors' age limit, s")
+    _add_camera_source(p, d)
     return p
 
 

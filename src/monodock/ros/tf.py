@@ -93,29 +93,39 @@ class CameraMountFromTF:
     """
 
     def __init__(
-        self, node: Any, base_frame: str, *, source: str = "tf", tolerance: tuple[float, float] = (0.01, 0.5)
+        self,
+        node: Any,
+        base_frame: str,
+        *,
+        source: str = "tf",
+        tolerance: tuple[float, float] = (0.01, 0.5),
+        subscribe: bool = True,
     ) -> None:
         self.node, self.base_frame, self.source, self.tolerance = node, base_frame, source, tolerance
         self._parents: dict[str, tuple[str, NDArray[np.float64]]] = {}  # child -> (parent, parent_T_child)
         self._lock = threading.Lock()
         self._said: set[tuple[str, str]] = set()
-        self.available = True
+        self.available = not subscribe or self._subscribe()
+
+    def _subscribe(self) -> bool:
+        """Listen on /tf_static; False (said once) without tf2_msgs."""
         try:
             from tf2_msgs.msg import TFMessage  # type: ignore[import-not-found, unused-ignore]
         except ImportError as exc:
-            self.available = False
-            node.get_logger().warning(
+            self.node.get_logger().warning(
                 f"camera mount from the robot file only: no /tf_static ({exc}; tf2_msgs is built when monodock is "
                 "installed)"
             )
-            return
+            return False
         from rclpy.qos import DurabilityPolicy, QoSProfile  # type: ignore[import-not-found, unused-ignore]
 
         # tf2's static listener: transient local, deep enough for every latched publisher's message.
         latched = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(TFMessage, "/tf_static", self._on_tf_static, latched)
+        self.node.create_subscription(TFMessage, "/tf_static", self.on_tf_static, latched)
+        return True
 
-    def _on_tf_static(self, msg: Any) -> None:
+    def on_tf_static(self, msg: Any) -> None:
+        """A /tf_static message: its transforms kept (a later one of a child replaces the earlier)."""
         for t in msg.transforms:
             child = t.child_frame_id.lstrip("/")
             try:
