@@ -9,6 +9,8 @@ Three detectors (board PnP, camera from camera_info), each in its own namespace 
 - ``/on_demand``: the true robot file, started with ``active:=false``; then ``~/toggle`` (as Nav2's
   ``detector_service_name`` calls it) while nothing subscribes to its poses, then its poses subscribed, then
   ``~/toggle`` again. Each phase's poses and /diagnostics are kept.
+- ``/managed``: the true robot file, a lifecycle node (``--lifecycle``), its poses subscribed throughout: configured
+  and activated (``~/change_state``) with the first toggle, deactivated with the second.
 
 Prints JSON lines: each detector's poses with the truth, the /tf dock transforms, the debug image, the phases.
 """
@@ -29,6 +31,8 @@ import graph_detector_common as g
 import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
@@ -49,12 +53,17 @@ RobotConfig(camera_mount=wrong).save(folder / "wrong_robot.yaml")
 rclpy.init()
 node = rclpy.create_node("listener")
 truth: dict[int, tuple[float, float, float]] = {}
-poses: dict[str, list[tuple[int, tuple[float, float, float]]]] = {"tf_mount": [], "file_mount": [], "on_demand": []}
+poses: dict[str, list[tuple[int, tuple[float, float, float]]]] = {
+    "tf_mount": [],
+    "file_mount": [],
+    "on_demand": [],
+    "managed": [],
+}
 dock_tf: list[tuple[str, str, int, float, float, float]] = []
 debug: list[dict[str, Any]] = []
 diagnostics: list[dict[str, Any]] = []
 node.create_subscription(PoseStamped, "/ground_truth", lambda msg: truth.update({g.key(msg): g.planar(msg)}), g.DEEP)
-for name in ("tf_mount", "file_mount"):
+for name in ("tf_mount", "file_mount", "managed"):
     node.create_subscription(
         PoseStamped,
         f"/{name}/detected_dock_pose",
@@ -109,7 +118,14 @@ detectors = {
         *files, "--robot", str(folder / "true_robot.yaml"), "--ros-args", "-r", "__ns:=/on_demand", *topics,
         "-p", "active:=false",
     ),
+    "managed": g.detector(
+        *files, "--robot", str(folder / "true_robot.yaml"), "--lifecycle", "--ros-args", "-r", "__ns:=/managed",
+        *topics,
+    ),
 }  # fmt: skip
+change_state = node.create_client(ChangeState, "/managed/monodock_detector/change_state")
+get_state = node.create_client(GetState, "/managed/monodock_detector/get_state")
+assert change_state.wait_for_service(timeout_sec=60.0), "no ~/change_state service"
 toggle = node.create_client(Trigger, "/on_demand/monodock_detector/toggle")
 assert toggle.wait_for_service(timeout_sec=60.0), "no ~/toggle service"
 sim: subprocess.Popen[str] = g.sim(start, 40.0)
@@ -125,11 +141,25 @@ def phase(name: str, seconds: float) -> None:
         {
             "name": name,
             "poses": len(poses["on_demand"]),
+            "managed_poses": len(poses["managed"]),
+            "managed_state": lifecycle_state(),
             "messages": sorted({d["message"] for d in said}),
             "levels": sorted({d["level"] for d in said}),
             "reasons": sorted({d["no_estimate_reason"] for d in said}),
         }
     )
+
+
+def lifecycle_state() -> str:
+    future = get_state.call_async(GetState.Request())
+    rclpy.spin_until_future_complete(node, future, timeout_sec=30.0)
+    return str(future.result().current_state.label)
+
+
+def transition(transition_id: int) -> bool:
+    future = change_state.call_async(ChangeState.Request(transition=Transition(id=transition_id)))
+    rclpy.spin_until_future_complete(node, future, timeout_sec=30.0)
+    return bool(future.result().success)
 
 
 def call_toggle() -> str:
@@ -145,6 +175,7 @@ while not poses["tf_mount"] and time.monotonic() < end:
     rclpy.spin_once(node, timeout_sec=0.05)
 phase("stopped", 4.0)
 said = [call_toggle()]
+managed = [transition(Transition.TRANSITION_CONFIGURE), transition(Transition.TRANSITION_ACTIVATE)]
 phase("started, nothing subscribed", 4.0)
 node.create_subscription(
     PoseStamped,
@@ -154,10 +185,13 @@ node.create_subscription(
 )
 phase("started, subscribed", 4.0)
 said.append(call_toggle())
+managed.append(transition(Transition.TRANSITION_DEACTIVATE))
 g.spin_for(node, 1.0)  # a pose of an image estimated before the stop may still be on its way
 stopped_with = len(poses["on_demand"])
+managed_stopped_with = len(poses["managed"])
 phase("stopped again", 4.0)
 phases[-1]["since_stop"] = len(poses["on_demand"]) - stopped_with
+phases[-1]["managed_since_stop"] = len(poses["managed"]) - managed_stopped_with
 for process in [*detectors.values(), sim]:
     process.terminate()
 ends = {name: process.communicate(timeout=30) for name, process in {**detectors, "sim": sim}.items()}
@@ -185,7 +219,7 @@ print(
         }
     )
 )
-print(json.dumps({"kind": "phases", "phases": phases, "toggles": said}))
+print(json.dumps({"kind": "phases", "phases": phases, "toggles": said, "transitions": managed}))
 for name, (_, err) in ends.items():
     code = (detectors.get(name) or sim).returncode
     print(json.dumps({"kind": "process", "name": name, "returncode": code, "stderr": err[-6000:]}))

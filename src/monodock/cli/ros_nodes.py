@@ -71,6 +71,11 @@ def detector_parser() -> argparse.ArgumentParser:
         help="estimate from the start; --no-active: only after ~/start or ~/toggle (Nav2's detector_service_name)",
     )
     p.add_argument("--debug-image-topic", default=d.debug_image_topic, help="default: %(default)s")
+    p.add_argument(
+        "--lifecycle",
+        action="store_true",
+        help="a managed (lifecycle) node: unconfigured at start, estimating only while active",
+    )
     return p
 
 

@@ -28,6 +28,7 @@ Images are decoded with numpy and OpenCV (monodock.recording.messages), without 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 import sys
@@ -91,6 +92,7 @@ class DetectorOptions(EstimatorOptions):
             ``detector_service_name``).
         debug_image_topic: sensor_msgs/Image of each estimated frame with the markers, corners, dock axes, pose
             and sigma drawn; drawn only while something subscribes.
+        lifecycle: a managed node (``managed_detector``): it estimates only while active.
     """
 
     image_topic: str = "image"
@@ -103,6 +105,7 @@ class DetectorOptions(EstimatorOptions):
     dock_frame: str = ""
     active: bool = True
     debug_image_topic: str = "~/debug_image"
+    lifecycle: bool = False  # the command line's alone (the node's class depends on it): not a ROS parameter
 
 
 # One per DetectorOptions field, of the same name; read-only ones are read once, at start-up.
@@ -631,6 +634,42 @@ def non_ros_arguments(argv: Sequence[str]) -> list[str]:
         return list(remove_ros_args(list(argv)))
 
 
+def managed_detector(options: DetectorOptions) -> DockPoseNode:
+    """The detector as a lifecycle node, for nav2_lifecycle_manager and ``ros2 lifecycle set``: it starts
+    unconfigured and estimates only while active (``activate`` is ``~/start``, ``deactivate`` is ``~/stop``).
+
+    Its files are read and checked when it is created, so a bad one still ends the process with one line at start-up,
+    not at ``configure``.
+    """
+    from rclpy.lifecycle import (  # type: ignore[import-not-found, unused-ignore]
+        LifecycleNodeMixin,
+        TransitionCallbackReturn,
+    )
+
+    class ManagedDockPoseNode(LifecycleNodeMixin, DockPoseNode):  # type: ignore[misc, unused-ignore]
+        def __init__(self) -> None:
+            DockPoseNode.__init__(self, dataclasses.replace(options, active=False))
+            LifecycleNodeMixin.__init__(self)
+
+        def on_activate(self, _state: Any) -> Any:
+            self._switch(_Reply(), True)
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_deactivate(self, _state: Any) -> Any:
+            self._switch(_Reply(), False)
+            return TransitionCallbackReturn.SUCCESS
+
+    return ManagedDockPoseNode()
+
+
+@dataclass
+class _Reply:
+    """A Trigger response's fields, for a switch that no service asked for."""
+
+    success: bool = False
+    message: str = ""
+
+
 def run_detector(options: DetectorOptions, argv: Sequence[str]) -> int:
     """Run the node until shut down (Ctrl-C, SIGTERM); ``argv`` carries the ROS arguments. User errors: one line, 2."""
     from rclpy.executors import ExternalShutdownException  # type: ignore[import-not-found, unused-ignore]
@@ -642,7 +681,7 @@ def run_detector(options: DetectorOptions, argv: Sequence[str]) -> int:
     try:
         with _rcl_arguments():
             rclpy.init(args=list(argv))
-        node = DockPoseNode(options)
+        node = managed_detector(options) if options.lifecycle else DockPoseNode(options)
         rclpy.spin(node)
     except MonodockError as exc:
         print(f"monodock-ros: error: {exc}", file=sys.stderr)
