@@ -4,7 +4,9 @@ on one graph, driven only through Nav2's actions, by a client written from the u
 Argument: one JSON object with
     start: [x, y, yaw] of the robot in the dock frame;
     goals: in turn, each {"action": "dock" | "undock", "goal": {field: value} (DockRobot/UndockRobot goal fields),
-           "cancel_in": optional, the feedback state (CONTROLLING = 3, ...) that makes the client cancel the goal}.
+           "cancel_in": optional, the feedback state (CONTROLLING = 3, ...) that makes the client cancel the goal,
+           "preempt_in", "preempt_with": optional, the feedback state at which the client sends the step
+           ``preempt_with`` while this goal runs}.
 Prints JSON lines: {"kind": "ready"}, per goal {"kind": "goal", accepted, status, result fields, feedback states,
 the last feedback's docking time and retries, the truth after it, charging}, {"kind": "end", ...}.
 """
@@ -76,9 +78,8 @@ def spin_until(done: Any, seconds: float) -> bool:
     return bool(done())
 
 
-ready = spin_until(lambda: all(c.server_is_ready() for c in clients.values()) and truth, 90)
-emit("ready", ok=ready)
-for step in spec["goals"] if ready else []:
+def send(step: dict[str, Any]) -> tuple[Any, list[Any]]:
+    """The goal handle (None when not accepted) of a step's goal, and the list its feedback goes to."""
     action = DockRobot if step["action"] == "dock" else UndockRobot
     goal = action.Goal()
     for field, value in step.get("goal", {}).items():
@@ -89,18 +90,10 @@ for step in spec["goals"] if ready else []:
     )
     spin_until(sent.done, 20)
     handle = sent.result()
-    if handle is None or not handle.accepted:
-        emit("goal", action=step["action"], accepted=False)
-        continue
-    result_future = handle.get_result_async()
-    cancel_in = step.get("cancel_in")
-    cancelled = None
-    end = time.monotonic() + 150
-    while not result_future.done() and time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.02)
-        if cancel_in is not None and cancelled is None and feedback and feedback[-1].state == cancel_in:
-            cancelled = handle.cancel_goal_async()
-    spin_until(lambda: False, 1.0)  # the robot settles, the battery reports
+    return (handle if handle is not None and handle.accepted else None), feedback
+
+
+def report(step: dict[str, Any], result_future: Any, feedback: list[Any], cancelled: Any, **more: Any) -> None:
     wrapped = result_future.result() if result_future.done() else None
     result = wrapped.result if wrapped is not None else None
     x, y, heading = truth[-1]
@@ -112,6 +105,7 @@ for step in spec["goals"] if ready else []:
         status=int(wrapped.status) if wrapped is not None else -1,
         succeeded=wrapped is not None and wrapped.status == GoalStatus.STATUS_SUCCEEDED,
         canceled=wrapped is not None and wrapped.status == GoalStatus.STATUS_CANCELED,
+        aborted=wrapped is not None and wrapped.status == GoalStatus.STATUS_ABORTED,
         cancel_accepted=None if cancelled is None else bool(cancelled.done() and cancelled.result().goals_canceling),
         success=bool(result.success) if result is not None else None,
         error_code=int(result.error_code) if result is not None else None,
@@ -125,7 +119,43 @@ for step in spec["goals"] if ready else []:
             "heading_deg": math.degrees(heading),
         },
         charging=bool(battery) and battery[-1] == BatteryState.POWER_SUPPLY_STATUS_CHARGING,
+        **more,
     )
+
+
+ready = spin_until(lambda: all(c.server_is_ready() for c in clients.values()) and truth, 90)
+emit("ready", ok=ready)
+for step in spec["goals"] if ready else []:
+    handle, feedback = send(step)
+    if handle is None:
+        emit("goal", action=step["action"], accepted=False)
+        continue
+    result_future = handle.get_result_async()
+    cancel_in, preempt_in = step.get("cancel_in"), step.get("preempt_in")
+    cancelled = None
+    preempting: tuple[Any, list[Any]] | None = None
+    end = time.monotonic() + 150
+    while not result_future.done() and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.02)
+        reached = feedback[-1].state if feedback else None
+        if cancel_in is not None and cancelled is None and reached == cancel_in:
+            cancelled = handle.cancel_goal_async()
+        if preempt_in is not None and preempting is None and reached == preempt_in:
+            preempting = send(step["preempt_with"])  # a new goal while this one runs, as a behaviour tree may send
+    if preempting is None:
+        spin_until(lambda: False, 1.0)  # the robot settles, the battery reports
+        report(step, result_future, feedback, cancelled)
+        continue
+    # The preempted goal's result (as it was when the new goal took over), then the new goal's to its end.
+    report(step, result_future, feedback, cancelled, preempted=True)
+    second, second_feedback = preempting
+    if second is None:
+        emit("goal", action=step["preempt_with"]["action"], accepted=False)
+        continue
+    second_future = second.get_result_async()
+    spin_until(second_future.done, 150)
+    spin_until(lambda: False, 1.0)
+    report(step["preempt_with"], second_future, second_feedback, None, preempting=True)
 
 stop_nodes(dock, sim)
 emit("end", dock=dock.returncode, sim=sim.returncode)

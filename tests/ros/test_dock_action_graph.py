@@ -36,6 +36,12 @@ def test_a_nav2_client_docks_is_refused_in_words_undocks_and_cancels() -> None:
         {"action": "dock", "goal": {"use_dock_id": True, "navigate_to_staging_pose": True}},  # Nav2's default
         {"action": "undock", "goal": {"dock_type": "monodock"}},
         {"action": "dock", "goal": {"navigate_to_staging_pose": False, "dock_id": "dock"}, "cancel_in": CONTROLLING},
+        {
+            "action": "dock",
+            "goal": {"navigate_to_staging_pose": False},
+            "preempt_in": CONTROLLING,
+            "preempt_with": {"action": "dock", "goal": {"navigate_to_staging_pose": False}},
+        },
     ]
     run = run_private_graph(
         HERE / "graph_dock_action.py", json.dumps({"start": [-1.2, 0.12, 0.15], "goals": goals}), timeout=540
@@ -43,7 +49,7 @@ def test_a_nav2_client_docks_is_refused_in_words_undocks_and_cancels() -> None:
     assert run.returncode == 0, run.stderr[-3000:]
     assert "Traceback" not in run.stderr, run.stderr[-3000:]
     assert run.first("ready")["ok"], run.stderr[-3000:]
-    docked, staged, undocked, cancelled = [r for r in run.records if r["kind"] == "goal"]
+    docked, staged, undocked, cancelled, preempted, preempting = [r for r in run.records if r["kind"] == "goal"]
 
     # Docked: succeeded, with Nav2's result fields, on the contacts by the sim's truth and charging.
     assert docked["succeeded"], docked
@@ -79,6 +85,18 @@ def test_a_nav2_client_docks_is_refused_in_words_undocks_and_cancels() -> None:
     assert cancelled["success"] is False
     assert cancelled["truth"]["gap_cm"] > 2.0
     assert not cancelled["charging"]
+
+    # A new goal while one runs (a behaviour tree's retry): the running goal ends aborted, saying why, once its
+    # mission has stopped; the new one docks from where the robot was, on the contacts by the truth, charging.
+    assert preempted["aborted"], preempted
+    assert preempted["success"] is False
+    assert "cancelled by a new dock goal" in preempted["error_msg"], preempted
+    assert preempting["succeeded"], preempting
+    assert abs(preempting["truth"]["lateral_cm"]) <= 100 * TOL.tolerance_lateral
+    assert abs(preempting["truth"]["gap_cm"]) <= 100 * TOL.tolerance_longitudinal
+    assert abs(preempting["truth"]["heading_deg"]) <= TOL.tolerance_heading_deg
+    assert preempting["charging"]
+    assert preempting["feedback_states"][0] == INITIAL_PERCEPTION
     end = run.first("end")
     assert end["dock"] == 0, (end, run.stderr[-3000:])
     assert end["sim"] == 0, (end, run.stderr[-3000:])
