@@ -23,14 +23,13 @@ The pytest process never imports rclpy (tests/conftest.py): the parser runs in a
 
 from __future__ import annotations
 
-import ast
 import functools
 import importlib.util
 import json
 import math
 import subprocess
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,13 +45,13 @@ from monodock.dock.controller import blind_gap
 from monodock.dock.planner import PlannerConfig
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import make_estimator
+from monodock.ros.sim_settings import CHARGING_CURRENT, DRAIN_CURRENT, SimSettings
 from monodock.sim import Simulator
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 
 ROOT = Path(__file__).resolve().parents[2]
 REAL = ROOT / "config" / "nav2_docking_server.yaml"
 SIM = ROOT / "config" / "nav2_docking_server_sim.yaml"
-SIM_NODE = ROOT / "src" / "monodock" / "ros" / "sim_node.py"
 NODE = "docking_server"
 EPOCH = 1.7e9  # s: ROS time at the simulated start (a stamp of 0 is a message never received)
 DETECTOR_LATENCY = 0.03  # s from an image's arrival to its pose on detected_dock_pose (monodock-ros's estimation)
@@ -194,44 +193,15 @@ def _declared(params: Params) -> dict[str, Any]:
     return out
 
 
-def _sim_node_literal(find: Callable[[ast.AST], ast.expr | None]) -> Any:
-    """A literal in monodock-sim-ros's source (src/ must not be imported here: it loads rclpy)."""
-    for node in ast.walk(ast.parse(SIM_NODE.read_text(encoding="utf-8"))):
-        found = find(node)
-        if found is not None:
-            return ast.literal_eval(found)
-    raise AssertionError(f"{SIM_NODE.name} changed: update this test and the sim recipe")
-
-
 def _sim_start() -> tuple[float, float, float]:
     """SimSettings.start's default: the simulated robot's start in the dock frame, odom's origin."""
-
-    def find(node: ast.AST) -> ast.expr | None:
-        if isinstance(node, ast.ClassDef) and node.name == "SimSettings":
-            for item in node.body:
-                if isinstance(item, ast.AnnAssign) and getattr(item.target, "id", "") == "start":
-                    return item.value
-        return None
-
-    start = _sim_node_literal(find)
-    return float(start[0]), float(start[1]), float(start[2])
+    x, y, yaw = SimSettings().start
+    return float(x), float(y), float(yaw)
 
 
 def _sim_currents() -> tuple[float, float]:
-    """BatteryState.current the sim publishes while charging and while not (``current = A if charging else B``)."""
-
-    def find(node: ast.AST) -> ast.expr | None:
-        if (
-            isinstance(node, ast.Assign)
-            and isinstance(node.targets[0], ast.Attribute)
-            and node.targets[0].attr == "current"
-            and isinstance(node.value, ast.IfExp)
-        ):
-            return ast.Tuple([node.value.body, node.value.orelse], ast.Load())
-        return None
-
-    charging, not_charging = _sim_node_literal(find)
-    return float(charging), float(not_charging)
+    """BatteryState.current the sim publishes while charging and while not."""
+    return CHARGING_CURRENT, DRAIN_CURRENT
 
 
 def _true_docking_pose_in_odom(front_offset: float) -> Pose2D:

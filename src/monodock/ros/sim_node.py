@@ -19,7 +19,6 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -34,6 +33,7 @@ from monodock.recording.messages import split_stamp
 from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.parameters import Parameter, declare_options
 from monodock.ros.shutdown import ShutdownFlag
+from monodock.ros.sim_settings import CHARGING_CURRENT, DRAIN_CURRENT, SimSettings
 from monodock.ros.tf import set_transform
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances
@@ -41,24 +41,6 @@ from monodock.sim.realtime import RealTimeRunner
 from monodock.sim.simulator import Simulator
 
 __all__ = ["PARAMETERS", "SimNode", "SimSettings", "run_sim"]
-
-
-@dataclass(frozen=True)
-class SimSettings:
-    """The node's settings: ROS parameters of the same names (``PARAMETERS``), and the frames of its messages."""
-
-    start: tuple[float, float, float] = (-1.8, 0.0, 0.0)  # x, y (m), yaw (rad) of base_link in the dock frame
-    seed: int = 0
-    layout: str = ""
-    robot: str = ""
-    camera: str = ""
-    camera_rate: float = 15.0
-    cmd_vel_timeout: float = 0.5
-    nuisances: str = "default"  # the camera's: "default" (a cheap indoor webcam) or "clean" (the exact render)
-    frame_id: str = "base_link"
-    camera_frame_id: str = "camera_optical_frame"
-    odom_frame: str = "odom"
-    camera_frame: str = "camera_link"
 
 
 # SimSettings' parameters: read once, at start-up (writable as they always were, though a change does nothing).
@@ -304,7 +286,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             battery.POWER_SUPPLY_STATUS_CHARGING if charging else battery.POWER_SUPPLY_STATUS_DISCHARGING
         )
         # Positive current while charging, as Nav2's SimpleChargingDock reads it (current > charging_threshold).
-        battery.current = 1.5 if charging else -0.8
+        battery.current = CHARGING_CURRENT if charging else DRAIN_CURRENT
         self.pub_battery.publish(battery)
         rear = robot.rear_range()
         if rear is not None:
