@@ -143,11 +143,13 @@ def bundle_copy(saved: Path, tmp_path: Path) -> Path:
 # each) to a file the controller named, and the controller's scheduler reads it: one unit per group.
 
 _GROUPED_SESSION_FIXTURES = ("drive", "result")
-# The modules that start ROS 2 graphs (sim, detector, dock nodes in real time, in private network namespaces).
-_ROS_GRAPH_MODULES = frozenset(
-    f"tests/ros/{name}.py"
-    for name in ("test_graph", "test_dock_graph", "test_detector_graph", "test_sim_node", "test_recorder")
-)
+# The modules that start ROS 2 graphs (sim, detector, dock nodes in real time, in private network namespaces): the
+# tests/ros/test_*_graph.py modules and these.
+_ROS_GRAPH_MODULES = frozenset(f"tests/ros/{name}.py" for name in ("test_graph", "test_sim_node", "test_recorder"))
+
+
+def _starts_ros_graphs(module: str) -> bool:
+    return module in _ROS_GRAPH_MODULES or (module.startswith("tests/ros/test_") and module.endswith("_graph.py"))
 _GROUPS_FILE = "MONODOCK_XDIST_GROUPS"
 
 # The tests of a minute or more (on a quiet 2-core machine), first: the slow tier's end-to-end runs, ROS 2 graphs
@@ -193,7 +195,7 @@ def _groups(items: list[pytest.Item]) -> dict[str, str]:
         mine += [
             str(m.args[0] if m.args else m.kwargs.get("name", "default")) for m in item.iter_markers("xdist_group")
         ]
-        if module in _ROS_GRAPH_MODULES:  # real-time graphs: one after another, never two beside each other
+        if _starts_ros_graphs(module):  # real-time graphs: one after another, never two beside each other
             mine.append("ros-graph")
         keys[item.nodeid] = mine
         for k in mine[1:]:
