@@ -6,11 +6,16 @@ interfaces/README.md): the build's requirements are interfaces/build-requirement
 the generated packages install beside monodock, with their type-support libraries inside them. A machine that
 cannot build them (no C compiler) still gets monodock, with a warning: everything but the Nav2 action servers and
 TF then works.
+
+A colcon workspace builds monodock too (package.xml, ament_python: docs/colcon.md). colcon runs this file itself,
+outside any build environment, so there it builds no interfaces and asks for no build requirements (setuptools would
+fetch them into .eggs): the workspace's ROS 2 provides nav2_msgs and tf2_msgs.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -24,6 +29,8 @@ INTERFACE_PACKAGES = {
     "nav2_msgs": ("nav2_msgs", "nav2_msgs.action"),
 }
 BINARIES = ["*.so", "type_description/*.json", "LICENSE*"]
+# colcon sets COLCON=1 in the environment of everything it runs.
+COLCON = os.environ.get("COLCON") == "1"
 
 
 def _requirements() -> list[str]:
@@ -34,7 +41,7 @@ def _requirements() -> list[str]:
 def _build_interfaces() -> tuple[str, ...]:
     """The interface packages built into GENERATED; none before the build requirements are installed (pip and uv
     first ask setup.py what to install), and none, with a warning, where they cannot be built."""
-    if importlib.util.find_spec("ament_package") is None:
+    if COLCON or importlib.util.find_spec("ament_package") is None:
         return ()
     try:
         sys.path.insert(0, str(ROOT / "interfaces"))
@@ -45,6 +52,17 @@ def _build_interfaces() -> tuple[str, ...]:
         print(f"warning: monodock's ROS 2 interfaces were not built ({exc}); the Nav2 action servers and TF "
               "will be unavailable (interfaces/README.md)", file=sys.stderr)  # fmt: skip
         return ()
+
+
+class ColconDistribution(Distribution):
+    """pyproject.toml's requires-python as a string, not a SpecifierSet: colcon reads the configured distribution
+    back through its repr and ast.literal_eval (colcon-python-setup-py), which a SpecifierSet's repr fails."""
+
+    def parse_config_files(self, filenames: list[str] | None = None, ignore_option_errors: bool = False) -> None:
+        super().parse_config_files(filenames, ignore_option_errors)
+        for holder in (self, self.metadata):
+            if getattr(holder, "python_requires", None) is not None:
+                holder.python_requires = str(holder.python_requires)
 
 
 class BinaryDistribution(Distribution):
@@ -64,6 +82,11 @@ setup(
     packages=[*_monodock_packages(), *(p for name in built for p in INTERFACE_PACKAGES[name])],
     package_dir={"": "src", **{name: str((GENERATED / name).relative_to(ROOT)) for name in built}},
     package_data={"monodock": ["py.typed"], **dict.fromkeys(built, BINARIES)},
-    setup_requires=_requirements(),
-    distclass=BinaryDistribution if built else Distribution,
+    # A ROS 2 package's marker in the ament index and its manifest (package.xml), where colcon and ros2 look.
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/monodock"]),
+        ("share/monodock", ["package.xml"]),
+    ],
+    setup_requires=[] if COLCON else _requirements(),
+    distclass=BinaryDistribution if built else ColconDistribution if COLCON else Distribution,
 )
