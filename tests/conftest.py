@@ -150,6 +150,8 @@ _ROS_GRAPH_MODULES = frozenset(f"tests/ros/{name}.py" for name in ("test_graph",
 
 def _starts_ros_graphs(module: str) -> bool:
     return module in _ROS_GRAPH_MODULES or (module.startswith("tests/ros/test_") and module.endswith("_graph.py"))
+
+
 _GROUPS_FILE = "MONODOCK_XDIST_GROUPS"
 
 # The tests of a minute or more (on a quiet 2-core machine), first: the slow tier's end-to-end runs, ROS 2 graphs

@@ -98,6 +98,7 @@ class _Goal:
     done: threading.Event
     outcome: tuple[MissionResult | None, str] = (None, "")
     last_feedback: float = -math.inf
+    last_state: int | None = None
 
     def end(self, result: MissionResult | None, error: str) -> None:
         """Called by the mission thread when the mission is over."""
@@ -260,17 +261,18 @@ class DockActions:
     # --- feedback, from the mission thread --------------------------------------------------
 
     def feedback(self, mission: DockingMission) -> None:
-        """Publish the running dock goal's feedback, at most every ``FEEDBACK_PERIOD`` (UndockRobot has none)."""
+        """Publish the running dock goal's feedback on every change of state, and at most every ``FEEDBACK_PERIOD``
+        between (UndockRobot has none): a short state (a charge that comes at once) is still reported."""
         with self._lock:
             goal = self._goal
         if goal is None or goal.task != "dock":
             return
-        now = time.monotonic()
-        if now - goal.last_feedback < FEEDBACK_PERIOD:
+        now, state = time.monotonic(), feedback_state(mission.state)
+        if now - goal.last_feedback < FEEDBACK_PERIOD and state == goal.last_state:
             return
-        goal.last_feedback = now
+        goal.last_feedback, goal.last_state = now, state
         msg = self._types["dock"].Feedback()
-        msg.state = feedback_state(mission.state)
+        msg.state = state
         elapsed = now - goal.started
         msg.docking_time.sec = int(elapsed)
         msg.docking_time.nanosec = int((elapsed - int(elapsed)) * 1e9)

@@ -278,6 +278,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         self.estimator: Estimator | None = None
         self.method = ""
         self._file_robot: RobotConfig | None = None  # the robot file's (or the bundle's), before /tf_static
+        self._tf_waited = False  # the first mission waits for /tf_static's camera chain
         self._camera_info = _Latest()
         if self.options.model or self.options.camera:
             self._make_estimator(None)
@@ -362,13 +363,19 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             self._file_robot = self.estimator.robot
 
     def _mount_from_tf(self) -> None:
-        """The estimator with the camera mount /tf_static gives the images' frame (``camera_mount_source``; waits a
-        little for the first image, whose frame it needs)."""
+        """The estimator with the camera mount /tf_static gives the images' frame (``camera_mount_source``). Before
+        the first mission it waits a little for the first image, whose frame it needs, and for /tf_static's chain
+        to that frame (latched, it may come just after the node starts); a robot without one waits only then."""
         assert self.estimator is not None
         assert self._file_robot is not None
-        end = time.monotonic() + self.options.sensor_timeout
-        while not self.robot.image_frame_id and time.monotonic() < end:
-            time.sleep(0.02)
+        if not self._tf_waited:
+            self._tf_waited = True
+            end = time.monotonic() + self.options.sensor_timeout
+            while time.monotonic() < end and not (
+                self.robot.image_frame_id
+                and self.mount.lookup(self.options.frame_id, self.robot.image_frame_id) is not None
+            ):
+                time.sleep(0.02)
         robot = self.mount.robot(self._file_robot, self.robot.image_frame_id)
         if robot != self.estimator.robot:
             self._make_estimator(self.estimator.camera, robot)

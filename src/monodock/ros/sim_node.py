@@ -64,6 +64,7 @@ PARAMETERS: dict[str, Parameter] = {
     "odom_frame": Parameter("the odometry frame (odometry's and /tf's parent)", read_only=False),
     "camera_frame": Parameter("the camera body's frame (x forward, y left, z up) on /tf_static", read_only=False),
     "camera_frame_id": Parameter("the images' frame, the camera's optical frame, on /tf_static", read_only=False),
+    "rear_range_frame": Parameter("the rear range sensor's frame (its messages' frame_id)", read_only=False),
 }
 
 
@@ -292,7 +293,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         if rear is not None:
             r = m["Range"]()
             _stamp(r.header.stamp, stamp)
-            r.header.frame_id = "rear_range"
+            r.header.frame_id = self.settings.rear_range_frame
             r.radiation_type = r.ULTRASOUND
             r.field_of_view = math.radians(robot.config.rear_fov_deg)
             r.min_range, r.max_range = 0.0, robot.config.rear_range_max

@@ -29,3 +29,4 @@ class SimSettings:
     camera_frame_id: str = "camera_optical_frame"
     odom_frame: str = "odom"
     camera_frame: str = "camera_link"
+    rear_range_frame: str = "rear_range"
