@@ -39,7 +39,7 @@ class GraphRun:
     """What a driver script printed: one JSON object per line, and its exit code and stderr."""
 
     def __init__(self, returncode: int, stdout: str, stderr: str) -> None:
-        self.returncode, self.stderr = returncode, stderr
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
         self.records: list[dict[str, Any]] = []
         for line in stdout.splitlines():
             if line.startswith("{"):

@@ -85,3 +85,16 @@ def test_bad_parameters_are_one_line_and_exit_2(args: list[str], message: str) -
     assert len(lines) == 1, run.stderr
     assert lines[0].startswith("monodock-sim-ros: error: ")
     assert message in lines[0]
+
+
+def test_help_prints_the_usage_and_starts_nothing() -> None:
+    run = run_private_graph(HERE / "graph_node.py", "sim", "--help", timeout=60)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.startswith("usage: monodock-sim-ros"), run.stdout[:200]
+    assert "start:=[x,y,yaw]" in run.stdout
+    assert run.stderr == ""  # no node came up to log anything
+    refused = run_private_graph(HERE / "graph_node.py", "sim", "--bogus", timeout=60)
+    assert refused.returncode == 2
+    assert refused.stderr.strip() == (
+        "monodock-sim-ros: error: unrecognised arguments: --bogus (see monodock-sim-ros --help)"
+    )
