@@ -48,9 +48,10 @@ def _build_interfaces() -> tuple[str, ...]:
         from build import build_interfaces  # noqa: PLC0415 - interfaces/build.py, on the path just above
 
         return build_interfaces(GENERATED)
-    except Exception as exc:  # any failure: monodock installs without them, and says so
-        print(f"warning: monodock's ROS 2 interfaces were not built ({exc}); the Nav2 action servers and TF "
-              "will be unavailable (interfaces/README.md)", file=sys.stderr)  # fmt: skip
+    except Exception as exc:  # any failure: monodock installs without them, and says so in one line
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"warning: monodock's ROS 2 interfaces were not built ({why}; {GENERATED / 'build.log'} says more); "
+              "the Nav2 action servers and TF will be unavailable (interfaces/README.md)", file=sys.stderr)  # fmt: skip
         return ()
 
 
