@@ -493,7 +493,16 @@ for _label, _path, _value, _refuse in [
     ("dictionary a list", ("dictionary",), ["DICT_4X4_50"], True),
     ("markers a list", ("markers",), [1, 2, 3], True),
     ("a marker missing", ("markers", "right"), DELETE, True),
-    ("unknown role", ("markers",), {**LAYOUT["markers"], "top": {"id": 4, "y": 0, "z": 0.6}}, True),
+    ("an extra marker, named", ("markers",), {**LAYOUT["markers"], "top": {"id": 4, "y": 0, "z": 0.6}}, False),
+    ("an extra marker, badly named", ("markers",), {**LAYOUT["markers"], "Top-1": {"id": 4, "y": 0, "z": 0.6}}, True),
+    ("an extra marker, a papers' id", ("markers",), {**LAYOUT["markers"], "top": {"id": 2, "y": 0, "z": 0.6}}, True),
+    ("an extra marker over marker 2", ("markers",), {**LAYOUT["markers"], "top": {"id": 4, "y": 0, "z": 0.32}}, True),
+    (
+        "17 markers",
+        ("markers",),
+        {**LAYOUT["markers"], **{f"m{i}": {"id": 4 + i, "y": 0, "z": 0.5 + 0.2 * i} for i in range(14)}},
+        True,
+    ),
 ]:
     if _refuse is None:
         add(F_LAYOUT, _label, _layout_case(dump_yaml(set_path(LAYOUT, _path, _value)), refuse=False))

@@ -188,20 +188,20 @@ def corrected_layout(layout: DockLayout, scale: float, roll: float, pitch: float
     floor, then given its origin below the centre marker's centre again."""
     R = transforms.rotation_from_rpy(roll, pitch, 0.0)
     poses = {}
-    for r in ROLES:
+    for r in layout.roles:
         T = layout.dock_T_marker(r)
         T[:3, 3] *= scale
         poses[r] = transforms.transform(R, np.zeros(3)) @ T
     c = poses["center"][:3, 3]
     shift = np.array([c[0], c[1], 0.0])
     specs = []
-    for r in ROLES:
+    for r in layout.roles:
         T = poses[r]
         p = T[:3, 3] - shift
         tilt = transforms.rpy_from_rotation(T[:3, :3] @ FACE_R_MARKER.T)
         m = layout.marker(r)
         specs.append(MarkerSpec(r, m.id, float(p[1]), float(p[2]), float(p[0]), *tilt, size=layout.side(r) * scale))
-    return replace(layout, markers=(specs[0], specs[1], specs[2]))
+    return replace(layout, markers=tuple(specs))
 
 
 # --- the odometry --------------------------------------------------------------------------------------------

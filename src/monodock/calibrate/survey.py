@@ -668,6 +668,13 @@ def survey_layout(
             (one line that says what views to add).
     """
     limits = limits or SurveyLimits()
+    if len(nominal.markers) > len(ROLES):
+        # Its values are the papers' three markers' (VALUES); another marker would leave the survey unmeasured.
+        extra = ", ".join(nominal.roles[len(ROLES) :])
+        raise InputError(
+            f"the layout carries markers beyond the papers' three ({extra}): the survey measures left, center and "
+            "right only; survey those, then add the others by hand"
+        )
     usable = [v for v in views if len(v.corners) >= (1 if robot is not None else 2)]
     for r in ROLES:
         alone = sum(1 for v in views if set(v.corners) == {r})
@@ -714,7 +721,7 @@ def survey_layout(
             MarkerSpec(r, m.id, float(y), float(z), float(x), float(roll), float(pitch), float(yaw), float(side))
         )
     offset = edge_offset.offset_px if edge_offset is not None else 0.0
-    layout = replace(nominal, markers=(specs[0], specs[1], specs[2]), edge_offset=offset)
+    layout = replace(nominal, markers=tuple(specs), edge_offset=offset)
     dock_T_W = transforms.invert(W_T_dock)
     mean_side = math.exp(np.mean([math.log(nominal.side(r)) for r in ROLES]))
     notes_text = (

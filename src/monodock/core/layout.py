@@ -9,12 +9,17 @@ A surveyed dock (``monodock calibrate layout``) or a designed one says more per 
 the face ``roll``, ``pitch``, ``yaw`` (radians, URDF order, about the dock's axes through the marker's centre:
 roll turns it in the face's plane, pitch > 0 leans its top into the charger, yaw > 0 turns it to face the
 robot's right) and ``size`` (its own printed side, metres). A file without them means what it always meant.
+
+Beyond the papers' three (left, center, right: required, first), a dock may carry more markers under names of its
+own (``far``, ``m4``: lower case, digits and ``_``), each with its own size and place, up to ``MAX_MARKERS`` in all,
+from the same dictionary. The papers' regression uses the three; the geometric methods use every marker they see.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,11 +32,14 @@ from monodock.core import transforms
 from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.errors import ConfigError
 
-__all__ = ["FACE_R_MARKER", "ROLES", "DockLayout", "MarkerSpec"]
+__all__ = ["FACE_R_MARKER", "MAX_MARKERS", "ROLES", "DockLayout", "MarkerSpec"]
 
 # The papers' markers 1, 2, 3 from the robot's left to its right; marker 2 marks the docking point.
 ROLES: tuple[str, str, str] = ("left", "center", "right")
 ROLE_NUMBER: dict[str, int] = {"left": 1, "center": 2, "right": 3}
+# More markers than the papers' three: how they may be named, and how many a dock may carry in all.
+EXTRA_NAME = re.compile(r"^[a-z][a-z0-9_]{0,15}$")
+MAX_MARKERS = 16
 
 # What a layout file may hold (docs/user-guide.md, "What every file may hold"): printed markers from 5 mm to 2 m,
 # within 5 m of the dock origin.
@@ -61,7 +69,7 @@ class MarkerSpec:
     """One marker on the charger face: its role, ArUco id, centre (x, y, z) in the dock frame, tilt and side.
 
     Attributes:
-        role: left, center or right.
+        role: left, center or right (the papers' markers 1, 2, 3), or another marker's own name (``far``).
         id: the ArUco id.
         y, z: its centre across and above the floor, metres.
         x: its centre along the dock's x (0: on the face), metres.
@@ -80,9 +88,14 @@ class MarkerSpec:
     size: float | None = None
 
     @property
-    def number(self) -> int:
-        """The papers' marker number: 1 left, 2 centre, 3 right."""
-        return ROLE_NUMBER[self.role]
+    def number(self) -> int | None:
+        """The papers' marker number: 1 left, 2 centre, 3 right; None for a marker the papers do not have."""
+        return ROLE_NUMBER.get(self.role)
+
+    @property
+    def label(self) -> str:
+        """A short name for pictures and messages: m1, m2, m3 for the papers' markers, else its own name."""
+        return f"m{self.number}" if self.number is not None else self.role
 
     @property
     def tilted(self) -> bool:
@@ -96,11 +109,12 @@ class MarkerSpec:
 
 @dataclass(frozen=True)
 class DockLayout:
-    """Dictionary, marker side (outer black border, metres) and the three markers of the charger."""
+    """Dictionary, marker side (outer black border, metres) and the markers of the charger: the papers' three (left,
+    center, right) first, then any others in their file's order."""
 
     dictionary: str
     marker_size: float
-    markers: tuple[MarkerSpec, MarkerSpec, MarkerSpec]
+    markers: tuple[MarkerSpec, ...]
     # How far this print's black/white edges look moved towards the white in this camera's images, px (< 0: black
     # thinner; ink, sharpening, processing). Measured by ``calibrate layout``; the geometric methods' corners are
     # corrected by it (``perception.edge_offset``). 0: none.
@@ -111,8 +125,19 @@ class DockLayout:
             raise ConfigError(f"unknown ArUco dictionary '{self.dictionary}'")
         if not self.marker_size > 0:
             raise ConfigError(f"marker_size must be positive, got {self.marker_size}")
-        if tuple(m.role for m in self.markers) != ROLES:
-            raise ConfigError(f"layout markers must be {', '.join(ROLES)} in that order")
+        if tuple(m.role for m in self.markers[:3]) != ROLES:
+            raise ConfigError(f"layout markers must be {', '.join(ROLES)} in that order, before any others")
+        if len(self.markers) > MAX_MARKERS:
+            raise ConfigError(f"a dock carries at most {MAX_MARKERS} markers, got {len(self.markers)}")
+        names = [m.role for m in self.markers]
+        for name in names[3:]:
+            if name in ROLES or not EXTRA_NAME.match(name):
+                raise ConfigError(
+                    f"marker name '{name}': another marker's name is lower-case letters, digits and _ (up to 16, "
+                    f"a letter first), not {', '.join(ROLES)}"
+                )
+        if len(set(names)) != len(names):
+            raise ConfigError(f"marker names must be distinct, got {names}")
         ids = [m.id for m in self.markers]
         if len(set(ids)) != len(ids):
             raise ConfigError(f"marker ids must be distinct, got {ids}")
@@ -124,8 +149,8 @@ class DockLayout:
             if m.size is not None and not m.size > 0:
                 raise ConfigError(f"marker {m.role}: size must be positive, got {m.size}")
         centres = [(m.y, m.z) for m in self.markers]
-        for i in range(3):
-            for j in range(i + 1, 3):
+        for i in range(len(centres)):
+            for j in range(i + 1, len(centres)):
                 gap = max(abs(centres[i][0] - centres[j][0]), abs(centres[i][1] - centres[j][1]))
                 # Tilted markers' outlines on the face are a little narrower than their sides: a gap of the
                 # mean half sides, at most 3 % short, is still apart (a survey's ±2° leave 0.06 %).
@@ -158,11 +183,19 @@ class DockLayout:
             raise f.error("dictionary", f"unknown ArUco dictionary '{dictionary}' (e.g. DICT_4X4_50)")
         marker_size = f.number("marker_size", within=MARKER_SIZE_RANGE, unit="m")
         mf = f.child("markers")
-        unknown = sorted(str(k) for k in set(mf.data) - set(ROLES))
-        if unknown:
-            raise mf.error(unknown[0], f"unknown marker role (expected {', '.join(ROLES)})")
+        missing = [role for role in ROLES if role not in mf.data]
+        if missing:
+            raise mf.error(missing[0], f"missing: every dock carries the papers' {', '.join(ROLES)}")
+        others = [str(k) for k in mf.data if k not in ROLES]
+        for name in others:
+            if not EXTRA_NAME.match(name):
+                raise mf.error(
+                    name,
+                    f"unknown marker role (expected {', '.join(ROLES)}, or another marker's name: lower-case letters, "
+                    "digits and _)",
+                )
         specs = []
-        for role in ROLES:
+        for role in (*ROLES, *others):
             m = mf.child(role)
             marker_id = m.integer("id", minimum=0)  # the dictionary's range is checked with its name below
             y = m.number("y", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
@@ -177,7 +210,7 @@ class DockLayout:
         # survey's record (``calibrate layout``) is for people: read past, without a warning.
         f.warn_unknown(("dictionary", "marker_size", "markers", "edge_offset_px", "survey"))
         try:
-            return cls(dictionary, marker_size, (specs[0], specs[1], specs[2]), edge_offset)
+            return cls(dictionary, marker_size, tuple(specs), edge_offset)
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}") from None
 
@@ -206,6 +239,11 @@ class DockLayout:
         write_text_atomic(Path(path), yaml_text(self.to_dict()), force=force)
 
     # --- lookups --------------------------------------------------------------------------------
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        """Every marker's role, the papers' three first, then the others in the layout's order."""
+        return tuple(m.role for m in self.markers)
 
     def marker(self, role: str) -> MarkerSpec:
         """The marker with this role."""

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from monodock.core.camera import CameraModel
-from monodock.core.layout import ROLES, DockLayout
+from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
@@ -29,12 +29,13 @@ def visible_roles(
     pose: DockPose, camera: CameraModel, layout: DockLayout, robot: RobotConfig, margin_px: float = 0.0
 ) -> tuple[str, ...]:
     """The markers whose four corners all fall inside the image (``margin_px`` from its border) at a pose."""
-    P = planar_model(camera, layout, robot).optical_points(pose, ROLES).reshape(len(ROLES), 4, 3)
-    in_field = np.asarray(camera.in_view_field(P.reshape(-1, 3)).reshape(len(ROLES), 4).all(axis=1), dtype=bool)
+    roles = layout.roles
+    P = planar_model(camera, layout, robot).optical_points(pose, roles).reshape(len(roles), 4, 3)
+    in_field = np.asarray(camera.in_view_field(P.reshape(-1, 3)).reshape(len(roles), 4).all(axis=1), dtype=bool)
     field: list[bool] = in_field.tolist()
     if not any(field):
         return ()
-    px = camera.project(P.reshape(-1, 3)).reshape(len(ROLES), 4, 2)
+    px = camera.project(P.reshape(-1, 3)).reshape(len(roles), 4, 2)
     lo = -0.5 + margin_px
     inside: list[bool] = (
         (px[:, :, 0].min(axis=1) >= lo)
@@ -42,7 +43,7 @@ def visible_roles(
         & (px[:, :, 0].max(axis=1) <= camera.width - 0.5 - margin_px)
         & (px[:, :, 1].max(axis=1) <= camera.height - 0.5 - margin_px)
     ).tolist()
-    return tuple(r for r, f, i in zip(ROLES, field, inside, strict=True) if f and i)
+    return tuple(r for r, f, i in zip(roles, field, inside, strict=True) if f and i)
 
 
 def pose_jacobian(

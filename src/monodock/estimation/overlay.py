@@ -127,7 +127,7 @@ def draw_overlay(
         cv2.polylines(out, [pts], True, _GREEN, 1, cv2.LINE_AA, shift=4)
         cv2.circle(out, tuple(pts[0]), 4 * 16, _GREEN, -1, cv2.LINE_AA, shift=4)
         x, y = (obs.corners.min(axis=0) * scale).astype(int)
-        label = f"m{layout.marker(role).number} id {obs.marker_id}"
+        label = f"{layout.marker(role).label} id {obs.marker_id}"
         cv2.putText(out, label, (x, max(12, y - 6)), cv2.FONT_HERSHEY_SIMPLEX, 0.45, _YELLOW, 1, cv2.LINE_AA)
     if lidar_px is not None:
         _draw_lidar(out, image.shape[:2], lidar_px, lidar_selected, scale)

@@ -37,7 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
 from monodock.core.compiled import kernel
-from monodock.core.layout import ROLES, DockLayout
+from monodock.core.layout import DockLayout
 from monodock.core.lens import lens_of, project
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.robot import RobotConfig
@@ -173,8 +173,8 @@ class PlanarModel:
         cached = self._parts.get(key)
         if cached is None:
             for r in key:
-                if r not in ROLES:
-                    raise InputError(f"unknown marker role '{r}' (expected {', '.join(ROLES)})")
+                if r not in self.layout.roles:
+                    raise InputError(f"unknown marker role '{r}' (expected {', '.join(self.layout.roles)})")
             if not key:
                 raise InputError("no marker roles given")
             obj = np.concatenate([self.layout.corners_in_dock(r) for r in key])
@@ -348,12 +348,12 @@ def _whitening(corner_sigma: float | ArrayLike, n: int) -> _Whitening:
 # --- the solver ----------------------------------------------------------------------------------------
 
 
-def _stack_corners(corners: Mapping[str, ArrayLike]) -> tuple[tuple[str, ...], NDArray[np.float64]]:
+def _stack_corners(corners: Mapping[str, ArrayLike], layout: DockLayout) -> tuple[tuple[str, ...], NDArray[np.float64]]:
     """Roles (in the layout's order) and their corner pixels stacked and flattened, shape (8R,)."""
-    roles = tuple(r for r in ROLES if r in corners)
+    roles = tuple(r for r in layout.roles if r in corners)
     if len(roles) != len(corners):
-        unknown = sorted(set(corners) - set(ROLES))
-        raise InputError(f"unknown marker role '{unknown[0]}' (expected {', '.join(ROLES)})")
+        unknown = sorted(set(corners) - set(layout.roles))
+        raise InputError(f"unknown marker role '{unknown[0]}' (expected {', '.join(layout.roles)})")
     if not roles:
         raise InputError("no marker corners to fit")
     parts = []
@@ -413,7 +413,7 @@ def solve_planar(
     Raises:
         InputError: unknown roles, wrong shapes, non-finite pixels, bad sigma, prior or pitch_sd.
     """
-    roles, img = _stack_corners(corners)
+    roles, img = _stack_corners(corners, layout)
     model = planar_model(camera, layout, robot)
     parts = model.parts(roles)
     white = _whitening(corner_sigma, len(parts.obj))

@@ -72,7 +72,7 @@ def board_start(
     With two or more markers the board is wide enough that its IPPE solutions rarely fit alike (a lone
     far marker's do: use ``planar_candidates`` there). None for fewer than two markers or when IPPE fails.
     """
-    roles, img = _stack_corners(corners)
+    roles, img = _stack_corners(corners, layout)
     th = _board_theta(planar_model(camera, layout, robot), roles, img)
     return DockPose(float(th[0]), float(th[1]), float(th[2])) if th is not None else None
 
@@ -87,7 +87,7 @@ def board_fit(
 ) -> PlanarFit | None:
     """``planar.solve_planar`` from a start for two or more markers (``board_fit_stacked``); None for fewer, or where
     neither start can be found."""
-    roles, img = _stack_corners(corners)
+    roles, img = _stack_corners(corners, layout)
     if len(roles) < 2:
         return None
     model = planar_model(camera, layout, robot)
@@ -318,7 +318,7 @@ def planar_candidates(
     Raises:
         InputError: as ``planar.solve_planar``.
     """
-    roles, img = _stack_corners(corners)
+    roles, img = _stack_corners(corners, layout)
     model = planar_model(camera, layout, robot)
     parts = model.parts(roles)
     white = _whitening(corner_sigma, len(parts.obj))

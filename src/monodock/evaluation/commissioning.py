@@ -176,7 +176,7 @@ def _at_world_scale(surveyed: DockLayout, truth: DockLayout) -> DockLayout:
         )
         for m in surveyed.markers
     )
-    return dataclasses.replace(surveyed, markers=markers)  # type: ignore[arg-type]
+    return dataclasses.replace(surveyed, markers=markers)
 
 
 def _mount_error(calibrated: RobotConfig, layout: DockLayout, world: WrongWorld) -> dict[str, float]:

@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.camera import CameraModel
-from monodock.core.layout import DockLayout, MarkerSpec
+from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.errors import ConfigError, InputError
@@ -42,8 +42,7 @@ def scaled_markers(layout: DockLayout, factor: float) -> DockLayout:
 def spaced_markers(layout: DockLayout, factor: float) -> DockLayout:
     """The layout with the markers' lateral offsets (y) from the centre marker's × factor."""
     yc = layout.marker("center").y
-    markers = tuple(MarkerSpec(m.role, m.id, yc + (m.y - yc) * factor, m.z) for m in layout.markers)
-    return replace(layout, markers=(markers[0], markers[1], markers[2]))
+    return replace(layout, markers=tuple(replace(m, y=yc + (m.y - yc) * factor) for m in layout.markers))
 
 
 def scaled_camera(camera: CameraModel, factor: float) -> CameraModel:

@@ -47,8 +47,8 @@ class Detection:
 
     @property
     def roles_seen(self) -> tuple[str, ...]:
-        """The roles found, in the layout's order (left, center, right)."""
-        return tuple(r for r in ROLES if r in self.observations)
+        """The roles found: the papers' (left, center, right) first, then any others in the layout's order."""
+        return tuple(r for r in ROLES if r in self.observations) + tuple(r for r in self.observations if r not in ROLES)
 
 
 def as_gray(image: NDArray[np.generic]) -> NDArray[np.uint8]:
@@ -117,7 +117,8 @@ class MarkerDetector:
                 if role in found and _area(found[role].corners) >= _area(c):
                     continue
                 found[role] = MarkerObservation(role, int(marker_id), c)
-        return Detection(found, tuple(sorted(ignored)), (gray.shape[1], gray.shape[0]))
+        ordered = {r: found[r] for r in self.layout.roles if r in found}  # the layout's order, whatever OpenCV's
+        return Detection(ordered, tuple(sorted(ignored)), (gray.shape[1], gray.shape[0]))
 
 
 def _copy_parameters(p: cv2.aruco.DetectorParameters) -> cv2.aruco.DetectorParameters:

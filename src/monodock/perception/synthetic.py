@@ -31,15 +31,15 @@ def _face_texture(layout: DockLayout) -> tuple[NDArray[np.float32], float, float
     """The face as a grey texture (rows down from the top edge, columns from the robot's left), its half width
     and height in metres."""
     margin = 1.1 * layout.marker_size
-    half_w = max(abs(m.y) for m in layout.markers) + layout.marker_size / 2.0 + margin
-    height = max(m.z for m in layout.markers) + layout.marker_size / 2.0 + margin
+    half_w = max(abs(m.y) + layout.side(m.role) / 2.0 for m in layout.markers) + margin
+    height = max(m.z + layout.side(m.role) / 2.0 for m in layout.markers) + margin
     tex = np.full((round(height / _TEXEL_M), round(2 * half_w / _TEXEL_M)), _WHITE, dtype=np.float32)
-    side = round(layout.marker_size / _TEXEL_M)
     for m in layout.markers:
+        side = round(layout.side(m.role) / _TEXEL_M)
         cells = layout.marker_bits(m.id).astype(np.float32)
         square = cv2.resize(_BLACK + cells * (_WHITE - _BLACK), (side, side), interpolation=cv2.INTER_NEAREST)
-        col = round((half_w - m.y - layout.marker_size / 2.0) / _TEXEL_M)
-        row = round((height - m.z - layout.marker_size / 2.0) / _TEXEL_M)
+        col = round((half_w - m.y - layout.side(m.role) / 2.0) / _TEXEL_M)
+        row = round((height - m.z - layout.side(m.role) / 2.0) / _TEXEL_M)
         tex[row : row + side, col : col + side] = square
     return tex, half_w, height
 

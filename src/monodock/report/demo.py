@@ -180,7 +180,7 @@ def _draw_frame(ax: Axes, view: FrameView, image: NDArray[np.uint8], *, labels: 
         ax.plot(*c.T, color="yellow", lw=0.8)
         if labels:
             x, y = obs.corners.min(axis=0)
-            ax.text(x, y - 4, f"m{view.layout.marker(role).number}", color="yellow", fontsize=7)
+            ax.text(x, y - 4, view.layout.marker(role).label, color="yellow", fontsize=7)
     _draw_dock(ax, view, view.truth, "black", ls="--", lw=1.2)
     for method, est in view.estimates.items():
         if est.pose is not None:

@@ -181,9 +181,14 @@ def _lines(ax: Axes, x: float, top: float, lines: Iterable[tuple[str, float, boo
     return y
 
 
+def _name(m: MarkerSpec) -> str:
+    """A marker as the kit names it: the papers' number and role ("2 · center"), or another marker's own name."""
+    return f"{m.number} · {m.role}" if m.number is not None else m.role
+
+
 def _title(m: MarkerSpec) -> str:
     where = " (over the docking point)" if m.role == "center" and m.y == 0.0 else ""
-    return f"Marker {m.number} · {m.role}{where} · id {m.id}"
+    return f"Marker {_name(m)}{where} · id {m.id}"
 
 
 def _marker_header(ax: Axes, layout: DockLayout, m: MarkerSpec, paper: Paper) -> None:
@@ -224,7 +229,7 @@ def _sheet_label(ax: Axes, layout: DockLayout, m: MarkerSpec, x: float, top: flo
         x,
         top + SHEET_LABEL_MM - 1.0,
         [
-            (f"{m.number} · {m.role} · id {m.id}", 9.0, True),
+            (f"{_name(m)} · id {m.id}", 9.0, True),
             (f"{layout.dictionary} · {_side_mm(layout, m):.1f} mm", 7.0, False),
         ],
     )
@@ -254,7 +259,7 @@ def _sheets(layout: DockLayout, paper: Paper) -> list[list[tuple[MarkerSpec, tup
     for m in layout.markers:
         card = _card_mm(layout, m)
         label = max(
-            _text_width_mm(f"{m.number} · {m.role} · id {m.id}", 9.0),
+            _text_width_mm(f"{_name(m)} · id {m.id}", 9.0),
             _text_width_mm(f"{layout.dictionary} · {_side_mm(layout, m):.1f} mm", 7.0),
         )
         w, h = max(card, label), card + SHEET_LABEL_MM
@@ -466,7 +471,7 @@ def _placement(ax: Axes, layout: DockLayout, paper: Paper) -> None:
             bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.6},
         )
         low = min(floor, pz[r] - h)
-        _lines(ax, px[r], low - 4.0, [(f"{m.number} · {m.role}", 7.0, True), (f"id {m.id}", 7.0, False)], ha="center")
+        _lines(ax, px[r], low - 4.0, [(_name(m), 7.0, True), (f"id {m.id}", 7.0, False)], ha="center")
 
     # The horizontal distances between centres: left-center and center-right, then left-right above them.
     tier1, tier2 = top + 7.0, top + 15.0

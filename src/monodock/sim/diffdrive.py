@@ -35,7 +35,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.compiled import inlined, kernel
-from monodock.core.layout import ROLES
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.dock.interface import CameraFrame, Odometry
@@ -322,7 +321,7 @@ class SimulatedRobot:
         if not all(start.values()):
             return False  # a marker whole in the image at the start: most frames end here, after one projection
         end = self.sim.true_corners(self.dock_pose(e.end))
-        return all(start[role] & _beyond(end[role], self.sim) for role in ROLES)
+        return all(start[role] & _beyond(end[role], self.sim) for role in self.sim.layout.roles)
 
     def deliver(self, frame: CameraFrame) -> None:
         """Hand over a frame rendered ahead (the real-time runner renders each exposure when it happens)."""
@@ -397,7 +396,7 @@ class SimulatedRobot:
         self.frames_rendered += 1
         if self.hide_markers is not None and self.hide_markers(stamp, pose):
             corners = self.sim.true_corners(dock_pose)
-            for role in ROLES:
+            for role in self.sim.layout.roles:
                 quad = corners[role]
                 if np.all(np.isfinite(quad)):
                     centre = quad.mean(axis=0)

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
-from monodock.core.layout import ROLES, DockLayout
+from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.core.scan import LaserScan
@@ -96,7 +96,7 @@ class Simulator:
         it, or so far outside its field that the lens polynomial would fold them back into the image."""
         optical_T_world = transforms.invert(self.world_T_optical(pose))
         out = {}
-        for role in ROLES:
+        for role in self.layout.roles:
             p = transforms.apply(optical_T_world, self.layout.corners_in_dock(role))
             px = self.camera.project(p)
             px[~self.camera.in_view_field(p)] = np.nan
@@ -200,6 +200,6 @@ class Simulator:
             pose=pose,
             corners=corners,
             in_view={r: self.in_view(c) for r, c in corners.items()},
-            visible_fraction={r: self._visible_fraction(world, pose, r) for r in ROLES},
+            visible_fraction={r: self._visible_fraction(world, pose, r) for r in self.layout.roles},
         )
         return SimFrame(self.render(pose, world, rng), self.scan(pose, world, stamp, rng), truth)

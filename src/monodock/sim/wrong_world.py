@@ -81,7 +81,7 @@ def wrong_world(
                 side,
             )
         )
-    true_layout = replace(layout, markers=(markers[0], markers[1], markers[2]))
+    true_layout = replace(layout, markers=tuple(markers))
     c = robot.camera_mount
     dp = rng.uniform(-e.mount_position, e.mount_position, 3)
     da = rng.uniform(-e.mount_angle, e.mount_angle, 3)
