@@ -14,7 +14,7 @@ import pytest
 import yaml
 from numpy.typing import NDArray
 
-from monodock.core.layout import DockLayout
+from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.errors import InputError
 from monodock.report.dock_kit import PAPERS, SCALE_BAR_MM, check_fits, dock_kit_pdf, misfit
 
@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DPI = 600
 PX_PER_MM = DPI / 25.4
 PT_MM = 25.4 / 72
-PAGE_PT = {"a4": (595.28, 841.89), "letter": (612.0, 792.0)}
+PAGE_PT = {"a4": (595.28, 841.89), "letter": (612.0, 792.0), "a3": (841.89, 1190.55)}
 TOLERANCE_MM = 0.1
 COARSE = 4  # detection's downsampling
 
@@ -36,7 +36,10 @@ def wide_layout(**sizes: float) -> DockLayout:
 
 
 WIDE = wide_layout(left=0.118, right=0.125)
-KITS = {"default-a4": (DockLayout.default(), "a4"), "wide-letter": (WIDE, "letter")}
+# Today's dock with an 18 cm far-field marker above it (issue 28): too large for A4, printed on A3.
+_BASE = DockLayout.default()
+FAR = DockLayout(_BASE.dictionary, _BASE.marker_size, (*_BASE.markers, MarkerSpec("far", 7, 0.25, 0.70, size=0.18)))
+KITS = {"default-a4": (DockLayout.default(), "a4"), "wide-letter": (WIDE, "letter"), "far-a3": (FAR, "a3")}
 
 
 @pytest.fixture(scope="module")
@@ -144,7 +147,7 @@ def test_pages_are_the_paper_exactly(kits: dict[str, bytes], name: str) -> None:
     layout, paper = KITS[name]
     doc = pdfium.PdfDocument(kits[name])
     try:
-        assert len(doc) == 4  # a page per marker and the placement drawing
+        assert len(doc) == len(layout.markers) + 1  # a page per marker and the placement drawing
         for page in doc:
             assert page.get_size() == pytest.approx(PAGE_PT[paper], abs=0.01)
         meta = doc.get_metadata_dict()
@@ -198,10 +201,13 @@ def test_a_sheet_holds_small_markers_on_one_page_with_one_scale_bar() -> None:
 
 
 def _label_centre_x_mm(textpage: pdfium.PdfTextPage, label: str) -> float:
-    searcher = textpage.search(label)
-    found = searcher.get_next()
-    assert found is not None, label
-    first, count = found
+    """The x of the label under a marker: the last place the text is (the notes above the drawing come first)."""
+    searcher = textpage.search(label, match_whole_word=True)
+    found, last = searcher.get_next(), None
+    while found is not None:
+        last, found = found, searcher.get_next()
+    assert last is not None, label
+    first, count = last
     left = textpage.get_charbox(first)[0]
     right = textpage.get_charbox(first + count - 1)[2]
     return (left + right) / 2 * PT_MM
@@ -212,12 +218,15 @@ def test_the_placement_drawing_puts_the_markers_where_the_layout_says(kits: dict
     layout, _ = KITS[name]
     doc = pdfium.PdfDocument(kits[name])
     try:
-        textpage = doc[3].get_textpage()
+        textpage = doc[len(layout.markers)].get_textpage()
         text = textpage.get_text_range()
         scale = re.search(r"drawn at 1:([0-9.]+)\.", text)
         assert scale is not None
         denominator = float(scale.group(1))
-        x = {m.role: _label_centre_x_mm(textpage, f"{m.number} · {m.role}") for m in layout.markers}
+        x = {
+            m.role: _label_centre_x_mm(textpage, f"{m.number} · {m.role}" if m.number else m.role)
+            for m in layout.markers
+        }
     finally:
         doc.close()
     mm = {m.role: 1000 * m.y for m in layout.markers}
@@ -231,7 +240,11 @@ def test_the_placement_drawing_puts_the_markers_where_the_layout_says(kits: dict
         assert f"{1000 * m.z:.1f} mm" in text
         assert f"id {m.id}" in text
     assert "docking point" in text
-    assert abs(scale_bar_mm(render(kits[name], 3)) - SCALE_BAR_MM) < TOLERANCE_MM
+    for m in layout.markers[3:]:  # another marker's place, beside marker 2's, in words and on the drawing
+        offset = 1000 * (m.y - layout.marker("center").y)
+        assert f"{m.role} (id {m.id}): its centre {abs(offset):.1f} mm to the left" in text.replace("\r\n", " ")
+        assert (x["center"] - x[m.role]) * denominator == pytest.approx(offset, abs=0.5 * denominator)
+    assert abs(scale_bar_mm(render(kits[name], len(layout.markers))) - SCALE_BAR_MM) < TOLERANCE_MM
     assert "flat" in text
     assert "upright" in text
     assert "square to the floor" in text

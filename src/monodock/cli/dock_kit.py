@@ -30,7 +30,8 @@ def add_parser(subparsers: SubParsers) -> None:
         "--paper",
         choices=PAPER_CHOICES,
         default="both",
-        help="paper size: a4 (210 x 297 mm), letter (8.5 x 11 in) or both (default: both)",
+        help="paper size: a4 (210 x 297 mm), letter (8.5 x 11 in), both of those (the default), or a3 / a2 for a "
+        "far-field marker larger than A4 holds",
     )
     p.add_argument("--sheet", action="store_true", help="as many markers per page as fit, not one page each")
     p.add_argument("--force", action="store_true", help="replace an existing DIR")
@@ -41,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     """``monodock dock-kit``: check every paper fits before drawing, then write the folder in one rename."""
     check_writable(args.out, force=args.force, inputs=(args.layout,))
     layout = DockLayout.load(args.layout)
-    keys = list(PAPERS) if args.paper == "both" else [args.paper]
+    keys = ["a4", "letter"] if args.paper == "both" else [args.paper]
     reasons = {key: misfit(layout, PAPERS[key]) for key in keys}
     for reason in reasons.values():
         if reason is not None:

@@ -74,7 +74,13 @@ class Paper:
         return w - 2 * TICK_OUT_MM, h - HEADER_MM - FOOTER_MM
 
 
-PAPERS = {"a4": Paper("A4", 210.0, 297.0), "letter": Paper("Letter", 215.9, 279.4)}
+# A4 and Letter for the papers' markers; A3 and A2 (a print shop's) for a far-field marker up to ~20 and ~29 cm.
+PAPERS = {
+    "a4": Paper("A4", 210.0, 297.0),
+    "letter": Paper("Letter", 215.9, 279.4),
+    "a3": Paper("A3", 297.0, 420.0),
+    "a2": Paper("A2", 420.0, 594.0),
+}
 
 
 def _mm(metres: float) -> float:
@@ -396,6 +402,12 @@ def _placement_notes(layout: DockLayout, denominator: float) -> list[str]:
         "all in one plane.",
         f"{layout.dictionary}; sides (outer black border): {sides}.",
     ]
+    for m in layout.markers[3:]:  # beyond the papers' three: no dimension line of their own, so said here
+        side = "left" if m.y > centre.y else "right"
+        notes.append(
+            f"{m.role} (id {m.id}): its centre {abs(_mm(m.y - centre.y)):.1f} mm to the {side} of marker 2's centre "
+            f"line, {_mm(m.z):.1f} mm above the floor."
+        )
     off = [m.role for m in layout.markers if m.tilted]
     if off:
         notes.append(
