@@ -105,6 +105,8 @@ class CameraMountFromTF:
         self._parents: dict[str, tuple[str, NDArray[np.float64]]] = {}  # child -> (parent, parent_T_child)
         self._lock = threading.Lock()
         self._said: set[tuple[str, str]] = set()
+        self._version = 0  # counts /tf_static messages: a robot worked out before one is still right until then
+        self._cached: tuple[tuple[Any, ...], RobotConfig] | None = None
         self.available = not subscribe or self._subscribe()
 
     def _subscribe(self) -> bool:
@@ -137,6 +139,7 @@ class CameraMountFromTF:
                 continue
             with self._lock:
                 self._parents[child] = (t.header.frame_id.lstrip("/"), parent_T_child)
+                self._version += 1
 
     def lookup(self, parent: str, child: str) -> NDArray[np.float64] | None:
         """parent_T_child composed over /tf_static, or None when the two frames are not joined there."""
@@ -167,6 +170,16 @@ class CameraMountFromTF:
         and once which mount is in use."""
         if not frame_id or not self.available:
             return file_robot
+        # Called for every image: worked out again only when /tf_static, the frames or the file change.
+        key = (self._version, self.base_frame, frame_id, self.source, file_robot)
+        cached = self._cached
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        robot = self._robot(file_robot, frame_id)
+        self._cached = (key, robot)
+        return robot
+
+    def _robot(self, file_robot: RobotConfig, frame_id: str) -> RobotConfig:
         found = self.lookup(self.base_frame, frame_id)
         if found is None:
             return file_robot
