@@ -70,6 +70,10 @@ from monodock.ros.tf import CameraMountFromTF
 
 __all__ = ["PARAMETERS", "DockNode", "DockOptions", "Ros2Robot", "run_dock"]
 
+# spin_once calls after odometry is first seen stale before it counts as lost: enough for the executor to take the
+# callbacks that were already waiting (the clock's, the odometry's and the sensors') in one round.
+STALE_SPINS = 8
+
 
 @dataclass(frozen=True)
 class DockOptions(EstimatorOptions):
@@ -279,6 +283,8 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         self.method = ""
         self._file_robot: RobotConfig | None = None  # the robot file's (or the bundle's), before /tf_static
         self._tf_waited = False  # the first mission waits for /tf_static's camera chain
+        self.spins = 0  # the executor's spin_once calls, counted by run_dock: see _odometry_lost
+        self._stale_at_spin: int | None = None
         self._camera_info = _Latest()
         if self.options.model or self.options.camera:
             self._make_estimator(None)
@@ -473,6 +479,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
                 return
             blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
             mission = DockingMission(config, estimator.robot, blind, task=task)
+            self._stale_at_spin = None
             self._mission = mission
             self._publish_state(mission.state.value)
             robot.watch(True)
@@ -493,7 +500,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         now = self.robot.now()
         if self._cancel is not None:
             mission.abort(now, FailureReason.CANCELLED, self._cancel)
-        elif self.robot.odometry_age() > self.options.odom_timeout:
+        elif self._odometry_lost():
             age = self.robot.odometry_age()
             mission.abort(now, FailureReason.ODOMETRY_LOST, f"no odometry for {age:.2f} s")
         if mission.state.value != self._state:
@@ -501,6 +508,19 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         self._publish_pose(mission, odom)
         if self.actions is not None:
             self.actions.feedback(mission)
+
+    def _odometry_lost(self) -> bool:
+        """Odometry older than odom_timeout, and still so after the executor has taken what was already waiting.
+
+        At the end of a stall (a busy machine) the sim publishes its /clock and the odometry of the same instant
+        together; the executor takes /clock's subscription first, and a tick in between would see an odometry
+        1.4 s old on both clocks. A few spins later the waiting odometry has been taken or none was waiting."""
+        if self.robot.odometry_age() <= self.options.odom_timeout:
+            self._stale_at_spin = None
+            return False
+        if self._stale_at_spin is None:
+            self._stale_at_spin = self.spins
+        return self.spins - self._stale_at_spin >= STALE_SPINS
 
     def _publish_state(self, state: str) -> None:
         self._state = state
@@ -615,6 +635,7 @@ def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
         executor.add_node(node)
         while rclpy.ok() and not stop:
             executor.spin_once(timeout_sec=0.1)
+            node.spins += 1
     except MonodockError as exc:
         print(f"monodock-dock-ros: error: {exc}", file=sys.stderr)
         return 2
