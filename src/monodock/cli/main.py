@@ -33,6 +33,7 @@ COMMANDS = {
     "evaluate": "monodock.cli.evaluate",
     "calibrate": "monodock.cli.calibrate",
     "dock-kit": "monodock.cli.dock_kit",
+    "design": "monodock.cli.design",
     "teach": "monodock.cli.teach",
     "commission": "monodock.cli.commission",
     "run": "monodock.cli.run",

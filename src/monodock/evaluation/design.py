@@ -8,7 +8,8 @@ Cramér–Rao bound (``estimation.crlb``'s model, ``CornerNoise``'s corners) of 
 
 The search is a small grid, smallest face first: dictionary (DICT_4X4_50, DICT_5X5_100), the papers' three
 markers' side and spacing, and no far-field marker or one of 15-60 cm above the row and to its left (its centre
-over the left marker's outer edge, so that it is not symmetric with the others). The first candidate that fits
+over the left marker's outer edge, or beside the row to its left, bottoms level: not symmetric with the others,
+so its yaw is not ambiguous). The first candidate that fits
 the face and meets every constraint is the proposal:
 
 - coverage: at every envelope pose at least one marker is detectable;
@@ -40,8 +41,11 @@ from monodock.core.robot import RobotConfig
 from monodock.dock.controller import blind_gap
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.corner_noise import CornerNoise
+from monodock.estimation.factory import make_estimator
 from monodock.estimation.planar import planar_model
 from monodock.evaluation.detection_model import DetectionModel, pixels_per_cell
+from monodock.sim import Nuisances, Simulator
+from monodock.sim.world import ChargerGeometry
 
 __all__ = [
     "DICTIONARIES",
@@ -52,6 +56,7 @@ __all__ = [
     "Tolerance",
     "candidate_layout",
     "check_in_sim",
+    "check_poses",
     "design",
     "face_size",
     "facing_pose",
@@ -62,6 +67,7 @@ DICTIONARIES = ("DICT_4X4_50", "DICT_5X5_100")
 NEAR_SIZES = (0.08, 0.10, 0.12)
 SPACINGS = (0.15, 0.20, 0.25)  # centre to centre, centre marker to each side marker
 FAR_SIZES = (0.0, *(round(0.14 + 0.02 * k, 2) for k in range(34)))  # 0: no far marker; 14-80 cm
+FAR_PLACES = ("above", "beside")
 NEAR_Z = 0.30  # the papers' marker height (centres above the floor)
 FAR_ID = 7
 # Near the dock: all three papers' markers detectable on the axis between these distances (base_link to face centre).
@@ -118,13 +124,17 @@ def facing_pose(distance: float, bearing: float) -> DockPose:
     return DockPose.from_matrix(transforms.invert(dock_T_base))
 
 
-def candidate_layout(dictionary: str, near_size: float, spacing: float, far_size: float) -> DockLayout:
+def candidate_layout(
+    dictionary: str, near_size: float, spacing: float, far_size: float, far_place: str = "above"
+) -> DockLayout:
     """The papers' three markers (ids 1, 2, 3; side ``near_size``; side markers ``spacing`` from the centre, at the
-    papers' height) and, when ``far_size`` > 0, a far marker (id 7) above the row, its centre over the left marker's
-    outer edge, a quiet zone of both markers between them.
+    papers' height) and, when ``far_size`` > 0, a far marker (id 7) off to the left, where it is not symmetric
+    with the others: ``above`` the row, its centre over the left marker's outer edge, or ``beside`` it, left of the
+    left marker, their bottom edges level (lower, so that it stays in view nearer the dock); a quiet zone of both
+    markers between them.
 
     Raises:
-        ConfigError: markers that overlap.
+        ConfigError: markers that overlap, or an unknown ``far_place``.
     """
     markers = [
         MarkerSpec("left", 1, spacing, NEAR_Z),
@@ -134,8 +144,13 @@ def candidate_layout(dictionary: str, near_size: float, spacing: float, far_size
     if far_size > 0:
         modules = DockLayout(dictionary, near_size, tuple(markers)).modules
         gap = (near_size + far_size) / modules
-        z = NEAR_Z + near_size / 2 + gap + far_size / 2
-        markers.append(MarkerSpec("far", FAR_ID, spacing + near_size / 2, z, size=far_size))
+        if far_place == "above":
+            y, z = spacing + near_size / 2, NEAR_Z + near_size / 2 + gap + far_size / 2
+        elif far_place == "beside":
+            y, z = spacing + near_size / 2 + gap + far_size / 2, NEAR_Z + (far_size - near_size) / 2
+        else:
+            raise ConfigError(f"far_place must be above or beside, got {far_place!r}")
+        markers.append(MarkerSpec("far", FAR_ID, round(y, 3), round(z, 3), size=far_size))
     return DockLayout(dictionary, near_size, tuple(markers))
 
 
@@ -324,14 +339,15 @@ def design(
         for near in NEAR_SIZES:
             for spacing in SPACINGS:
                 for far in FAR_SIZES:
-                    if spacing < near * (1 + 2 / 6) or far > MAX_PRINTED:
-                        continue
-                    try:
-                        lay = candidate_layout(dictionary, near, spacing, far)
-                    except ConfigError:
-                        continue
-                    w, h = face_size(lay)
-                    cands.append((w * h, far, near, DICTIONARIES.index(dictionary), spacing, lay, (w, h)))
+                    for place in FAR_PLACES if far > 0 else FAR_PLACES[:1]:
+                        if spacing < near * (1 + 2 / 6) or far > MAX_PRINTED:
+                            continue
+                        try:
+                            lay = candidate_layout(dictionary, near, spacing, far, place)
+                        except ConfigError:
+                            continue
+                        w, h = face_size(lay)
+                        cands.append((w * h, far, near, DICTIONARIES.index(dictionary), spacing, lay, (w, h)))
     cands.sort(key=lambda c: c[:5])
     fits = [c for c in cands if c[6][0] <= max_width + 1e-9 and c[6][1] <= max_height + 1e-9]
     if not fits:
@@ -349,7 +365,10 @@ def design(
         model = DetectionModel.budget(lay.dictionary, blur=blur)
         hard = [(envelope.max_distance, b) for b in (-envelope.max_bearing, 0.0, envelope.max_bearing)]
         if not all(model.detectable(pixels_per_cell(facing_pose(d, b), camera, lay, robot)).any() for d, b in hard):
-            refuse("coverage", f"no marker detectable at {envelope.max_distance:.1f} m (on the axis or at the bearing's edge)")
+            refuse(
+                "coverage",
+                f"no marker detectable at {envelope.max_distance:.1f} m (on the axis or at the bearing's edge)",
+            )
             continue
         coverage = predict_map(lay, camera, robot, envelope, blur=blur, sigma=False)
         if not coverage.covered.all():
@@ -359,7 +378,10 @@ def design(
             continue
         gap = _safe_blind_gap(camera, lay, robot)
         if gap > papers_gap + 1e-6:
-            refuse("blind", f"the centre marker's blind gap {gap * 100:.0f} cm exceeds the papers' {papers_gap * 100:.0f} cm")
+            refuse(
+                "blind",
+                f"the centre marker's blind gap {gap * 100:.0f} cm exceeds the papers' {papers_gap * 100:.0f} cm",
+            )
             continue
         reason, worst = _near_ok(lay, camera, robot, model, tolerance)
         if reason is not None:
@@ -397,6 +419,8 @@ class SimCheck:
         sigma: the bound's σ (x m, y m, yaw rad) from the predicted markers; NaN without any.
         error: the fused estimate minus the truth (x m, y m, yaw rad); NaN without a pose.
         px_per_cell: each marker's px/cell, layout order.
+        sigma_detected: the bound's σ from the markers the detector actually decoded (the stricter yardstick
+            for the error: the estimate uses them all); NaN without any.
     """
 
     distance: float
@@ -406,11 +430,19 @@ class SimCheck:
     sigma: tuple[float, float, float]
     error: tuple[float, float, float]
     px_per_cell: tuple[float, ...]
+    sigma_detected: tuple[float, float, float] = (math.nan, math.nan, math.nan)
 
     @property
     def z_scores(self) -> tuple[float, float, float]:
-        """|error| / σ per axis."""
-        return tuple(abs(e) / s if s > 0 else math.inf for e, s in zip(self.error, self.sigma, strict=True))  # type: ignore[return-value]
+        """|error| / the predicted σ, per axis."""
+        x, y, a = (abs(e) / s if s > 0 else math.inf for e, s in zip(self.error, self.sigma, strict=True))
+        return x, y, a
+
+    @property
+    def z_detected(self) -> tuple[float, float, float]:
+        """|error| / the σ of the markers decoded, per axis."""
+        x, y, a = (abs(e) / s if s > 0 else math.inf for e, s in zip(self.error, self.sigma_detected, strict=True))
+        return x, y, a
 
 
 def check_in_sim(
@@ -427,10 +459,6 @@ def check_in_sim(
 ) -> list[SimCheck]:
     """Render the simulator (default nuisances, and a 6 px motion blur when ``blur``) at (distance m, bearing rad)
     poses on ``layout`` (the charger face ``face`` when given), detect and estimate with ``method``."""
-    from monodock.estimation.factory import make_estimator
-    from monodock.sim import Nuisances, Simulator
-    from monodock.sim.world import ChargerGeometry
-
     nuisances = Nuisances().updated(supersample=supersample, **({"motion_blur_px": 6.0} if blur else {}))
     charger = ChargerGeometry(width=max(face[0], 0.60), height=max(face[1], 0.45)) if face else ChargerGeometry()
     sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=nuisances, charger=charger, seed=seed)
@@ -451,7 +479,31 @@ def check_in_sim(
             if est is not None
             else (math.nan, math.nan, math.nan)
         )
+        known = tuple(r for r in detected if r in layout.roles)
+        sd = bound_sigma(truth, camera, layout, robot, known) if known else np.full(3, np.nan)
         out.append(
-            SimCheck(d, b, predicted, tuple(detected), (sig[0], sig[1], sig[2]), err, tuple(float(v) for v in ppc))
+            SimCheck(
+                d,
+                b,
+                predicted,
+                tuple(detected),
+                (float(sig[0]), float(sig[1]), float(sig[2])),
+                err,
+                tuple(float(v) for v in ppc),
+                (float(sd[0]), float(sd[1]), float(sd[2])),
+            )
         )
     return out
+
+
+def check_poses(envelope: Envelope, n: int, seed: int = 0) -> list[tuple[float, float]]:
+    """``n`` (distance m, bearing rad) poses to render: the envelope's far corners and far centre, a near one on the
+    axis, then uniform draws over distance and bearing (seeded)."""
+    d_max, b_max = envelope.max_distance, envelope.max_bearing
+    fixed = [(d_max, -b_max), (d_max, 0.0), (d_max, b_max), (min(NEAR_ALL_THREE, d_max), 0.0)]
+    rng = np.random.default_rng(seed)
+    drawn = [
+        (float(rng.uniform(envelope.min_distance, d_max)), float(rng.uniform(-b_max, b_max)))
+        for _ in range(max(0, n - len(fixed)))
+    ]
+    return (fixed + drawn)[:n]
