@@ -13,8 +13,8 @@ so its yaw is not ambiguous). The first candidate that fits
 the face and meets every constraint is the proposal:
 
 - coverage: at every envelope pose at least one marker is detectable;
-- near the dock: the three papers' markers are all detectable on the axis from ``NEAR_FIELD`` in to within
-  ``NEAR_ALL_THREE`` of the face, and the centre marker's blind gap (``dock.controller.blind_gap``) is no larger
+- near the dock: the three papers' markers are all detectable on the axis from ``NEAR_ALL_THREE`` (1 m) in to
+  ``NEAR_THREE_FROM`` (0.7 m), and the centre marker's blind gap (``dock.controller.blind_gap``) is no larger
   than the papers' dock's on the same camera;
 - tolerance: the bound's σ of x, y and yaw at the near-field poses (on the axis and ±10° off, ``NEAR_ALL_THREE``
   to ``NEAR_FIELD``) is within the tolerance;
@@ -70,7 +70,9 @@ FAR_SIZES = (0.0, *(round(0.14 + 0.02 * k, 2) for k in range(34)))  # 0: no far 
 FAR_PLACES = ("above", "beside")
 NEAR_Z = 0.30  # the papers' marker height (centres above the floor)
 FAR_ID = 7
-# Near the dock: all three papers' markers detectable on the axis between these distances (base_link to face centre).
+# Near the dock: all three papers' markers detectable on the axis from NEAR_ALL_THREE in to NEAR_THREE_FROM (base_link
+# to face centre; the final manoeuvre's estimates), and the tolerance met from NEAR_ALL_THREE out to NEAR_FIELD.
+NEAR_THREE_FROM = 0.7
 NEAR_ALL_THREE = 1.0
 NEAR_FIELD = 1.5
 NEAR_BEARINGS_DEG = (-10.0, 0.0, 10.0)
@@ -259,8 +261,6 @@ class Design:
         blur: whether it budgets for heavy motion blur.
         px_per_cell: the detection budget (px a code cell).
         map: the prediction over the envelope.
-        near_all_three: the farthest on-axis distance (m) from which in to ``NEAR_ALL_THREE`` the papers' three are
-            all detectable (as checked), or NaN.
         blind_gap: the centre marker's blind gap (m, front edge to face) and the papers' dock's on this camera.
         near_sigma: the worst bound σ (x m, y m, yaw rad) at the near-field poses.
         tried: candidates checked before the proposal (smallest face first).
@@ -291,7 +291,7 @@ def _near_ok(
 ) -> tuple[str | None, NDArray[np.float64]]:
     """Why the near field fails (or None), and the worst bound σ there."""
     three = ("left", "center", "right")
-    for d in np.arange(NEAR_ALL_THREE, NEAR_FIELD + 1e-9, 0.1):
+    for d in np.arange(NEAR_THREE_FROM, NEAR_ALL_THREE + 1e-9, 0.1):
         if not model.detectable(pixels_per_cell(facing_pose(float(d), 0.0), camera, layout, robot, three)).all():
             return f"the three near markers are not all detectable on the axis at {d:.1f} m", np.full(3, np.inf)
     worst = np.zeros(3)
@@ -453,13 +453,16 @@ def check_in_sim(
     *,
     blur: bool,
     face: tuple[float, float] | None = None,
-    supersample: int = 4,
+    supersample: int | None = None,
     seed: int = 0,
     method: str = "fused",
 ) -> list[SimCheck]:
-    """Render the simulator (default nuisances, and a 6 px motion blur when ``blur``) at (distance m, bearing rad)
-    poses on ``layout`` (the charger face ``face`` when given), detect and estimate with ``method``."""
-    nuisances = Nuisances().updated(supersample=supersample, **({"motion_blur_px": 6.0} if blur else {}))
+    """Render the simulator (default nuisances, and a 6 px motion blur when ``blur``; ``supersample``: the renderer's
+    S x S, default the nuisances') at (distance m, bearing rad) poses on ``layout`` (the charger face ``face`` when
+    given), detect and estimate with ``method``."""
+    nuisances = Nuisances().updated(**({"motion_blur_px": 6.0} if blur else {}))
+    if supersample is not None:
+        nuisances = nuisances.updated(supersample=supersample)
     charger = ChargerGeometry(width=max(face[0], 0.60), height=max(face[1], 0.45)) if face else ChargerGeometry()
     sim = Simulator(layout=layout, camera=camera, robot=robot, nuisances=nuisances, charger=charger, seed=seed)
     estimator = make_estimator(method=method, camera=camera, layout=layout, robot=robot)
