@@ -7,10 +7,11 @@ first). At each pose a marker counts as detectable when it is fully in the image
 Cramér–Rao bound (``estimation.crlb``'s model, ``CornerNoise``'s corners) of the detectable markers.
 
 The search is a small grid, smallest face first: dictionary (DICT_4X4_50, DICT_5X5_100), the papers' three
-markers' side and spacing, and no far-field marker or one of 15-60 cm above the row and to its left (its centre
-over the left marker's outer edge, or beside the row to its left, bottoms level: not symmetric with the others,
-so its yaw is not ambiguous). The first candidate that fits
-the face and meets every constraint is the proposal:
+markers' side and spacing, no far-field marker or one of 14-80 cm above the row and to its left (its centre over
+the left marker's outer edge) or beside the row on its left, bottoms level (not symmetric with the others, so its
+pose is not mirrored by theirs), and no middle marker or one of 14-22 cm beside the row on its right (nested sizes,
+for heavy blur, where the far marker has left the image and the near ones are still too small). The first
+candidate that fits the face and meets every constraint is the proposal:
 
 - coverage: at every envelope pose at least one marker is detectable;
 - near the dock: the three papers' markers are all detectable on the axis from ``NEAR_ALL_THREE`` (1 m) in to
@@ -70,6 +71,9 @@ FAR_SIZES = (0.0, *(round(0.14 + 0.02 * k, 2) for k in range(34)))  # 0: no far 
 FAR_PLACES = ("above", "beside")
 NEAR_Z = 0.30  # the papers' marker height (centres above the floor)
 FAR_ID = 7
+# A middle marker, for where the far one has left the image and the near ones are still too small (heavy blur).
+MID_SIZES = (0.0, 0.14, 0.18, 0.22)
+MID_ID = 8
 # Near the dock: all three papers' markers detectable on the axis from NEAR_ALL_THREE in to NEAR_THREE_FROM (base_link
 # to face centre; the final manoeuvre's estimates), and the tolerance met from NEAR_ALL_THREE out to NEAR_FIELD.
 NEAR_THREE_FROM = 0.7
@@ -127,13 +131,19 @@ def facing_pose(distance: float, bearing: float) -> DockPose:
 
 
 def candidate_layout(
-    dictionary: str, near_size: float, spacing: float, far_size: float, far_place: str = "above"
+    dictionary: str,
+    near_size: float,
+    spacing: float,
+    far_size: float,
+    far_place: str = "above",
+    mid_size: float = 0.0,
 ) -> DockLayout:
     """The papers' three markers (ids 1, 2, 3; side ``near_size``; side markers ``spacing`` from the centre, at the
     papers' height) and, when ``far_size`` > 0, a far marker (id 7) off to the left, where it is not symmetric
     with the others: ``above`` the row, its centre over the left marker's outer edge, or ``beside`` it, left of the
     left marker, their bottom edges level (lower, so that it stays in view nearer the dock); a quiet zone of both
-    markers between them.
+    markers between them. When ``mid_size`` > 0, a middle marker (``mid``, id 8) right of the right marker, bottoms
+    level.
 
     Raises:
         ConfigError: markers that overlap, or an unknown ``far_place``.
@@ -153,6 +163,11 @@ def candidate_layout(
         else:
             raise ConfigError(f"far_place must be above or beside, got {far_place!r}")
         markers.append(MarkerSpec("far", FAR_ID, round(y, 3), round(z, 3), size=far_size))
+    if mid_size > 0:
+        modules = DockLayout(dictionary, near_size, tuple(markers[:3])).modules
+        y = -(spacing + near_size / 2 + (near_size + mid_size) / modules + mid_size / 2)
+        z = NEAR_Z + (mid_size - near_size) / 2
+        markers.append(MarkerSpec("mid", MID_ID, round(y, 3), round(z, 3), size=mid_size))
     return DockLayout(dictionary, near_size, tuple(markers))
 
 
@@ -342,18 +357,20 @@ def design(
             for spacing in SPACINGS:
                 for far in FAR_SIZES:
                     for place in FAR_PLACES if far > 0 else FAR_PLACES[:1]:
-                        if spacing < near * (1 + 2 / 6) or far > MAX_PRINTED:
-                            continue
-                        try:
-                            lay = candidate_layout(dictionary, near, spacing, far, place)
-                        except ConfigError:
-                            continue
-                        w, h = face_size(lay)
-                        cands.append((w * h, far, near, DICTIONARIES.index(dictionary), spacing, lay, (w, h)))
-    cands.sort(key=lambda c: c[:5])
-    fits = [c for c in cands if c[6][0] <= max_width + 1e-9 and c[6][1] <= max_height + 1e-9]
+                        for mid in MID_SIZES:
+                            if spacing < near * (1 + 2 / 6) or far > MAX_PRINTED:
+                                continue
+                            try:
+                                lay = candidate_layout(dictionary, near, spacing, far, place, mid)
+                            except ConfigError:
+                                continue
+                            w, h = face_size(lay)
+                            key = (w * h, len(lay.markers), far, mid, near, DICTIONARIES.index(dictionary), spacing)
+                            cands.append((key, lay, (w, h)))
+    cands.sort(key=lambda c: c[0])
+    fits = [c for c in cands if c[2][0] <= max_width + 1e-9 and c[2][1] <= max_height + 1e-9]
     if not fits:
-        smallest = min(cands, key=lambda c: c[0])[6]
+        smallest = cands[0][2]
         raise InputError(
             f"no layout fits a {max_width:g} x {max_height:g} m face: the smallest candidate needs "
             f"{smallest[0]:.2f} x {smallest[1]:.2f} m"
@@ -363,7 +380,7 @@ def design(
     def refuse(kind: str, reason: str) -> None:
         why[kind] = (why.get(kind, (0, ""))[0] + 1, reason)
 
-    for tried, (_, _, _, _, _, lay, wh) in enumerate(fits, start=1):
+    for tried, (_, lay, wh) in enumerate(fits, start=1):
         model = DetectionModel.budget(lay.dictionary, blur=blur)
         hard = [(envelope.max_distance, b) for b in (-envelope.max_bearing, 0.0, envelope.max_bearing)]
         if not all(model.detectable(pixels_per_cell(facing_pose(d, b), camera, lay, robot)).any() for d, b in hard):

@@ -38,7 +38,8 @@ def _groups(design: Design) -> tuple[list[str], np.ndarray]:
     det = design.map.detectable
     n_near = det[:, :, near].sum(axis=2)
     has_extra = det[:, :, extra].any(axis=2) if extra else np.zeros(n_near.shape, dtype=bool)
-    names = ["none", "far only", "1-2 near", "1-2 near + far", "3 near", "3 near + far"]
+    big = "/".join(roles[k] for k in extra) or "far"
+    names = ["none", f"{big} only", "1-2 near", f"1-2 near + {big}", "3 near", f"3 near + {big}"]
     idx = np.where(n_near == 0, np.where(has_extra, 1, 0), np.where(n_near < 3, 2, 4) + has_extra)
     return names, idx
 
