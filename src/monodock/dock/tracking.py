@@ -19,6 +19,7 @@ from monodock.core.pose2d import Pose2D
 from monodock.dock.interface import Odometry
 from monodock.dock.pose_filter import DockFilter, FilterConfig, MeasurementNoise
 from monodock.estimation.estimator import Estimator
+from monodock.perception.predicted import Prior
 
 __all__ = [
     "DockTrack",
@@ -48,11 +49,24 @@ class Observation:
 Perceive = Callable[[float, "np.ndarray"], Observation]
 
 
-def make_perceive(estimator: Estimator, method: str) -> Perceive:
-    """Turn the estimator's method into the controller's per-frame observation."""
+def make_perceive(
+    estimator: Estimator, method: str, *, track: Callable[[], DockTrack | None] | None = None
+) -> Perceive:
+    """Turn the estimator's method into the controller's per-frame observation.
+
+    ``track``: gives the mission's dock track (None before there is one); once it holds the dock, its prediction
+    at each frame's stamp is the estimator's prior, which finds the markers the detector missed
+    (``perception.predicted``).
+    """
 
     def perceive(stamp: float, image: np.ndarray) -> Observation:
-        e = estimator.estimate("", stamp, image).estimates[method]
+        prior = None
+        t = track() if track is not None else None
+        if t is not None:
+            at = t.dock_prior(stamp)
+            if at is not None:
+                prior = Prior(at[0], at[1])
+        e = estimator.estimate("", stamp, image, prior=prior).estimates[method]
         return Observation(stamp, e.pose, len(e.markers_seen), e.covariance)
 
     return perceive
@@ -167,6 +181,18 @@ class DockTrack:
         self.filter.reset()
 
     # --- read by the mission, dock-sim and the docking node -----------------------------------------
+
+    def dock_prior(self, stamp: float) -> tuple[DockPose, Matrix] | None:
+        """The filtered pose of the dock itself (not the taught ``target``) in base_link at ``stamp`` and its
+        covariance: where the next frame's markers must be (``perception.predicted``); None as ``dock_at``."""
+        odom = self._history.at(stamp)
+        if self.filter.mean is None or odom is None:
+            return None
+        pose, cov = self.filter.dock_pose(odom)
+        if self.target is not None:
+            own = Pose2D(pose.x, pose.y, pose.yaw).compose(self.target.inverse())
+            pose = DockPose(own.x, own.y, own.theta)
+        return pose, cov
 
     @property
     def mean(self) -> Pose2D | None:

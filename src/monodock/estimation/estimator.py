@@ -26,6 +26,7 @@ from monodock.estimation.methods import (
 )
 from monodock.estimation.pnp import PoseEstimate
 from monodock.perception.detect import Detection, MarkerDetector, as_gray
+from monodock.perception.predicted import PredictedMarkers, Prior
 from monodock.perception.synthetic import synthetic_view
 
 __all__ = ["Estimator", "FrameEstimates"]
@@ -77,6 +78,7 @@ class Estimator:
         self.methods = tuple(built)
         self.detector = MarkerDetector(layout, refinement=refinement)
         self.modules = layout.modules
+        self.predicted = PredictedMarkers(camera, layout, robot)
 
     def check_image(self, image: NDArray[np.generic], name: str) -> None:
         """InputError when the image's size is not the calibrated camera's."""
@@ -86,11 +88,21 @@ class Estimator:
                 f"{name}: image is {w}x{h} but the camera file is for {self.camera.width}x{self.camera.height}"
             )
 
-    def estimate(self, name: str, stamp: float, image: NDArray[np.generic]) -> FrameEstimates:
-        """Detection and the estimates of every method for one image."""
+    def estimate(
+        self, name: str, stamp: float, image: NDArray[np.generic], *, prior: Prior | None = None
+    ) -> FrameEstimates:
+        """Detection and the estimates of every method for one image.
+
+        ``prior``: the dock's predicted pose at the frame (a track's); the markers the detector missed are then
+        looked for where it puts them and kept when their code reads (``perception.predicted``); the detector's
+        own markers are unchanged.
+        """
         self.check_image(image, name)
         gray = as_gray(image)
-        return self.estimate_detection(name, stamp, gray, self.detector.detect(gray))
+        detection = self.detector.detect(gray)
+        if prior is not None:
+            detection = self.predicted.fill(gray, detection, prior)
+        return self.estimate_detection(name, stamp, gray, detection)
 
     def estimate_detection(
         self, name: str, stamp: float, gray: NDArray[np.uint8], detection: Detection

@@ -34,13 +34,16 @@ class MarkerObservation:
 class Detection:
     """The dock markers found in one image, and the ids seen that the dock does not carry.
 
-    ``unrefined`` lists the roles whose corners ``monodock.perception.refine`` could not refine and are still OpenCV's.
+    ``unrefined`` lists the roles whose corners ``monodock.perception.refine`` could not refine and are still OpenCV's;
+    ``recovered`` those the detector missed and ``monodock.perception.predicted`` found where the dock track
+    predicted them (their code verified).
     """
 
     observations: dict[str, MarkerObservation]
     ignored_ids: tuple[int, ...]
     image_size: tuple[int, int]
     unrefined: tuple[str, ...] = ()
+    recovered: tuple[str, ...] = ()
 
     def seen(self, role: str) -> bool:
         return role in self.observations

@@ -483,7 +483,8 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             self._mission = mission
             self._publish_state(mission.state.value)
             robot.watch(True)
-            result = run_mission(robot, make_perceive(estimator, self.method), mission, on_tick=self._on_tick)
+            perceive = make_perceive(estimator, self.method, track=lambda: mission.track)
+            result = run_mission(robot, perceive, mission, on_tick=self._on_tick)
             self._publish_result(task, result, "")
         except MonodockError as exc:
             error = str(exc)
