@@ -375,6 +375,8 @@ def test_failure_reasons_map_to_nav2_docking_error_codes() -> None:
         FailureReason.NOT_IN_VIEW: 904,
         FailureReason.NOT_FOUND: 904,
         FailureReason.MARKERS_LOST: 904,
+        FailureReason.DOCK_LOST: 904,
+        FailureReason.APPROACH_STALLED: 905,
         FailureReason.OUTSIDE_TOLERANCES: 905,
         FailureReason.OBSTACLE_BEHIND: 905,
         FailureReason.REVERSE_LIMIT: 905,

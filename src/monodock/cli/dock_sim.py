@@ -23,6 +23,7 @@ from monodock.evaluation.dock_sim import (
     ALL_METHODS,
     BUNDLE_METHODS,
     FAULTS,
+    STARTS,
     DockSimConfig,
     case_distances,
     run_dock_sim,
@@ -68,7 +69,14 @@ def add_parser(subparsers: Any) -> None:
         "dock-sim",
         help="closed-loop docking in the simulator, camera in the loop: every case, many starts, every method",
     )
-    d.add_argument("--cases", type=_cases, default=tuple(CASES), help="'all' (default) or e.g. 1,3,5")
+    d.add_argument("--cases", type=_cases, help="'all' (default) or e.g. 1,3,5 (not with --starts room)")
+    d.add_argument(
+        "--starts",
+        choices=STARTS,
+        default="cases",
+        help="where runs start: 'cases' (default: --trials per case inside --distance and --max-heading) or 'room' "
+        "(--trials starts 0.5-5 m from the face centre, within 60 deg of the dock's axis, any heading)",
+    )
     d.add_argument("--trials", type=int_in(1, 10_000), default=25, help="random starts per case, 1-10000 (25)")
     d.add_argument(
         "--method",
@@ -133,14 +141,12 @@ def add_parser(subparsers: Any) -> None:
         "--distance",
         type=float_in(0.0, 20.0, low_open=True),
         nargs=2,
-        default=(1.0, 2.5),
         metavar=("MIN", "MAX"),
         help="starts: base_link's distance from the face, m, each in (0, 20], MIN < MAX (1.0 2.5)",
     )
     d.add_argument(
         "--max-heading",
         type=float_in(0.0, 60.0, low_open=True),
-        default=30.0,
         help="starts: heading within ± this, degrees, in (0, 60] (30)",
     )
     d.add_argument(
@@ -193,6 +199,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         if not args.standoff > 0:
             raise InputError(f"--standoff must be positive, got {args.standoff:g}")
         mission = dataclasses.replace(mission, planner=dataclasses.replace(mission.planner, standoff=args.standoff))
+    _starts_envelope(args)
     if not 0 < args.distance[0] < args.distance[1]:
         raise InputError(f"--distance needs 0 < MIN < MAX, got {args.distance[0]:g} {args.distance[1]:g}")
     if not 0 < args.max_heading <= 60:
@@ -211,6 +218,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         redock=args.redock,
         seed=args.seed,
         distance=(args.distance[0], args.distance[1]),
+        starts=args.starts,
         max_heading_deg=args.max_heading,
         supersample=args.supersample,
         jobs=jobs,
@@ -228,7 +236,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
         camera=CameraModel.load(args.camera) if args.camera else CameraModel.default(),
         robot=RobotConfig.load(args.robot) if args.robot else RobotConfig.default(),
     )
-    for case in config.cases:
+    for case in config.cases if config.starts == "cases" else ():
         case_distances(case, config)  # before any training: a start region may be empty
     if any(m in BUNDLE_METHODS for m in config.methods):
         config = dataclasses.replace(config, bundle=_regression_bundle(args, config, jobs))
@@ -253,6 +261,21 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
     if args.out:
         print(f"report: {Path(args.out) / 'report.html'}")
     return 0
+
+
+def _starts_envelope(args: argparse.Namespace) -> None:
+    """Fill in the per-case envelope's defaults; ``--starts room`` refuses them (it sets its own)."""
+    if args.starts == "room":
+        for option, value in (
+            ("--cases", args.cases),
+            ("--distance", args.distance),
+            ("--max-heading", args.max_heading),
+        ):
+            if value is not None:
+                raise InputError(f"--starts room sets its own envelope (0.5-5 m, 60 deg, any heading); drop {option}")
+    args.cases = args.cases if args.cases is not None else tuple(CASES)
+    args.distance = args.distance if args.distance is not None else (1.0, 2.5)
+    args.max_heading = args.max_heading if args.max_heading is not None else 30.0
 
 
 def _regression_bundle(args: argparse.Namespace, config: Any, jobs: int) -> Path:

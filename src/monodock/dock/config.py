@@ -100,6 +100,14 @@ class DockingConfig:
     acquire_max_turn_deg: float = 370.0
     calculate_frames: int = 9
     center_tolerance_deg: float = 5.0
+    # The far approach: beyond far_distance from the face centre, or far_bearing_deg off the dock's axis, make for
+    # the staging point on the axis (staging_distance from the face) in legs of at most far_leg, then plan.
+    far_approach: bool = True
+    far_distance: float = 2.8
+    far_bearing_deg: float = 50.0
+    staging_distance: float = 1.5
+    far_leg: float = 1.2
+    far_max_legs: int = 8
     calculate_timeout: float = 3.0
     settle_speed: float = 0.005
     settle_timeout: float = 1.5
@@ -141,6 +149,10 @@ class DockingConfig:
             "max_reverse_distance",
             "recover_distance",
             "reseat_distance",
+            "far_distance",
+            "far_bearing_deg",
+            "staging_distance",
+            "far_leg",
         )
         for name in positive:
             if not getattr(self, name) > 0:
@@ -156,6 +168,15 @@ class DockingConfig:
         for name in not_negative:
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"docking config: {name} must not be negative, got {getattr(self, name)}")
+        if self.staging_distance >= self.far_distance:
+            raise ConfigError(
+                f"docking config: staging_distance ({self.staging_distance:g} m) must be less than far_distance "
+                f"({self.far_distance:g} m): the far approach must end where the manoeuvre takes over"
+            )
+        if self.far_bearing_deg > 90.0:
+            raise ConfigError(f"docking config: far_bearing_deg must be at most 90, got {self.far_bearing_deg:g}")
+        if self.far_max_legs < 1:
+            raise ConfigError(f"docking config: far_max_legs must be at least 1, got {self.far_max_legs}")
         if self.min_speed > self.approach_speed:
             raise ConfigError("docking config: min_speed must not exceed approach_speed")
         if self.min_speed > self.max_reverse_speed:

@@ -52,9 +52,13 @@ __all__ = [
     "Observation",
     "Perceive",
     "State",
+    "beyond_manoeuvre",
     "blind_gap",
+    "leg_end",
     "make_perceive",
+    "off_axis",
     "run_mission",
+    "staging_point",
 ]
 
 
@@ -84,6 +88,32 @@ class MissionResult:
     def succeeded(self) -> bool:
         """Docked, or undocked for an undocking mission."""
         return self.state in (State.DOCKED, State.UNDOCKED)
+
+
+def off_axis(robot: Pose2D) -> float:
+    """How far the robot (base_link, dock frame) stands off the dock's axis, seen from the face centre (rad, ≥ 0)."""
+    return abs(math.atan2(robot.y, -robot.x))
+
+
+def beyond_manoeuvre(robot: Pose2D, c: DockingConfig) -> bool:
+    """Whether the robot (dock frame) stands beyond what the manoeuvre takes on: farther than ``far_distance`` from
+    the face centre or more than ``far_bearing_deg`` off the axis; the far approach brings it in first."""
+    return math.hypot(robot.x, robot.y) > c.far_distance or off_axis(robot) > math.radians(c.far_bearing_deg)
+
+
+def staging_point(dock: Pose2D, c: DockingConfig) -> Pose2D:
+    """Where the far approach makes for, in odometry: ``staging_distance`` before the face on the dock's axis
+    (``dock``: the dock's pose in odometry), facing the face."""
+    return dock.compose(Pose2D(-c.staging_distance, 0.0, 0.0))
+
+
+def leg_end(pose: Pose2D, stage: Pose2D, remaining: float) -> Pose2D:
+    """Where the current far leg ends: the staging point, or ``remaining`` metres towards it when it is farther."""
+    d = pose.distance(stage)
+    if d <= max(remaining, 0.0) or d == 0.0:
+        return stage
+    k = max(remaining, 0.0) / d
+    return Pose2D(pose.x + k * (stage.x - pose.x), pose.y + k * (stage.y - pose.y), stage.theta)
 
 
 def blind_gap(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> float:
@@ -147,6 +177,15 @@ class _Centring:
     heading_before: float
 
 
+@dataclass
+class _FarLeg:
+    """``FAR_APPROACH``: the leg's step (``turn`` to face its end, ``drive`` there, ``face`` the dock again) and
+    where its drive began (odometry; None before it began)."""
+
+    step: str = "turn"
+    origin: Pose2D | None = None
+
+
 @dataclass(frozen=True)
 class _Reversing:
     """``MOVING1_BACK``, ``RECOVER``, ``RESEAT`` and ``BACK_OFF``: where the straight reverse leg ends (odometry)."""
@@ -168,8 +207,8 @@ class _Approaching:
     checked: bool
 
 
-_Phase = _Acquiring | _Calculating | _Centring | _Reversing | _Undocking | _Approaching | None
-_P = TypeVar("_P", _Acquiring, _Calculating, _Centring, _Reversing, _Undocking, _Approaching)
+_Phase = _Acquiring | _Calculating | _Centring | _FarLeg | _Reversing | _Undocking | _Approaching | None
+_P = TypeVar("_P", _Acquiring, _Calculating, _Centring, _FarLeg, _Reversing, _Undocking, _Approaching)
 
 
 @dataclass
@@ -230,6 +269,8 @@ class DockingMission:
         self.recoveries = 0
         self.reseats = 0
         self.obstacle_waits = 0
+        self.far_legs = 0  # legs of the far approach so far
+        self.seen_dock = False  # whether any frame has given the dock's pose (a later search that fails: DOCK_LOST)
         self.charging: bool | None = None
         self.log: list[tuple[float, str]] = []
         self.command = (0.0, 0.0)
@@ -243,6 +284,7 @@ class DockingMission:
             State.ACQUIRE: self._on_acquire,
             State.CENTER: self._on_center,
             State.CALCULATE: self._on_calculate,
+            State.FAR_APPROACH: self._on_far_approach,
             State.MOVING1_BACK: self._on_moving1_back,
             State.MOVING1_TURN: self._on_moving1_turn,
             State.MOVING1_DRIVE: self._on_moving1_drive,
@@ -268,7 +310,7 @@ class DockingMission:
     @property
     def wants_frames(self) -> bool:
         """Whether this state uses camera frames (the simulator renders only frames that are used)."""
-        if self.state in (State.ACQUIRE, State.CALCULATE, State.MOVING3, State.SETTLE):
+        if self.state in (State.ACQUIRE, State.CALCULATE, State.FAR_APPROACH, State.MOVING3, State.SETTLE):
             return True
         return self.config.refine_while_moving and self.state in _MOVING_TO_A
 
@@ -324,6 +366,7 @@ class DockingMission:
         placed = None if observation is None else self.track.place(observation)
         if observation is not None and placed is not None:
             at, seen, cov = placed
+            self.seen_dock = True
             if isinstance(self.phase, _Calculating):
                 self.phase.samples.append((at, seen, cov))  # the median comes at the plan
                 self.phase.markers.append(observation.markers)
@@ -394,6 +437,8 @@ class DockingMission:
         if not c.acquire:
             return self._fail(tick.now, FailureReason.NOT_IN_VIEW, "no markers in view (acquire is off)")
         if looking.turned >= math.radians(c.acquire_max_turn_deg):
+            if self.seen_dock:
+                return self._fail(tick.now, FailureReason.DOCK_LOST, "dock lost; not in view again after a full turn")
             return self._fail(tick.now, FailureReason.NOT_FOUND, "no markers in view after a full turn")
         looking.turned += abs(tick.odom.angular) * c.control_period
         return (0.0, c.acquire_turn_rate)
@@ -412,6 +457,11 @@ class DockingMission:
             x = float(np.median([e.x for _, e, _ in calc.samples]))
             y = float(np.median([e.y for _, e, _ in calc.samples]))
             bearing = math.atan2(y, x)
+            if c.far_approach:
+                self.track.seed(calc.samples)
+                robot = self.track.robot_in_dock(odom.pose)
+                if beyond_manoeuvre(robot, c):
+                    return self._start_far_leg(now, robot)
             # Fewer than three markers: the heading of a lone, small marker can flip sign (the planar pose
             # ambiguity); turn to face the dock so that all three are in view, then calculate again.
             if (
@@ -437,6 +487,44 @@ class DockingMission:
             self._enter(
                 tick.now, State.CALCULATE, "dock centred", _Calculating(heading_before_center=turn.heading_before)
             )
+        return (0.0, w)
+
+    def _start_far_leg(self, now: float, robot: Pose2D) -> tuple[float, float]:
+        """From Calculate: another leg of the far approach, or ``APPROACH_STALLED`` when the legs are used up."""
+        c = self.config
+        where = (
+            f"{math.hypot(robot.x, robot.y):.2f} m from the face, {math.degrees(off_axis(robot)):.0f} deg off its axis"
+        )
+        if self.far_legs >= c.far_max_legs:
+            return self._fail(now, FailureReason.APPROACH_STALLED, f"still {where} after {self.far_legs} far legs")
+        self.far_legs += 1
+        self._enter(now, State.FAR_APPROACH, f"leg {self.far_legs}: {where}", _FarLeg())
+        return (0.0, 0.0)
+
+    def _on_far_approach(self, tick: _Tick) -> tuple[float, float]:
+        """``FAR_APPROACH``: one leg towards the staging point on the dock's axis, then face the dock again."""
+        leg, c, pose = self._data(_FarLeg), self.config, tick.odom.pose
+        dock = self.track.mean
+        assert dock is not None
+        stage = staging_point(dock, c)
+        if leg.step == "turn":
+            if pose.distance(stage) < 0.05:
+                leg.step = "face"
+            else:
+                done, w = law.turn_in_place(math.atan2(stage.y - pose.y, stage.x - pose.x), tick.odom, c, self.max_turn)
+                if not done:
+                    return (0.0, w)
+                leg.step, leg.origin = "drive", pose
+        if leg.step == "drive":
+            assert leg.origin is not None
+            target = leg_end(pose, stage, c.far_leg - leg.origin.distance(pose))
+            v, w, arrived = law.drive_straight(target, pose, False, c, self.max_speed)
+            if not arrived:
+                return (v, w)
+            leg.step = "face"
+        done, w = law.turn_in_place(math.atan2(dock.y - pose.y, dock.x - pose.x), tick.odom, c, self.max_turn)
+        if done:
+            self._enter(tick.now, State.CALCULATE, "facing the dock")
         return (0.0, w)
 
     def _on_moving1_back(self, tick: _Tick) -> tuple[float, float]:

@@ -29,8 +29,18 @@ class State(StrEnum):
     """Stand still (until the odometry reads still, at most ``settle_timeout``), then take the median of
     ``calculate_frames`` frames (or of those that came within ``calculate_timeout``). Ends in ``CENTER`` when the
     frames saw fewer than three markers and the dock is more than ``center_tolerance_deg`` off the heading (not
-    twice in a row); in ``MOVING1_TURN`` with the plan (the case, Point A, the targets in odometry; the dock filter
-    seeded); back in ``ACQUIRE`` when no frame came within ``calculate_timeout``."""
+    twice in a row); in ``FAR_APPROACH`` when the robot stands farther than ``far_distance`` from the face centre or
+    more than ``far_bearing_deg`` off the dock's axis (``far_approach`` on); in ``MOVING1_TURN`` with the plan (the
+    case, Point A, the targets in odometry; the dock filter seeded); back in ``ACQUIRE`` when no frame came within
+    ``calculate_timeout``."""
+
+    FAR_APPROACH = "far-approach"
+    """The dock is too far, or too far off its axis, for the manoeuvre: make for the staging point on the dock's axis
+    (``staging_distance`` from the face) in legs, on the dock filter's coarse far-field pose, which every frame that
+    sees the dock refines (and the staging point with it): turn to face the leg's end, drive at most ``far_leg``
+    towards it, turn to face the dock again (so that it comes back into view). Ends in ``CALCULATE`` after each
+    leg (which plans from there, or starts another leg); in ``FAILED`` (``APPROACH_STALLED``) after
+    ``far_max_legs`` legs."""
 
     MOVING1_BACK = "moving1-back"
     """monodock's planner only: back out straight along the start heading (the camera keeps the dock in view) by
@@ -113,6 +123,8 @@ class FailureReason(StrEnum):
     ``NOT_IN_VIEW``         ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, initial perception)
     ``NOT_FOUND``           ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, initial perception)
     ``MARKERS_LOST``        ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, during the approach)
+    ``DOCK_LOST``           ``FAILED_TO_DETECT_DOCK`` = 904 (``FailedToDetectDock``, seen, lost, not found again)
+    ``APPROACH_STALLED``    ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, the far approach made no way)
     ``OUTSIDE_TOLERANCES``  ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, all retries used)
     ``OBSTACLE_BEHIND``     ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, cannot reverse)
     ``REVERSE_LIMIT``       ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, a reverse leg too long)
@@ -133,6 +145,13 @@ class FailureReason(StrEnum):
 
     MARKERS_LOST = "markers-lost"
     """No frame updated the dock filter for ``lost_timeout`` during Moving₃, outside the blind zone."""
+
+    DOCK_LOST = "dock-lost"
+    """The dock was seen (at the start, or on the far approach), then lost, and turning ``acquire_max_turn_deg`` on
+    the spot did not find it again."""
+
+    APPROACH_STALLED = "approach-stalled"
+    """The far approach used ``far_max_legs`` legs and still stood beyond ``far_distance`` or ``far_bearing_deg``."""
 
     OUTSIDE_TOLERANCES = "outside-tolerances"
     """At the face, the robot's own estimate of its final pose is outside the tolerances after ``max_retries``."""
@@ -168,6 +187,8 @@ _NAV2_ERROR_CODE = {
     FailureReason.NOT_IN_VIEW: _FAILED_TO_DETECT_DOCK,
     FailureReason.NOT_FOUND: _FAILED_TO_DETECT_DOCK,
     FailureReason.MARKERS_LOST: _FAILED_TO_DETECT_DOCK,
+    FailureReason.DOCK_LOST: _FAILED_TO_DETECT_DOCK,
+    FailureReason.APPROACH_STALLED: _FAILED_TO_CONTROL,
     FailureReason.OUTSIDE_TOLERANCES: _FAILED_TO_CONTROL,
     FailureReason.OBSTACLE_BEHIND: _FAILED_TO_CONTROL,
     FailureReason.REVERSE_LIMIT: _FAILED_TO_CONTROL,

@@ -70,6 +70,9 @@ __all__ = [
     "ALL_METHODS",
     "BUNDLE_METHODS",
     "FAULTS",
+    "ROOM_BEARING_DEG",
+    "ROOM_DISTANCE",
+    "STARTS",
     "AbsStats",
     "DockSimConfig",
     "DockSimSettings",
@@ -86,8 +89,10 @@ __all__ = [
     "case_distances",
     "filter_accuracy",
     "make_perceive",
+    "room_tasks",
     "run_dock_sim",
     "runs_csv",
+    "sample_room_start",
     "sample_start",
     "summarize",
 ]
@@ -110,6 +115,7 @@ class DockSimConfig:
     redock: bool = False  # after each docking: undock to the staging pose and dock again
     seed: int = 0
     distance: tuple[float, float] = (1.0, 2.5)  # base_link's distance from the face along the axis, metres
+    starts: str = "cases"  # "cases": per case, inside --distance and --max-heading; "room": ROOM_* (any heading)
     max_heading_deg: float = 30.0
     view_margin_px: float = 10.0
     supersample: int = 16
@@ -186,6 +192,40 @@ def case_distances(case: int, config: DockSimConfig) -> tuple[float, float]:
             "change --standoff or --distance"
         )
     return dlo, dhi
+
+
+# The room envelope (``--starts room``): base_link this far from the face centre, this far off the dock's axis,
+# any heading (the dock possibly behind the robot).
+ROOM_DISTANCE = (0.5, 5.0)
+ROOM_BEARING_DEG = 60.0
+STARTS = ("cases", "room")
+
+
+def sample_room_start(rng: np.random.Generator, robot: RobotConfig, drive: DiffDriveConfig) -> Pose2D:
+    """A random start in the room envelope (dock frame): distance and bearing uniform, heading uniform in ±180°.
+    Starts from which the robot could not turn on the spot without its footprint touching the face are redrawn
+    (close in and well off the axis)."""
+    reach = math.hypot(max(robot.front_offset, drive.rear_offset), 0.5 * drive.footprint_width) + 0.05
+    for _ in range(10_000):
+        d = float(rng.uniform(*ROOM_DISTANCE))
+        bearing = math.radians(float(rng.uniform(-ROOM_BEARING_DEG, ROOM_BEARING_DEG)))
+        heading = float(rng.uniform(-math.pi, math.pi))
+        x, y = -d * math.cos(bearing), d * math.sin(bearing)
+        if -x > reach:
+            return Pose2D(x, y, heading)
+    raise InputError("no room start clears the dock face")  # pragma: no cover - the envelope is fixed
+
+
+def room_tasks(config: DockSimConfig, planner: PlannerConfig) -> list[tuple[int, int, Pose2D]]:
+    """(case, trial, start) of ``config.trials`` room starts; the case is the start region it lies in (by
+    ``classify``), the trial numbers run across them."""
+    rng = np.random.default_rng([config.seed, 0, 7])
+    a = point_a(planner, config.robot.front_offset)
+    out = []
+    for trial in range(config.trials):
+        start = sample_room_start(rng, config.robot, config.drive)
+        out.append((classify(start, a), trial, start))
+    return out
 
 
 def sample_start(
@@ -436,7 +476,10 @@ def run_dock_sim(config: DockSimConfig, *, progress: bool = True) -> list[TrialR
             logging.getLogger("monodock.input").warning(said)
     planner = config.mission.planner
     tasks: list[_Task] = []
-    for case in config.cases:
+    if config.starts == "room":
+        for case, trial, start in room_tasks(config, planner):
+            tasks.extend(_Task(case, trial, m, start, p, f, label) for label, m, p, f in config.variants)
+    for case in config.cases if config.starts == "cases" else ():
         rng = np.random.default_rng([config.seed, case, 5])
         for trial in range(config.trials):
             start = sample_start(case, sim, planner, rng, config)

@@ -6,6 +6,7 @@ Top views are drawn as report.dock_cases draws them: the charger at the top, a d
 
 from __future__ import annotations
 
+import itertools
 import math
 import textwrap
 from collections.abc import Mapping, Sequence
@@ -22,7 +23,7 @@ from monodock.core.layout import DockLayout
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.planner import CASES
-from monodock.evaluation.dock_sim import DockSimConfig, TrialResult
+from monodock.evaluation.dock_sim import ROOM_BEARING_DEG, ROOM_DISTANCE, DockSimConfig, TrialResult
 from monodock.report.dock_cases import draw_dock, draw_robot, top_uv
 from monodock.report.dock_runs import (
     REVERSE_COLOUR,
@@ -42,7 +43,11 @@ from monodock.report.plotting import METHOD_COLOURS, plt
 from monodock.sim.diffdrive import DiffDriveConfig
 
 __all__ = [
+    "FAR_START",
     "final_error_plot",
+    "room_far_trajectories",
+    "room_success_map",
+    "room_time_plot",
     "run_plot",
     "trajectory_overview",
     "trajectory_plot",
@@ -370,4 +375,144 @@ def run_plot(
     fig.suptitle(_run_title(r, label), fontsize=9.5)
     fig.subplots_adjust(left=0.06, right=0.985, top=0.93, bottom=0.13)
     fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# --- the room envelope (``dock-sim --starts room``) ------------------------------------------------------------
+
+FAR_START = 3.5  # m from the face centre: the room figures' "far starts"
+
+
+def _start_distance(r: TrialResult) -> float:
+    return math.hypot(r.start.x, r.start.y)
+
+
+def _start_bearing_deg(r: TrialResult) -> float:
+    """The start's bearing off the dock's axis, seen from the face centre, degrees (+ left)."""
+    return math.degrees(math.atan2(r.start.y, -r.start.x))
+
+
+def _outcome(r: TrialResult) -> str:
+    """docked, or the failure's name (the state when the mission did not say)."""
+    if r.success:
+        return "docked"
+    return str(r.failure) if r.failure is not None else f"not docked ({r.state})"
+
+
+_OUTCOME_MARKERS = ("x", "s", "^", "v", "D", "P", "*")
+
+
+def room_success_map(results: Sequence[TrialResult], config: DockSimConfig, path: Path) -> None:
+    """Where every room start lay (top view, the charger at the top), a dot per run coloured by its outcome (a
+    panel per variant): blue docked and charging, red and a marker per failure reason otherwise; a tick from each
+    dot shows the start heading. Dashed: the envelope (0.5-5 m, ±60°)."""
+    variant_list = variants(results, config)
+    methods, planners, _ = variant_grid(variant_list)
+    n = len(variant_list)
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 3.3 * rows + 0.3), squeeze=False)
+    for ax in axes.flat:
+        ax.set_visible(False)
+    failures = sorted({_outcome(r) for r in results} - {"docked"})
+    for i, v in enumerate(variant_list):
+        ax = axes[i // cols][i % cols]
+        ax.set_visible(True)
+        draw_dock(ax, config.layout, None)
+        b = math.radians(ROOM_BEARING_DEG)
+        for d in ROOM_DISTANCE:
+            t = np.linspace(-b, b, 60)
+            ax.plot(d * np.sin(t), -d * np.cos(t), ls="--", color="0.6", lw=0.7)
+        for s in (-1, 1):
+            ax.plot(
+                [s * ROOM_DISTANCE[0] * math.sin(b), s * ROOM_DISTANCE[1] * math.sin(b)],
+                [-ROOM_DISTANCE[0] * math.cos(b), -ROOM_DISTANCE[1] * math.cos(b)],
+                ls="--",
+                color="0.6",
+                lw=0.7,
+            )
+        runs = [r for r in results if variant_of(r) == v]
+        for r in runs:
+            u, w = top_uv(r.start.x, r.start.y)
+            du, dw = top_uv(math.cos(r.start.theta), math.sin(r.start.theta))
+            ok = r.success
+            colour = "tab:blue" if ok else "tab:red"
+            ax.plot([u, u + 0.25 * du], [w, w + 0.25 * dw], color=colour, lw=0.6, alpha=0.7)
+            marker = "o" if ok else _OUTCOME_MARKERS[failures.index(_outcome(r)) % len(_OUTCOME_MARKERS)]
+            ax.plot(u, w, marker=marker, ms=3.5 if ok else 5.5, color=colour, ls="none", alpha=0.85)
+        ax.set_aspect("equal")
+        ax.set_xlim(-4.8, 4.8)
+        ax.set_ylim(-5.3, 0.5)
+        ax.set_title(f"{variant_label(v, planners)}: {sum(r.success for r in runs)}/{len(runs)} docked", fontsize=8.5)
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("lateral (m)", fontsize=7)
+        ax.set_ylabel("along the axis (m)", fontsize=7)
+    handles = [Line2D([], [], marker="o", color="tab:blue", ls="none", label="docked and charging")]
+    handles += [
+        Line2D([], [], marker=_OUTCOME_MARKERS[i % len(_OUTCOME_MARKERS)], color="tab:red", ls="none", label=f)
+        for i, f in enumerate(failures)
+    ]
+    fig.legend(handles=handles, loc="lower center", ncol=min(4, len(handles)), fontsize=7.5, frameon=False)
+    fig.suptitle("room starts by outcome (a tick: the start heading)", fontsize=9)
+    fig.tight_layout(rect=(0, 0.06, 1, 0.97))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    del methods
+
+
+def room_time_plot(results: Sequence[TrialResult], path: Path) -> None:
+    """Time to dock against the start's distance from the face centre (docked runs; a colour per variant), with
+    the median per metre."""
+    fig, ax = plt.subplots(figsize=(6.0, 3.8))
+    labels = sorted({r.variant or r.method for r in results})
+    for i, label in enumerate(labels):
+        runs = [r for r in results if (r.variant or r.method) == label and r.success]
+        ax.scatter([_start_distance(r) for r in runs], [r.time_s for r in runs], s=10, alpha=0.6, color=f"C{i}")
+        ax.scatter([], [], s=10, color=f"C{i}", label=label)
+    docked = [r for r in results if r.success]
+    edges = np.arange(0.5, 5.51, 1.0)
+    mids, medians = [], []
+    for lo, hi in itertools.pairwise(edges):
+        times = [r.time_s for r in docked if lo <= _start_distance(r) < hi]
+        if times:
+            mids.append(0.5 * (lo + hi))
+            medians.append(float(np.median(times)))
+    ax.plot(mids, medians, "k-o", ms=4, lw=1.2, label="median, per metre")
+    ax.set_xlabel("start distance from the face centre, m")
+    ax.set_ylabel("time to dock, s")
+    ax.set_title("time to dock by start distance (docked runs)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def room_far_trajectories(results: Sequence[TrialResult], config: DockSimConfig, path: Path, *, cap: int = 30) -> None:
+    """The true paths of the far starts (beyond FAR_START from the face centre), at most ``cap`` per variant's
+    panel: blue docked, red not; dashed purple: reversing; a footprint at each start."""
+    variant_list = variants(results, config)
+    _, planners, _ = variant_grid(variant_list)
+    n = len(variant_list)
+    cols = min(n, 4)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 3.3 * rows), squeeze=False)
+    for ax in axes.flat:
+        ax.set_visible(False)
+    for i, v in enumerate(variant_list):
+        ax = axes[i // cols][i % cols]
+        ax.set_visible(True)
+        draw_dock(ax, config.layout, None)
+        runs = [r for r in results if variant_of(r) == v and _start_distance(r) >= FAR_START][:cap]
+        for r in runs:
+            draw_path(ax, r.path, color="tab:blue" if r.success else "tab:red", lw=0.7, alpha=0.7, arrow_every=1.0)
+            draw_robot(ax, Pose2D(*r.path[0]), config.robot, config.drive, color="0.45", alpha=0.25)
+        ax.set_aspect("equal")
+        ax.set_xlim(-4.8, 4.8)
+        ax.set_ylim(-5.3, 0.5)
+        docked = sum(r.success for r in runs)
+        ax.set_title(f"{variant_label(v, planners)}: {docked}/{len(runs)} from ≥ {FAR_START:g} m", fontsize=8.5)
+        ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -5,10 +5,22 @@ against single frames, the faults' outcomes, and a few lines for the terminal.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
-from monodock.evaluation.dock_sim import FAULTS, AbsStats, DockSimConfig, DockSimSummary, FilterBlock, RunGroup
+import numpy as np
 
-__all__ = ["comparison_table", "console_table", "fault_table", "filter_table"]
+from monodock.evaluation.commissioning import wilson
+from monodock.evaluation.dock_sim import (
+    FAULTS,
+    AbsStats,
+    DockSimConfig,
+    DockSimSummary,
+    FilterBlock,
+    RunGroup,
+    TrialResult,
+)
+
+__all__ = ["comparison_table", "console_table", "fault_table", "filter_table", "room_table"]
 
 
 def _fmt_stats(s: AbsStats) -> str:
@@ -118,3 +130,41 @@ def fault_table(summary: DockSimSummary, config: DockSimConfig) -> str:
             f"| {g.successes} | {g.recovered} | {g.failed_cleanly} | {outside} | {g.collisions} |"
         )
     return "\n".join([head, *rows])
+
+
+def room_table(results: Sequence[TrialResult]) -> str:
+    """Per variant, and per start-distance band: docked and charging (by the sim's truth) with the Wilson 95 %
+    interval, the median time to dock, and the failures by reason."""
+    lines = [
+        "| variant | starts | docked and charging | Wilson 95 % | median time, s | failures |",
+        "|---|---|---|---|---|---|",
+    ]
+    labels = sorted({r.variant or r.method for r in results})
+    bands = ((0.0, 99.0, "all"), (0.5, 2.0, "0.5-2 m"), (2.0, 3.5, "2-3.5 m"), (3.5, 99.0, "3.5-5 m"))
+    for label in labels:
+        for lo, hi, name in bands:
+            runs = [
+                r for r in results if (r.variant or r.method) == label and lo <= math.hypot(r.start.x, r.start.y) < hi
+            ]
+            if not runs:
+                continue
+            ok = [r for r in runs if _docked_and_charging(r)]
+            low, high = wilson(len(ok), len(runs))
+            reasons: dict[str, int] = {}
+            for r in runs:
+                if not _docked_and_charging(r):
+                    key = str(r.failure) if r.failure is not None else f"{r.state} (outside the tolerances)"
+                    reasons[key] = reasons.get(key, 0) + 1
+            times = [r.time_s for r in ok]
+            median = f"{float(np.median(times)):.1f}" if times else "–"
+            why = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())) or "–"
+            lines.append(
+                f"| {label} | {name} | {len(ok)}/{len(runs)} ({100 * len(ok) / len(runs):.1f} %) | "
+                f"{100 * low:.1f}-{100 * high:.1f} % | {median} | {why} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def _docked_and_charging(r: TrialResult) -> bool:
+    """Docked within the tolerances by the sim's truth, and charging where the robot could tell."""
+    return r.success and r.charging is not False

@@ -20,7 +20,11 @@ from monodock.dock.planner import CASES
 from monodock.evaluation.dock_sim import DockSimConfig, DockSimSummary, TrialResult, runs_csv
 from monodock.report.dock_cases import case_diagram, draw_dock, draw_robot, example_start, write_case_diagrams
 from monodock.report.dock_figures import (
+    FAR_START,
     final_error_plot,
+    room_far_trajectories,
+    room_success_map,
+    room_time_plot,
     run_plot,
     trajectory_overview,
     trajectory_plot,
@@ -35,7 +39,7 @@ from monodock.report.dock_runs import (
     variant_of,
     variants,
 )
-from monodock.report.dock_tables import comparison_table, console_table, fault_table, filter_table
+from monodock.report.dock_tables import comparison_table, console_table, fault_table, filter_table, room_table
 from monodock.report.html import HtmlReport, plain
 
 __all__ = [
@@ -50,6 +54,8 @@ __all__ = [
     "fault_table",
     "filter_table",
     "final_error_plot",
+    "room_section",
+    "room_table",
     "run_plot",
     "trajectory_cases",
     "trajectory_file",
@@ -106,6 +112,10 @@ def write_dock_files(
     tolerances = (c.tolerance_lateral * 100, c.tolerance_longitudinal * 100, c.tolerance_heading_deg)
     errors = [(r.method, r.lateral_cm, r.heading_deg, r.longitudinal_cm) for r in results]
     figures.append((final_error_plot, (errors, out / "final_errors.png", (tolerances[0], tolerances[2])), {}))
+    if config.starts == "room":
+        figures.append((room_success_map, (results, config, out / "room_map.png"), {}))
+        figures.append((room_time_plot, (results, out / "room_time.png"), {}))
+        figures.append((room_far_trajectories, (results, config, out / "room_far.png"), {}))
     chosen = select_runs(results, variant_list)
     if chosen:
         (out / "runs").mkdir(exist_ok=True)
@@ -251,6 +261,22 @@ def dock_section(
                 )
 
 
+def room_section(report: HtmlReport, results: Sequence[TrialResult]) -> None:
+    """The room envelope (``--starts room``): success with its Wilson interval by start distance, the success map,
+    the time to dock by distance and the far starts' paths."""
+    report.heading("The room envelope", level=2)
+    report.paragraph(
+        "Starts 0.5-5 m from the face centre (base_link), within 60 degrees of the dock's axis, any heading (the dock "
+        "often behind the robot); those from which the robot could not turn on the spot clear of the face are "
+        "redrawn. Docked and charging by the simulator's truth (within the tolerances, the charger reporting "
+        "charging); the Wilson 95 % interval of that rate."
+    )
+    report.table(room_table(results), wrap=True)
+    report.image("room_map.png", "Every start by its outcome; dashed: the envelope.", width=1100)
+    report.image("room_time.png", "Time to dock by start distance.", width=620)
+    report.image("room_far.png", f"The true paths from the starts at least {FAR_START:g} m out.", width=1100)
+
+
 def write_dock_report(
     out: Path, results: Sequence[TrialResult], summary: DockSimSummary, config: DockSimConfig
 ) -> None:
@@ -271,6 +297,8 @@ def write_dock_report(
         "Point A.",
         width=max(220 * len(methods), 280),
     )
+    if config.starts == "room":
+        room_section(report, results)
     dock_section(report, summary, config, results=results)
     for kind in config.planner_kinds:
         with report.details(f"The eight cases, {kind} planner"):
