@@ -26,6 +26,7 @@ from monodock.estimation.factory import make_estimator
 from monodock.perception.detect import MarkerDetector, as_gray
 from monodock.perception.predicted import PredictedMarkers, Prior, predict_corners
 from monodock.sim import Nuisances, Simulator
+from monodock.sim.simulator import SimFrame
 
 BLUR = Nuisances(motion_blur_px=6.0)
 CAMERA_X = 0.17  # the default robot's camera mount x
@@ -39,7 +40,7 @@ def _off(pose: DockPose, rng: np.random.Generator) -> DockPose:
     )
 
 
-def _far_blurred_frames(n: int, seed: int = 5) -> list[tuple[DockPose, object]]:
+def _far_blurred_frames(n: int, seed: int = 5) -> list[tuple[DockPose, SimFrame]]:
     sim = Simulator(nuisances=BLUR, seed=seed)
     rng = np.random.default_rng(seed)
     out = []
@@ -88,7 +89,7 @@ def test_a_blurred_marker_the_detector_misses_is_recovered_within_a_pixel() -> N
 def test_a_marker_of_another_id_where_the_prior_points_is_rejected() -> None:
     sim = Simulator(nuisances=BLUR)
     filler = PredictedMarkers(sim.camera, sim.layout, sim.robot)
-    pose, frame = _far_blurred_frames(1, seed=8)[0]
+    _pose, frame = _far_blurred_frames(1, seed=8)[0]
     gray = as_gray(frame.image)
     truth = frame.truth.corners
     assert filler.find(gray, "center", truth["center"], 6.0) is not None  # the right id reads
@@ -132,7 +133,8 @@ def test_the_estimator_with_a_prior_turns_lost_frames_into_poses() -> None:
         p = est.estimate("", 0.0, frame.image, prior=Prior(_off(pose, rng), SIGMA)).estimates["fused"].pose
         if p is not None:
             found += 1
-            assert abs(p.x - pose.x) < 0.03 and abs(p.y - pose.y) < 0.02
+            assert abs(p.x - pose.x) < 0.03
+            assert abs(p.y - pose.y) < 0.02
             assert abs(math.degrees(p.yaw - pose.yaw)) < 2.0
     assert lost >= 2, "some far blurred frames should have no pose from the detector alone"
     assert found == lost
@@ -154,17 +156,20 @@ def test_make_perceive_passes_the_tracks_prediction() -> None:
     sim = Simulator(nuisances=BLUR)
     est = make_estimator(method="fused", camera=sim.camera, layout=sim.layout, robot=sim.robot)
     rng = np.random.default_rng(4)
-    for pose, frame in _far_blurred_frames(16, seed=12):
-        if est.estimate("", 0.0, frame.image).estimates["fused"].pose is None:
-            break
-    else:
-        pytest.fail("no frame without a pose from the detector alone")
+    lost = [
+        (p, f)
+        for p, f in _far_blurred_frames(16, seed=12)
+        if est.estimate("", 0.0, f.image).estimates["fused"].pose is None
+    ]
+    assert lost, "no frame without a pose from the detector alone"
+    pose, frame = lost[0]
     track = _Track(_off(pose, rng))
     without = make_perceive(est, "fused")(2.5, frame.image)
     with_track = make_perceive(est, "fused", track=lambda: track)(2.5, frame.image)  # type: ignore[arg-type,return-value]
     assert without.pose is None
     assert track.asked == [2.5]
-    assert with_track.pose is not None and abs(with_track.pose.x - pose.x) < 0.03
+    assert with_track.pose is not None
+    assert abs(with_track.pose.x - pose.x) < 0.03
 
 
 def test_the_docks_own_pose_is_the_prior_with_a_taught_charging_pose() -> None:
@@ -180,7 +185,9 @@ def test_the_docks_own_pose_is_the_prior_with_a_taught_charging_pose() -> None:
     track.seed([(Pose2D(0.0, 0.0, 0.0), DockPose(seen.x, seen.y, seen.theta), SIGMA)])
     prior = track.dock_prior(0.0)
     assert prior is not None
-    assert abs(prior[0].x - dock.x) < 1e-6 and abs(prior[0].y - dock.y) < 1e-6 and abs(prior[0].yaw - dock.yaw) < 1e-6
+    assert abs(prior[0].x - dock.x) < 1e-6
+    assert abs(prior[0].y - dock.y) < 1e-6
+    assert abs(prior[0].yaw - dock.yaw) < 1e-6
 
 
 @pytest.mark.slow
