@@ -486,6 +486,10 @@ def test_dock_sim_writes_the_summary_contract(tmp_path: Path, capsys: pytest.Cap
         (["--distance", "2.0", "1.0"], "--distance"),
         (["--standoff", "3.0"], "no starts"),
         (["--max-heading", "-5"], "--max-heading"),
+        (["--starts", "room", "--cases", "1"], "drop --cases"),
+        (["--starts", "room", "--distance", "1", "2"], "drop --distance"),
+        (["--starts", "room", "--max-heading", "20"], "drop --max-heading"),
+        (["--starts", "hall"], "--starts"),
     ],
 )
 def test_dock_sim_bad_options_are_one_line(

@@ -47,11 +47,11 @@ def draw_dock(ax: Axes, layout: DockLayout, a: Pose2D | None, reach: float = 2.6
     ax.plot([-ch.width / 2, ch.width / 2], [0, 0], color="0.2", lw=3, zorder=2)
     colours = {"left": "tab:red", "center": "tab:green", "right": "tab:blue"}
     for m in layout.markers:
-        u = -m.y
+        u, half = -m.y, 0.5 * (m.size or layout.marker_size)
         ax.plot(
-            [u - layout.marker_size / 2, u + layout.marker_size / 2],
+            [u - half, u + half],
             [0.012, 0.012],
-            color=colours[m.role],
+            color=colours.get(m.role, "tab:purple"),  # extra markers (a far-field one): purple
             lw=4,
             zorder=3,
         )
