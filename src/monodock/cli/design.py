@@ -62,7 +62,7 @@ def add_parser(subparsers: SubParsers) -> None:
         "--max-bearing",
         type=float_in(0.0, 90.0, high_open=True),
         default=60.0,
-        help="widest start off the dock's axis, degrees (0 to under 90, default 60)",
+        help="widest start off the dock's axis, degrees (0-90, 90 itself excluded; default 60)",
     )
     p.add_argument(
         "--tolerance",
@@ -73,13 +73,16 @@ def add_parser(subparsers: SubParsers) -> None:
         "(default 1cm,1deg)",
     )
     p.add_argument(
-        "--max-width", type=float_in(0.0, 10.0, low_open=True), default=1.0, help="charger face width, m (default 1.0)"
+        "--max-width",
+        type=float_in(0.0, 10.0, low_open=True),
+        default=1.0,
+        help="charger face width, m (0-10, default 1.0)",
     )
     p.add_argument(
         "--max-height",
         type=float_in(0.0, 10.0, low_open=True),
         default=1.2,
-        help="charger face height from the floor, m (default 1.2)",
+        help="charger face height from the floor, m (0-10, default 1.2)",
     )
     p.add_argument(
         "--blur",
@@ -91,7 +94,7 @@ def add_parser(subparsers: SubParsers) -> None:
         "--check-poses",
         type=int_in(0, 500),
         default=16,
-        help="envelope poses rendered in the simulator to check the prediction (default 16; 0: none)",
+        help="envelope poses rendered in the simulator to check the prediction (0-500, default 16; 0: none)",
     )
     add_seed(p)
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write (a new one, or replaced with --force)")

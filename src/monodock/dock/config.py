@@ -153,6 +153,7 @@ class DockingConfig:
             "far_bearing_deg",
             "staging_distance",
             "far_leg",
+            "checkpoint_gap",  # at or behind the face it is never passed before contact: no retry would ever start
         )
         for name in positive:
             if not getattr(self, name) > 0:
