@@ -170,6 +170,8 @@ def test_make_perceive_passes_the_tracks_prediction() -> None:
     assert track.asked == [2.5]
     assert with_track.pose is not None
     assert abs(with_track.pose.x - pose.x) < 0.03
+    # the observation says how many of its markers the fit found (dock-sim counts those frames)
+    assert (without.predicted, 1 <= with_track.predicted <= with_track.markers) == (0, True)
 
 
 def test_the_docks_own_pose_is_the_prior_with_a_taught_charging_pose() -> None:

@@ -92,6 +92,9 @@ class DockingConfig:
     k_bearing: float = 2.0
     arrive_tolerance: float = 0.005
     refine_while_moving: bool = True  # frames during Moving₁ and Moving₂ refine Point A and the turns
+    # Once the dock is tracked, look for the markers the detector missed where the track puts them
+    # (perception.predicted: fitted in the image, code bits verified).
+    predicted_markers: bool = True
     # Acquire and calculate.
     acquire: bool = True
     acquire_turn_rate: float = 0.3

@@ -43,6 +43,7 @@ class Observation:
     pose: DockPose | None
     markers: int = 0
     covariance: Matrix | None = field(default=None, repr=False, compare=False)
+    predicted: int = 0  # of the markers used: those the detector missed, found where the track put them
 
 
 # What turns an image into an observation: the caller's estimator (regression, board PnP, ...).
@@ -66,8 +67,11 @@ def make_perceive(
             at = t.dock_prior(stamp)
             if at is not None:
                 prior = Prior(at[0], at[1])
-        e = estimator.estimate("", stamp, image, prior=prior).estimates[method]
-        return Observation(stamp, e.pose, len(e.markers_seen), e.covariance)
+        frame = estimator.estimate("", stamp, image, prior=prior)
+        e = frame.estimates[method]
+        found = frame.detection.recovered if frame.detection is not None else ()
+        predicted = sum(1 for role in e.markers_seen if role in found) if e.pose is not None else 0
+        return Observation(stamp, e.pose, len(e.markers_seen), e.covariance, predicted)
 
     return perceive
 

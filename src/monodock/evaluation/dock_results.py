@@ -101,6 +101,8 @@ class TrialResult:
     cpu_s: float = 0.0  # CPU seconds of the worker process for the run (wall_s also counts waiting for a core)
     render_cpu_s: float = 0.0  # of cpu_s: rendering the camera frames
     perceive_cpu_s: float = 0.0  # of cpu_s: detection and the method's estimate
+    posed_frames: int = 0  # frames the method gave a pose in
+    predicted_frames: int = 0  # of those: frames whose pose used a marker the detector missed (predicted_markers)
 
     @property
     def recovered(self) -> bool:
@@ -441,6 +443,8 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
             "recoveries",
             "collided",
             "redock",
+            "posed_frames",
+            "predicted_frames",
         ]
     )
     for r in results:
@@ -475,6 +479,8 @@ def runs_csv(results: Sequence[TrialResult]) -> str:
                 r.recoveries,
                 str(r.collided).lower(),
                 r.redock,
+                r.posed_frames,
+                r.predicted_frames,
             ]
         )
     return buf.getvalue()

@@ -43,6 +43,7 @@ from monodock.dock.pose_filter import FilterConfig, MeasurementNoise, OdometryNo
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.consistency import camera_disagreement
+from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import make_estimator
 from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE, USES_BUNDLE
 from monodock.evaluation.dock_faults import FAULTS, FaultInjector
@@ -257,7 +258,7 @@ def sample_start(
 class _Environment:
     sim: Simulator
     blind: float
-    perceive: dict[str, Perceive]
+    estimators: dict[str, Estimator]
     robot: RobotConfig  # the robot file the mission believes (the world's own unless told otherwise)
 
 
@@ -276,22 +277,19 @@ def _environment(config: DockSimConfig) -> _Environment:
         bundle = load_bundle(config.bundle) if learnt and config.bundle is not None else None
         # One estimator per method, so that a frame costs only its own method; built as the robot builds its own.
         # The camera was checked against the bundle's once, by run_dock_sim: not again in every worker.
-        perceive = {
-            m: make_perceive(
-                make_estimator(
-                    method=m,
-                    bundle=bundle if m in BUNDLE_METHODS else None,
-                    camera=sim.camera,
-                    layout=config.robot_layout,
-                    robot=config.robot_file,
-                    warn_camera=False,
-                ),
-                m,
+        estimators = {
+            m: make_estimator(
+                method=m,
+                bundle=bundle if m in BUNDLE_METHODS else None,
+                camera=sim.camera,
+                layout=config.robot_layout,
+                robot=config.robot_file,
+                warn_camera=False,
             )
             for m in config.methods
         }
         blind = blind_gap(sim.camera, config.robot_layout, config.robot_file)
-        _ENV[key] = (config, _Environment(sim, blind, perceive, config.robot_file))
+        _ENV[key] = (config, _Environment(sim, blind, estimators, config.robot_file))
     return _ENV[key][1]
 
 
@@ -325,16 +323,23 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     mission = DockingMission(mission_config, env.robot, env.blind)
     faults = FaultInjector(task.fault, robot)
     perceive_s = perceive_cpu_s = 0.0
-    inner = _skip_undetectable(robot, env.perceive[task.method])
+    # As the docking node does: the running mission's dock track predicts the markers the detector missed.
+    running = [mission]
+    track = (lambda: running[0].track) if mission_config.predicted_markers else None
+    inner = _skip_undetectable(robot, make_perceive(env.estimators[task.method], task.method, track=track))
     frames: list[FilterFrame] = []
     pending: list[Observation] = []
 
+    posed = predicted = 0
+
     def perceive(stamp: float, image: np.ndarray) -> Observation:
-        nonlocal perceive_s, perceive_cpu_s
+        nonlocal perceive_s, perceive_cpu_s, posed, predicted
         t, c = time.perf_counter(), time.process_time()
         observation = inner(stamp, image)
         perceive_s += time.perf_counter() - t
         perceive_cpu_s += time.process_time() - c
+        posed += observation.pose is not None
+        predicted += observation.predicted > 0
         if mission.state in (State.MOVING3, State.SETTLE):  # the filter was seeded at Calculate
             pending.append(observation)
         return observation
@@ -354,7 +359,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     success = result.docked and _inside_tolerances(robot, c)
     redock = ""
     if config.redock and result.docked:
-        redock = _undock_and_redock(robot, mission_config, env, inner)
+        redock = _undock_and_redock(robot, mission_config, env, inner, running)
     samples = robot.truth[::10]
     path = tuple((s.pose.x, s.pose.y, s.pose.theta) for s in samples)
     m = mission.manoeuvre
@@ -396,6 +401,8 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         cpu_s=time.process_time() - c0,
         render_cpu_s=robot.render_cpu_seconds,
         perceive_cpu_s=perceive_cpu_s,
+        posed_frames=posed,
+        predicted_frames=predicted,
     )
 
 
@@ -411,12 +418,17 @@ def _skip_undetectable(robot: SimulatedRobot, perceive: Perceive) -> Perceive:
     return skipping
 
 
-def _undock_and_redock(robot: SimulatedRobot, config: DockingConfig, env: _Environment, perceive: Perceive) -> str:
-    """From docked: undock to the staging pose, then dock again; what happened, in words."""
-    undock = run_mission(robot, perceive, DockingMission(config, env.robot, env.blind, task="undock"))
+def _undock_and_redock(
+    robot: SimulatedRobot, config: DockingConfig, env: _Environment, perceive: Perceive, running: list[DockingMission]
+) -> str:
+    """From docked: undock to the staging pose, then dock again; what happened, in words. ``running`` holds the
+    mission ``perceive``'s prior comes from: each new mission is put in it."""
+    running[0] = DockingMission(config, env.robot, env.blind, task="undock")
+    undock = run_mission(robot, perceive, running[0])
     if not undock.succeeded:
         return f"undock failed: {undock.reason}"
-    again = run_mission(robot, perceive, DockingMission(config, env.robot, env.blind))
+    running[0] = DockingMission(config, env.robot, env.blind)
+    again = run_mission(robot, perceive, running[0])
     if not again.docked:
         return f"redock failed: {again.reason}"
     return "redocked" if _inside_tolerances(robot, config) else "redock outside the tolerances"

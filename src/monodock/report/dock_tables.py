@@ -141,10 +141,14 @@ def room_table(results: Sequence[TrialResult]) -> str:
     ]
     labels = sorted({r.variant or r.method for r in results})
     bands = ((0.0, 99.0, "all"), (0.5, 2.0, "0.5-2 m"), (2.0, 3.5, "2-3.5 m"), (3.5, 99.0, "3.5-5 m"))
-    for label in labels:
+    # Several variants (faults, planners, methods): every run together first, the figure the envelope is judged by.
+    pooled = ["every run"] if len(labels) > 1 else []
+    for label in pooled + labels:
         for lo, hi, name in bands:
             runs = [
-                r for r in results if (r.variant or r.method) == label and lo <= math.hypot(r.start.x, r.start.y) < hi
+                r
+                for r in results
+                if label in ((r.variant or r.method), "every run") and lo <= math.hypot(r.start.x, r.start.y) < hi
             ]
             if not runs:
                 continue

@@ -17,7 +17,14 @@ from typing import Any
 
 from monodock.core.parallel import map_with_state
 from monodock.dock.planner import CASES
-from monodock.evaluation.dock_sim import DockSimConfig, DockSimSummary, TrialResult, runs_csv
+from monodock.evaluation.dock_sim import (
+    ROOM_BEARING_DEG,
+    ROOM_DISTANCE,
+    DockSimConfig,
+    DockSimSummary,
+    TrialResult,
+    runs_csv,
+)
 from monodock.report.dock_cases import case_diagram, draw_dock, draw_robot, example_start, write_case_diagrams
 from monodock.report.dock_figures import (
     FAR_START,
@@ -133,14 +140,25 @@ def write_dock_files(
 def dock_settings(config: DockSimConfig) -> dict[str, object]:
     """A dock-sim run's settings, as a person reads them (units in the names, angles in degrees)."""
     c, d = config.mission, config.drive
-    return {
-        "starts": {
+    starts: dict[str, object]
+    if config.starts == "room":
+        starts = {
+            "room": config.trials,
+            "seed": config.seed,
+            "distance_from_face_centre_m": list(ROOM_DISTANCE),
+            "bearing_from_axis_deg": ROOM_BEARING_DEG,
+            "heading": "any",
+        }
+    else:
+        starts = {
             "per case": config.trials,
             "seed": config.seed,
             "distance_from_face_m": list(config.distance),
             "max_heading_deg": config.max_heading_deg,
             "marker 2 in view": True,
-        },
+        }
+    return {
+        "starts": starts,
         "Point A": {"planners": ", ".join(config.planner_kinds), "standoff_m": c.planner.standoff},
         "robot": {
             "camera_rate_hz": d.camera_rate,
@@ -272,6 +290,13 @@ def room_section(report: HtmlReport, results: Sequence[TrialResult]) -> None:
         "charging); the Wilson 95 % interval of that rate."
     )
     report.table(room_table(results), wrap=True)
+    posed = sum(r.posed_frames for r in results)
+    predicted = sum(r.predicted_frames for r in results)
+    if posed:
+        report.paragraph(
+            f"Frames with a pose: {posed}; of them {predicted} ({100 * predicted / posed:.1f} %) used a marker the "
+            "detector missed and the predicted-corner fit found where the dock track put it (predicted_markers)."
+        )
     report.image("room_map.png", "Every start by its outcome; dashed: the envelope.", width=1100)
     report.image("room_time.png", "Time to dock by start distance.", width=620)
     report.image("room_far.png", f"The true paths from the starts at least {FAR_START:g} m out.", width=1100)

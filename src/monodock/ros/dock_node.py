@@ -483,7 +483,8 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             self._mission = mission
             self._publish_state(mission.state.value)
             robot.watch(True)
-            perceive = make_perceive(estimator, self.method, track=lambda: mission.track)
+            track = (lambda: mission.track) if config.predicted_markers else None
+            perceive = make_perceive(estimator, self.method, track=track)
             result = run_mission(robot, perceive, mission, on_tick=self._on_tick)
             self._publish_result(task, result, "")
         except MonodockError as exc:
