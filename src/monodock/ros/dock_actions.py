@@ -14,7 +14,8 @@ A goal runs the same mission as ``~/dock``/``~/undock``:
   903). ``max_staging_time`` is then unused, as in Nav2 without staging. Each refusal ends the goal aborted, with the
   code and the reason in words in ``error_msg``.
 - **Feedback.** About 5 Hz while it runs: the mission's state as Nav2's (``INITIAL_PERCEPTION`` while looking for the
-  dock and measuring it, ``CONTROLLING`` on the way in, ``WAIT_FOR_CHARGE`` on the contacts, ``RETRY`` while
+  dock and measuring it, ``NAV_TO_STAGING_POSE`` on the far approach to the staging point on the dock's axis,
+  ``CONTROLLING`` on the way in, ``WAIT_FOR_CHARGE`` on the contacts, ``RETRY`` while
   backing off for another try), the time since the goal began, and the retries.
 - **Cancel.** Stops the mission (zero velocity at once, as every exit does); the goal ends canceled. A new goal while
   one runs cancels the running one first (as a new ``~/dock`` does), then runs.
@@ -71,6 +72,8 @@ def feedback_state(state: State) -> int:
     """The Nav2 feedback state of a mission state."""
     if state in _PERCEIVING:
         return FeedbackState.INITIAL_PERCEPTION
+    if state is State.FAR_APPROACH:  # legs to the staging point on the dock's axis: Nav2's staging, on our own pose
+        return FeedbackState.NAV_TO_STAGING_POSE
     if state in _RETRYING:
         return FeedbackState.RETRY
     if state in _CHARGING:
