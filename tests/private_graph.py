@@ -63,6 +63,8 @@ def run_private_graph(
             "ROS_DOMAIN_ID": str(next(_DOMAIN_IDS)),
             "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
             "PYTHONUNBUFFERED": "1",
+            # A node that hangs is ended with SIGABRT (graph_processes.stop_nodes): its threads' stacks go to its log.
+            "PYTHONFAULTHANDLER": "1",
         }
     )
     environment.update(env or {})

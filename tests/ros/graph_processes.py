@@ -14,7 +14,9 @@ DOCK = ORPHANS_END + "from monodock.cli.ros_nodes import dock_main; import sys; 
 
 
 def stop_nodes(*processes: subprocess.Popen[bytes]) -> None:
-    """SIGINT to each node still running, then wait for all; a node that will not end is killed (exit code -9)."""
+    """SIGINT to each node still running, then wait for all. A node that will not end gets SIGABRT (exit code -6),
+    which with PYTHONFAULTHANDLER (tests/private_graph.py) writes every thread's stack to its log, where it hung;
+    then, if even that does not end it, SIGKILL (-9)."""
     for process in processes:
         if process.poll() is None:
             process.send_signal(signal.SIGINT)
@@ -23,5 +25,9 @@ def stop_nodes(*processes: subprocess.Popen[bytes]) -> None:
             # Generous: on a starved CI host a node's DDS teardown after SIGINT took over 20 s once (stop 33's CI).
             process.wait(timeout=60)
         except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()  # a killed node's exit code is -9, not None
+            process.send_signal(signal.SIGABRT)
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()

@@ -50,7 +50,8 @@ def test_two_namespaced_robots_dock_side_by_side_on_one_graph() -> None:
     logs = {p["name"]: p["log"] for p in run.all("process")}
     assert run.first("ready")["ok"], (run.stderr[-3000:], logs)
     for process in run.all("process"):
-        assert process["returncode"] == 0, process
+        name, code, log = process["name"], process["returncode"], process["log"]
+        assert code == 0, f"{name} exited {code}:\n{log[-4000:]}"
         assert "Traceback" not in process["log"], process
 
     robots = {r["name"]: r for r in run.all("robot")}
