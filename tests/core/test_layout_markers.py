@@ -94,6 +94,15 @@ def test_the_far_marker_is_seen_and_used_where_the_small_ones_fail(depth: float,
     _, board = _estimate(far_layout(), truth, "board", seed=3)
     assert board.pose is not None
     assert "far" in board.markers_seen
+    # And the single-marker method, where marker 2 is not decoded, takes the far marker alone (IPPE_SQUARE): a
+    # coarse pose, but the dock's, where today's dock gives none.
+    pnp_detection, pnp = _estimate(far_layout(), truth, "pnp", seed=3)
+    assert pnp_detection is not None
+    if "center" not in pnp_detection.roles_seen:
+        assert pnp.markers_seen == ("far",)
+        assert pnp.pose is not None, pnp.reason
+        assert abs(pnp.pose.x - truth.x) < 0.05 * truth.x  # ~28 px a side at 6.5 m: a few per cent
+        assert abs(math.degrees(pnp.pose.yaw - truth.yaw)) < 6.0
 
 
 def test_near_the_dock_the_extra_marker_leaves_the_papers_markers_estimate_alone() -> None:
@@ -104,3 +113,8 @@ def test_near_the_dock_the_extra_marker_leaves_the_papers_markers_estimate_alone
     assert "far" not in detection.roles_seen
     _, today = _estimate(DockLayout.default(), truth, "board", seed=5)
     assert with_far.pose == today.pose
+    # marker 2 seen: the single-marker method is the papers' baseline on it, whatever else the dock carries
+    _, pnp_far = _estimate(far_layout(), truth, "pnp", seed=5)
+    _, pnp_today = _estimate(DockLayout.default(), truth, "pnp", seed=5)
+    assert pnp_far.markers_seen == ("center",)
+    assert pnp_far.pose == pnp_today.pose

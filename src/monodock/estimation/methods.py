@@ -142,7 +142,8 @@ class MethodSetup:
 
 @dataclass(frozen=True)
 class GeometricMethod:
-    """A PnP method on the calibration alone: ``pnp`` (marker 2, IPPE_SQUARE) or ``board`` (every marker seen)."""
+    """A PnP method on the calibration alone: ``pnp`` (marker 2, IPPE_SQUARE; on a dock with extra markers, the
+    largest seen when marker 2 is not) or ``board`` (every marker seen)."""
 
     name: str
     solve: Callable[[Detection, CameraModel, DockLayout, RobotConfig], PoseEstimate]

@@ -22,7 +22,7 @@ from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.perception.detect import Detection
 
-__all__ = ["PoseEstimate", "estimate_board", "estimate_single_marker"]
+__all__ = ["PoseEstimate", "estimate_board", "estimate_single_marker", "single_marker_role"]
 
 # Two solutions whose RMS reprojection errors differ by less than this are "equally good" fits.
 AMBIGUITY_RATIO = 2.0
@@ -134,14 +134,26 @@ def _result(method: str, chosen: _Candidate | None, roles: tuple[str, ...]) -> P
     )
 
 
+def single_marker_role(detection: Detection, layout: DockLayout) -> str:
+    """The marker the single-marker method uses: marker 2 (``center``), the papers' baseline, whenever it is seen;
+    on a dock with markers beyond the papers' three, when marker 2 is not seen, the extra marker seen largest in the
+    image (the far-field marker at range, where the small ones are not decoded)."""
+    extras = [r for r in layout.roles[3:] if r in detection.observations]
+    if "center" in detection.observations or not extras:
+        return "center"
+    return max(extras, key=lambda r: float(cv2.arcLength(detection.observations[r].corners.astype(np.float32), True)))
+
+
 def estimate_single_marker(
     detection: Detection,
     camera: CameraModel,
     layout: DockLayout,
     robot: RobotConfig,
-    role: str = "center",
+    role: str | None = None,
 ) -> PoseEstimate:
-    """DockPose from one marker's four corners by SOLVEPNP_IPPE_SQUARE (the papers' SolvePnP baseline)."""
+    """DockPose from one marker's four corners by SOLVEPNP_IPPE_SQUARE (the papers' SolvePnP baseline); the
+    marker is ``role``, or by default ``single_marker_role``'s."""
+    role = single_marker_role(detection, layout) if role is None else role
     obs = detection.observations.get(role)
     if obs is None:
         return PoseEstimate("pnp", None, f"marker {layout.marker(role).number} ({role}) not seen")
