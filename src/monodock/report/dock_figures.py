@@ -411,7 +411,8 @@ def room_success_map(results: Sequence[TrialResult], config: DockSimConfig, path
     n = len(variant_list)
     cols = min(n, 4)
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.3 * cols, 3.3 * rows + 0.3), squeeze=False)
+    panel = 5.5 if n == 1 else 3.3  # one panel: room for 200 dots
+    fig, axes = plt.subplots(rows, cols, figsize=(panel * cols, panel * rows + 0.3), squeeze=False)
     for ax in axes.flat:
         ax.set_visible(False)
     failures = sorted({_outcome(r) for r in results} - {"docked"})
@@ -503,15 +504,20 @@ def room_far_trajectories(results: Sequence[TrialResult], config: DockSimConfig,
         ax = axes[i // cols][i % cols]
         ax.set_visible(True)
         draw_dock(ax, config.layout, None)
-        runs = [r for r in results if variant_of(r) == v and _start_distance(r) >= FAR_START][:cap]
+        far = [r for r in results if variant_of(r) == v and _start_distance(r) >= FAR_START]
+        # every failure drawn, then docked runs up to the cap (beyond it the picture is a blur of lines)
+        runs = [r for r in far if not r.success] + [r for r in far if r.success]
+        runs = runs[: max(cap, sum(not r.success for r in far))]
         for r in runs:
             draw_path(ax, r.path, color="tab:blue" if r.success else "tab:red", lw=0.7, alpha=0.7, arrow_every=1.0)
             draw_robot(ax, Pose2D(*r.path[0]), config.robot, config.drive, color="0.45", alpha=0.25)
         ax.set_aspect("equal")
         ax.set_xlim(-4.8, 4.8)
         ax.set_ylim(-5.3, 0.5)
-        docked = sum(r.success for r in runs)
-        ax.set_title(f"{variant_label(v, planners)}: {docked}/{len(runs)} from ≥ {FAR_START:g} m", fontsize=8.5)
+        docked = sum(r.success for r in far)
+        drawn = "" if len(runs) == len(far) else f", {len(runs)} drawn"
+        title = f"{variant_label(v, planners)}: {docked}/{len(far)} docked from ≥ {FAR_START:g} m{drawn}"
+        ax.set_title(title, fontsize=8.5)
         ax.tick_params(labelsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
