@@ -20,7 +20,10 @@ recovered marker with a corner more than 2 px from its true corner.
 
 Run from the repo root:
 
-    python bench/blur_tracking.py [--frames 4] [--seed 0] [--workers 2] [--blur 6] [--out FILE.md]
+    python bench/blur_tracking.py [--frames 4] [--seed 0] [--workers 2] [--blur 6] [--glare 0] [--out FILE.md]
+
+``--glare P``: a specular highlight (``Nuisances.glare_probability``: a saturating spot over part of one marker in
+view) on a share P of the frames; ``--blur 0 --glare 1`` measures glare alone.
 
 ``--frames`` is the number of drives a set-up (each 132 frames).
 """
@@ -63,6 +66,7 @@ class Task:
     drive: int
     seed: int
     blur: float
+    glare: float = 0.0
 
 
 def calibration(setup: str) -> tuple[CameraModel, DockLayout, RobotConfig]:
@@ -82,7 +86,8 @@ def robot_in_dock(p: DockPose) -> Pose2D:
 
 def run_drive(task: Task) -> list[dict[str, Any]]:
     camera, layout, robot = calibration(task.setup)
-    sim = Simulator(layout, camera, robot, Nuisances(motion_blur_px=task.blur), seed=task.seed)
+    nuisances = Nuisances(motion_blur_px=task.blur, glare_probability=task.glare)
+    sim = Simulator(layout, camera, robot, nuisances, seed=task.seed)
     est = make_estimator(methods=METHODS, camera=camera, layout=layout, robot=robot)
     rng = np.random.default_rng([task.seed, 7])
     mx = robot.camera_mount.x
@@ -208,19 +213,23 @@ def summarise(rows: list[dict[str, Any]], setup: str) -> tuple[list[list[str]], 
 def main() -> int:
     p = bench_parser(__doc__ or "", frames=4, frames_help="drives a set-up (132 frames each)", seed=0)
     p.add_argument("--blur", type=float, default=6.0, help="motion blur, px (default 6)")
+    p.add_argument("--glare", type=float, default=0.0, help="share of frames with a highlight on a marker, 0-1 (0)")
     args = p.parse_args()
     if not args.blur >= 0:
         print(f"--blur must be 0 or more px, got {args.blur}", file=sys.stderr)
         return 2
+    if not 0.0 <= args.glare <= 1.0:
+        print(f"--glare must be within 0-1, got {args.glare}", file=sys.stderr)
+        return 2
     tasks = [
-        Task(s, d, int(np.random.SeedSequence([args.seed, i, d]).generate_state(1)[0]), args.blur)
+        Task(s, d, int(np.random.SeedSequence([args.seed, i, d]).generate_state(1)[0]), args.blur, args.glare)
         for i, s in enumerate(SETUPS)
         for d in range(args.frames)
     ]
     rows: list[dict[str, Any]] = []
     for part in parallel_map(run_drive, tasks, frames_of, workers=args.workers, desc="frames"):
         rows += part
-    table, raw = [], {"environment": environment(), "blur_px": args.blur, "drives": args.frames}
+    table, raw = [], {"environment": environment(), "blur_px": args.blur, "glare": args.glare, "drives": args.frames}
     for s in SETUPS:
         t, r = summarise(rows, s)
         table += t
@@ -239,7 +248,9 @@ def main() -> int:
         "false accepts (> 2 px)",
     ]
     report = (
-        f"### Blur tracking: {args.blur:g} px motion blur, {args.frames} approach drives a set-up, seed {args.seed}\n\n"
+        f"### Blur tracking: {args.blur:g} px motion blur"
+        + (f", a specular highlight on {100 * args.glare:g} % of the frames" if args.glare else "")
+        + f", {args.frames} approach drives a set-up, seed {args.seed}\n\n"
         + markdown_table(header, table, "ll" + "r" * 9)
         + "\n\nMean time of the tracked frame's estimate (detector, fit and methods): "
         + ", ".join(f"{s} {raw[s]['fit_ms_mean']:.0f} ms" for s in SETUPS)

@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from monodock.core.compiled import kernel
 
-__all__ = ["Nuisances", "apply_nuisances"]
+__all__ = ["Nuisances", "add_glare", "apply_nuisances"]
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,8 @@ class Nuisances:
         shot_noise: photon noise variance per digital number of signal.
         clutter: posters, floor marks and ArUco markers of other ids around the charger.
         occluder_probability: chance per frame that an object hides part of one dock marker.
+        glare_probability: chance per frame of a specular highlight (a lamp's reflection on a glossy print) over
+            part of one dock marker in view: a Gaussian spot of added light that saturates at its centre.
         supersample: S of the renderer's S x S samples on the pixels where three surfaces meet or painted
             patches overlap; every other edge pixel is integrated exactly (``monodock.sim.render``).
     """
@@ -52,6 +54,7 @@ class Nuisances:
     shot_noise: float = 0.08
     clutter: bool = True
     occluder_probability: float = 0.0
+    glare_probability: float = 0.0
     supersample: int = 16
 
     @classmethod
@@ -139,6 +142,32 @@ def _expose(
             if gamma != 1.0:
                 dn = 255.0 * (dn / 255.0) ** (1.0 / gamma)
             out[i, j] = np.uint8(np.rint(dn))
+    return out
+
+
+def add_glare(
+    radiance: NDArray[np.float32], quads: list[NDArray[np.float64]], rng: np.random.Generator
+) -> NDArray[np.float32]:
+    """A specular highlight over one of ``quads`` (image corners, 4x2, of the markers in view), drawn at random: a
+    Gaussian spot centred inside the quad, its sigma 15-35 % of the marker's side, its peak 1-2.5 times white paper's
+    radiance added (the sensor clips it: a washed-out patch with a soft rim)."""
+    if not quads:
+        return radiance
+    quad = quads[int(rng.integers(len(quads)))]
+    a, b = rng.uniform(0.1, 0.9, size=2)
+    top, bottom = quad[0] + a * (quad[1] - quad[0]), quad[3] + a * (quad[2] - quad[3])
+    cx, cy = top + b * (bottom - top)
+    side = float(np.mean(np.linalg.norm(quad - np.roll(quad, 1, axis=0), axis=1)))
+    sigma = max(1.0, float(rng.uniform(0.15, 0.35)) * side)
+    peak = float(rng.uniform(1.0, 2.5))
+    h, w = radiance.shape
+    r = int(math.ceil(4 * sigma))
+    x0, x1, y0, y1 = max(0, int(cx) - r), min(w, int(cx) + r + 1), max(0, int(cy) - r), min(h, int(cy) + r + 1)
+    if x0 >= x1 or y0 >= y1:
+        return radiance
+    yy, xx = np.mgrid[y0:y1, x0:x1].astype(np.float32)
+    out = radiance.copy()
+    out[y0:y1, x0:x1] += peak * np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * sigma * sigma))
     return out
 
 

@@ -15,7 +15,7 @@ from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.core.scan import LaserScan
 from monodock.sim.lidar import LidarModel, simulate_scan
-from monodock.sim.nuisance import Nuisances, apply_nuisances
+from monodock.sim.nuisance import Nuisances, add_glare, apply_nuisances
 from monodock.sim.render import render_radiance
 from monodock.sim.scene import add_clutter, occluder_for
 from monodock.sim.world import ChargerGeometry, RoomGeometry, World, build_dock_world
@@ -166,13 +166,18 @@ class Simulator:
         self, pose: DockPose, world: World | None = None, rng: np.random.Generator | None = None
     ) -> NDArray[np.uint8]:
         """The camera image (mono8) for a robot at this DockPose, with the simulator's nuisances."""
+        rng = rng or self.rng
         radiance = render_radiance(
             world or self.world,
             self.camera,
             self.world_T_optical(pose),
             supersample=self.nuisances.supersample,
         )
-        return apply_nuisances(radiance, self.nuisances, rng or self.rng)
+        # Drawn only when asked for: without glare the frame's random draws are what they always were.
+        if self.nuisances.glare_probability > 0 and rng.random() < self.nuisances.glare_probability:
+            quads = [c for c in self.true_corners(pose).values() if self.in_view(c)]
+            radiance = add_glare(radiance, quads, rng)
+        return apply_nuisances(radiance, self.nuisances, rng)
 
     def scan(
         self,
