@@ -412,7 +412,8 @@ def room_success_map(results: Sequence[TrialResult], config: DockSimConfig, path
     cols = min(n, 4)
     rows = math.ceil(n / cols)
     panel = 5.5 if n == 1 else 3.3  # one panel: room for 200 dots
-    fig, axes = plt.subplots(rows, cols, figsize=(panel * cols, panel * rows + 0.3), squeeze=False)
+    # the envelope is about 0.6 as deep as it is wide; the rest is the titles and the legend
+    fig, axes = plt.subplots(rows, cols, figsize=(panel * cols, 0.72 * panel * rows + 0.9), squeeze=False)
     for ax in axes.flat:
         ax.set_visible(False)
     failures = sorted({_outcome(r) for r in results} - {"docked"})
