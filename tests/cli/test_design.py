@@ -24,6 +24,10 @@ def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, 
     return code, out, err
 
 
+def refuse_constant(name: str) -> None:
+    raise AssertionError(f"design.json holds {name}, which is not JSON")
+
+
 def assert_one_line_error(code: int, err: str, *needles: str) -> None:
     assert code == 2
     assert len(err.strip().splitlines()) == 1, err
@@ -51,7 +55,7 @@ def test_writes_the_layout_report_numbers_and_kit_and_replaces_only_with_force(
     layout = DockLayout.load(out / "layout.yaml")
     assert layout.roles[:3] == ("left", "center", "right")
     assert "far" in layout.roles
-    numbers = json.loads((out / "design.json").read_text())
+    numbers = json.loads((out / "design.json").read_text(), parse_constant=refuse_constant)
     assert numbers["sim_check"]["poses"] == 3
     assert numbers["envelope_covered"] == 1.0
     pdfs = list((out / "kit").glob("dock_kit_*.pdf"))
@@ -63,6 +67,14 @@ def test_writes_the_layout_report_numbers_and_kit_and_replaces_only_with_force(
     assert_one_line_error(code, err, "exists", "--force")
     code, _, err = run([*args, "--check-poses", "0", "--tolerance", "5mm,0.5deg", "--out", str(out), "--force"], capsys)
     assert code == 0, err
+    # Nothing rendered: the report says so, with no empty figure and no "nan %"; design.json stays strict JSON.
+    assert not (out / "design_check.png").exists()
+    text = (out / "report.md").read_text()
+    assert "Not checked in the simulator" in text
+    assert "nan" not in text.lower()
+    unchecked = json.loads((out / "design.json").read_text(), parse_constant=refuse_constant)
+    assert unchecked["sim_check"]["poses"] == 0
+    assert unchecked["sim_check"]["within_3_sigma"] is None
 
 
 @pytest.mark.parametrize(

@@ -3,7 +3,6 @@ prediction checked against the simulator (``evaluation.design``)."""
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -12,6 +11,7 @@ import numpy as np
 from matplotlib.colors import BoundaryNorm, ListedColormap
 from matplotlib.patches import Patch
 
+from monodock.core.config import json_text
 from monodock.evaluation.design import Design, SimCheck
 from monodock.evaluation.detection_model import DETECTION_SOURCE
 from monodock.report.dock_kit import Paper
@@ -125,6 +125,22 @@ def check_summary(checks: Sequence[SimCheck]) -> dict[str, float]:
     }
 
 
+def _percent(share: float) -> str:
+    """A share as a percentage, or a dash where no frame gave one (no pose to judge)."""
+    return f"{share * 100:.0f} %" if math.isfinite(share) else "- (no pose)"
+
+
+def _xy_yaw(v: tuple[float, float, float]) -> str:
+    """x / y in cm, yaw in degrees; a dash where there is none (nothing decoded, no pose)."""
+    if not all(math.isfinite(x) for x in v):
+        return "-"
+    return f"{v[0] * 100:.3f} / {v[1] * 100:.3f}, {math.degrees(v[2]):.3f}"
+
+
+def _sigmas(z: float) -> str:
+    return f"{z:.1f}σ" if math.isfinite(z) else "-"
+
+
 def design_json(design: Design, checks: Sequence[SimCheck], kit_paper: str) -> str:
     """design.json: the request, the proposal and the numbers."""
     m = design.map
@@ -172,7 +188,7 @@ def design_json(design: Design, checks: Sequence[SimCheck], kit_paper: str) -> s
             for c in checks
         ],
     }
-    return json.dumps(data, indent=2, allow_nan=True) + "\n"
+    return json_text(data) + "\n"  # strict JSON: a figure with nothing behind it (no pose, no check) is null
 
 
 def design_report(out: Path, design: Design, checks: Sequence[SimCheck], *, kit_paper: str, command: str) -> None:
@@ -219,16 +235,26 @@ def design_report(out: Path, design: Design, checks: Sequence[SimCheck], *, kit_
         "Middle, right: the Cramér–Rao σ from those markers (OpenCV SUBPIX corner noise).",
     )
     report.heading("Predicted vs measured (simulator)")
+    if checks:
+        _check_section(report, out, design, checks)
+    else:
+        report.paragraph("Not checked in the simulator (--check-poses 0): the figures above are the model's alone.")
+    report.write(out, design_json(design, checks, kit_paper))
+    (out / "summary.json").replace(out / "design.json")
+
+
+def _check_section(report: HtmlReport, out: Path, design: Design, checks: Sequence[SimCheck]) -> None:
+    """Predicted vs measured: the figures, design_check.png and a row per simulated pose."""
     s = check_summary(checks)
     report.paragraph(
         f"{int(s['poses'])} envelope poses rendered on the proposed dock (default nuisances"
         f"{', 6 px motion blur' if design.blur else ''}), detected and estimated with the fused method: every "
         f"predicted marker decoded at {s['all_predicted_detected'] * 100:.0f} % of them (at least one of them at "
         f"{s['some_predicted_detected'] * 100:.0f} %), a pose at {s['valid_pose'] * 100:.0f} %, the error within "
-        f"3σ of the prediction on every axis at {s['within_3_sigma'] * 100:.0f} % and within 5σ at "
-        f"{s['within_5_sigma'] * 100:.0f} %. Against the bound of the markers actually decoded (what the estimate "
-        f"used): within 3σ at {s['within_3_sigma_detected'] * 100:.0f} %, 5σ at "
-        f"{s['within_5_sigma_detected'] * 100:.0f} % (median worst axis {s['median_max_z_detected']:.1f}σ)."
+        f"3σ of the prediction on every axis at {_percent(s['within_3_sigma'])} and within 5σ at "
+        f"{_percent(s['within_5_sigma'])}. Against the bound of the markers actually decoded (what the estimate "
+        f"used): within 3σ at {_percent(s['within_3_sigma_detected'])}, 5σ at "
+        f"{_percent(s['within_5_sigma_detected'])} (median worst axis {_sigmas(s['median_max_z_detected'])})."
     )
     check_figure(checks, out / "design_check.png")
     report.image("design_check.png", "Measured |error| of the fused estimate against the predicted σ (lines: 1σ, 3σ).")
@@ -237,18 +263,12 @@ def design_report(out: Path, design: Design, checks: Sequence[SimCheck], *, kit_
         "|---:|---:|---|---|---:|---:|---:|",
     ]
     for c in checks:
-        sg = f"{c.sigma[0] * 100:.3f} / {c.sigma[1] * 100:.3f}, {math.degrees(c.sigma[2]):.3f}"
-        sdx, sdy, sda = c.sigma_detected
-        sd = f"{sdx * 100:.3f} / {sdy * 100:.3f}, {math.degrees(sda):.3f}"
-        er = f"{c.error[0] * 100:.3f} / {c.error[1] * 100:.3f}, {math.degrees(c.error[2]):.3f}"
         rows.append(
             f"| {c.distance:.2f} | {math.degrees(c.bearing):.0f} | {' '.join(c.predicted) or '-'} "
-            f"| {' '.join(c.detected) or '-'} | {sg} | {sd} | {er} |"
+            f"| {' '.join(c.detected) or '-'} | {_xy_yaw(c.sigma)} | {_xy_yaw(c.sigma_detected)} | {_xy_yaw(c.error)} |"
         )
     report.table("\n".join(rows))
     report.note(
         "The budget is conservative: the simulator's detector usually decodes more markers than predicted, and the "
         "fused estimate then uses them all, so its error is often well under the predicted σ."
     )
-    report.write(out, design_json(design, checks, kit_paper))
-    (out / "summary.json").replace(out / "design.json")
