@@ -26,7 +26,8 @@ ROOT = Path(__file__).resolve().parent
 GENERATED = ROOT / "build" / "ros_interfaces"
 INTERFACE_PACKAGES = {
     "tf2_msgs": ("tf2_msgs", "tf2_msgs.msg"),
-    "nav2_msgs": ("nav2_msgs", "nav2_msgs.action"),
+    "nav2_msgs": ("nav2_msgs", "nav2_msgs.action", "nav2_msgs.srv"),
+    "bond": ("bond", "bond.msg"),
 }
 BINARIES = ["*.so", "type_description/*.json", "LICENSE*"]
 # colcon sets COLCON=1 in the environment of everything it runs.

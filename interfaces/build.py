@@ -29,11 +29,17 @@ import tempfile
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-PACKAGES = ("tf2_msgs", "nav2_msgs")
+PACKAGES = ("tf2_msgs", "nav2_msgs", "bond")
 # Each package's interface files, copied verbatim from upstream/ into the build tree beside packages/<name>/.
 SOURCES = {
     "tf2_msgs": ("msg/TF2Error.msg", "msg/TFMessage.msg"),
-    "nav2_msgs": ("action/DockRobot.action", "action/UndockRobot.action"),
+    "nav2_msgs": (
+        "srv/ReloadDockDatabase.srv",
+        "action/DockRobot.action",
+        "action/NavigateToPose.action",
+        "action/UndockRobot.action",
+    ),
+    "bond": ("msg/Constants.msg", "msg/Status.msg"),
 }
 STAMP = "BUILD_STAMP"
 # Appended to each generated package's __init__.py. rosidl's type-support dispatch dlopen()s each package's

@@ -1,4 +1,5 @@
-"""The ROS 2 interfaces monodock builds at install time (interfaces/): nav2_msgs' docking actions and tf2_msgs.
+"""The ROS 2 interfaces monodock builds at install time (interfaces/): nav2_msgs' docking interfaces, tf2_msgs and
+bond's messages (nav2_lifecycle_manager's bonds).
 
 Ground truth: the RIHS01 type hashes that rosbags (its own pure-Python implementation, not rosidl's) computes from
 the upstream definitions' text in interfaces/upstream/, and the hash of tf2_msgs/msg/TFMessage that ROS 2 Jazzy
@@ -73,16 +74,18 @@ def test_the_built_types_hash_as_upstream_s_definitions() -> None:
                 (UPSTREAM / "tf2_msgs" / "msg" / f"{n}.msg").read_text(encoding="utf-8"), f"tf2_msgs/msg/{n}"
             )
         )
-    for action in ("DockRobot", "UndockRobot"):
+    for action in ("DockRobot", "UndockRobot", "NavigateToPose"):
         types.update(_action_types(action))
+    # (rosbags names no service types, so ReloadDockDatabase is checked by its blob and by loading it, below.)
+    types.update(get_types_from_msg((UPSTREAM / "bond" / "msg" / "Status.msg").read_text(), "bond/msg/Status"))
     store.register(types)
-    installed = {**_installed_hashes("tf2_msgs"), **_installed_hashes("nav2_msgs")}
+    installed = {**_installed_hashes("tf2_msgs"), **_installed_hashes("nav2_msgs"), **_installed_hashes("bond")}
     assert installed["tf2_msgs/msg/TFMessage"] == TFMESSAGE_RIHS01
     checked = 0
     for type_name in types:
         assert store.hash_rihs01(type_name) == installed[type_name], type_name
         checked += 1
-    assert checked >= 2 + 2 * 8
+    assert checked >= 2 + 3 * 8 + 1
 
 
 def test_the_built_types_load_their_type_support_in_a_fresh_process() -> None:
@@ -90,17 +93,20 @@ def test_the_built_types_load_their_type_support_in_a_fresh_process() -> None:
     defaults are the upstream text's."""
     _package_dir("nav2_msgs")
     code = (
-        "from nav2_msgs.action import DockRobot, UndockRobot\n"
+        "from nav2_msgs.action import DockRobot, NavigateToPose, UndockRobot\n"
+        "from nav2_msgs.srv import ReloadDockDatabase\n"
         "from tf2_msgs.msg import TFMessage\n"
-        "for t in (DockRobot, UndockRobot, TFMessage):\n"
+        "from bond.msg import Constants, Status\n"
+        "for t in (DockRobot, UndockRobot, NavigateToPose, ReloadDockDatabase, TFMessage, Status, Constants):\n"
         "    type(t).__import_type_support__()\n"
         "    assert t._TYPE_SUPPORT is not None, t\n"
         "g = DockRobot.Goal()\n"
         "print(g.use_dock_id, g.navigate_to_staging_pose, g.max_staging_time, DockRobot.Result.FAILED_TO_CHARGE)\n"
+        "print(Constants.DISABLE_HEARTBEAT_TIMEOUT_PARAM, NavigateToPose.Result.TIMEOUT)\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["True", "True", "1000.0", "906"]
+    assert done.stdout.split() == ["True", "True", "1000.0", "906", "/bond_disable_heartbeat_timeout", "9003"]
 
 
 def test_the_upstream_files_are_the_upstream_commits_blobs() -> None:
@@ -114,6 +120,10 @@ def test_the_upstream_files_are_the_upstream_commits_blobs() -> None:
         "tf2_msgs/msg/TF2Error.msg",
         "nav2_msgs/action/DockRobot.action",
         "nav2_msgs/action/UndockRobot.action",
+        "nav2_msgs/action/NavigateToPose.action",
+        "nav2_msgs/srv/ReloadDockDatabase.srv",
+        "bond/msg/Status.msg",
+        "bond/msg/Constants.msg",
     }
     for blob, path in recorded:
         data = (UPSTREAM / path).read_bytes()
