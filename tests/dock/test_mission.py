@@ -368,8 +368,8 @@ def test_final_pose_outside_the_tolerances_fails_after_the_retries() -> None:
 
 
 def test_failure_reasons_map_to_nav2_docking_error_codes() -> None:
-    """Each reason has the nearest ``nav2_msgs/action/DockRobot`` result code (904 detect, 905 control, 906 charge,
-    907 time)."""
+    """Each reason has the nearest ``nav2_msgs/action/DockRobot`` result code (903 stage, 904 detect, 905 control,
+    906 charge), as Nav2's docking server raises them: its time-outs end 905, never 907 (docking_server.cpp, Kilted)."""
     codes = {reason: reason.nav2_error_code for reason in FailureReason}
     assert codes == {
         FailureReason.NOT_IN_VIEW: 904,
@@ -381,7 +381,8 @@ def test_failure_reasons_map_to_nav2_docking_error_codes() -> None:
         FailureReason.OBSTACLE_BEHIND: 905,
         FailureReason.REVERSE_LIMIT: 905,
         FailureReason.NOT_CHARGING: 906,
-        FailureReason.TIMEOUT: 907,
+        FailureReason.TIMEOUT: 905,
+        FailureReason.STAGING_TIMEOUT: 903,
         FailureReason.ODOMETRY_LOST: 905,
         FailureReason.CANCELLED: 0,
     }

@@ -1,14 +1,21 @@
 """Driver (tests/ros/test_dock_action_graph.py, inside a private network namespace): monodock_sim and monodock_dock
-on one graph, driven only through Nav2's actions, by a client written from the upstream nav2_msgs definitions.
+on one graph, driven only through Nav2's actions, by a client written from the upstream nav2_msgs definitions, as
+Nav2's behaviour tree nodes send them.
 
 Argument: one JSON object with
     start: [x, y, yaw] of the robot in the dock frame;
-    goals: in turn, each {"action": "dock" | "undock", "goal": {field: value} (DockRobot/UndockRobot goal fields),
+    dock_params: optional, more ``-p name:=value`` for monodock_dock;
+    navigator: optional, true: this driver also serves navigate_to_pose (a plain go-to-pose controller on the sim's
+        odometry, as Nav2's navigation would drive), and reports the goals it got;
+    goals: in turn, each {"action": "dock" | "undock", "goal": {field: value} (DockRobot/UndockRobot goal fields;
+           "dock_pose": [x, y, yaw, frame] for a PoseStamped),
            "cancel_in": optional, the feedback state (CONTROLLING = 3, ...) that makes the client cancel the goal,
+           "cancel_at_once": optional, cancel as soon as the goal is accepted,
            "preempt_in", "preempt_with": optional, the feedback state at which the client sends the step
            ``preempt_with`` while this goal runs}.
 Prints JSON lines: {"kind": "ready"}, per goal {"kind": "goal", accepted, status, result fields, feedback states,
-the last feedback's docking time and retries, the truth after it, charging}, {"kind": "end", ...}.
+the last feedback's docking time and retries, the truth before it and after it, charging}, {"kind": "navigator"},
+{"kind": "end", ...}.
 """
 
 from __future__ import annotations
@@ -18,16 +25,20 @@ import math
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import rclpy
 from action_msgs.msg import GoalStatus
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import PoseStamped, TwistStamped
 from graph_processes import DOCK, SIM, stop_nodes
-from nav2_msgs.action import DockRobot, UndockRobot
-from rclpy.action import ActionClient
+from nav2_msgs.action import DockRobot, NavigateToPose, UndockRobot
+from nav_msgs.msg import Odometry
+from rclpy.action import ActionClient, ActionServer
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from sensor_msgs.msg import BatteryState
 
 from monodock.core.layout import DockLayout
@@ -43,12 +54,15 @@ sim = subprocess.Popen(
     [sys.executable, "-c", SIM, "--ros-args", "-p", f"start:={json.dumps(spec['start'])}", "-p", "seed:=1"]
 )
 dock_args = ["--method", "board", "--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml")]
-dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args, "--ros-args", "-p", "use_sim_time:=true"])
+more = [arg for p in spec.get("dock_params", []) for arg in ("-p", p)]
+dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args, "--ros-args", "-p", "use_sim_time:=true", *more])
 
 rclpy.init()
 node = rclpy.create_node("nav2_like_client")
+group = ReentrantCallbackGroup()
 truth: list[tuple[float, float, float]] = []
 battery: list[int] = []
+odom: list[tuple[float, float, float]] = []
 
 
 def on_truth(msg: Any) -> None:
@@ -59,41 +73,103 @@ def on_truth(msg: Any) -> None:
     truth.append((-(c * x + s * y), s * x - c * y, -yaw))
 
 
-node.create_subscription(PoseStamped, "/ground_truth", on_truth, 50)
-node.create_subscription(BatteryState, "/battery_state", lambda msg: battery.append(msg.power_supply_status), 50)
+def on_odom(msg: Any) -> None:
+    q = msg.pose.pose.orientation
+    odom.append((msg.pose.pose.position.x, msg.pose.pose.position.y, 2.0 * math.atan2(q.z, q.w)))
+
+
+node.create_subscription(PoseStamped, "/ground_truth", on_truth, 50, callback_group=group)
+node.create_subscription(
+    BatteryState, "/battery_state", lambda msg: battery.append(msg.power_supply_status), 50, callback_group=group
+)
+node.create_subscription(Odometry, "/odom", on_odom, 50, callback_group=group)
 clients = {
-    "dock": ActionClient(node, DockRobot, "dock_robot"),
-    "undock": ActionClient(node, UndockRobot, "undock_robot"),
+    "dock": ActionClient(node, DockRobot, "dock_robot", callback_group=group),
+    "undock": ActionClient(node, UndockRobot, "undock_robot", callback_group=group),
 }
+navigated: list[list[float | str]] = []
+
+
+def navigate(handle: Any) -> Any:
+    """navigate_to_pose as Nav2's navigation would serve it: turn, drive, turn, on odometry, in the odom frame."""
+    p, q = handle.request.pose.pose.position, handle.request.pose.pose.orientation
+    goal = (p.x, p.y, 2.0 * math.atan2(q.z, q.w))
+    navigated.append([*goal, handle.request.pose.header.frame_id])
+    cmd = node.create_publisher(TwistStamped, "/cmd_vel", 10)
+
+    def send(v: float, w: float) -> None:
+        msg = TwistStamped()
+        msg.twist.linear.x, msg.twist.angular.z = v, w
+        cmd.publish(msg)
+
+    def wrap(a: float) -> float:
+        return math.atan2(math.sin(a), math.cos(a))
+
+    end = time.monotonic() + 60
+    while time.monotonic() < end:
+        if handle.is_cancel_requested:
+            send(0.0, 0.0)
+            handle.canceled()
+            return NavigateToPose.Result()
+        x, y, th = odom[-1]
+        dx, dy = goal[0] - x, goal[1] - y
+        far = math.hypot(dx, dy) > 0.03
+        turn = wrap((math.atan2(dy, dx) if far else goal[2]) - th)
+        if not far and abs(turn) < 0.03:
+            break
+        send(0.15 if far and abs(turn) < 0.2 else 0.0, max(-0.5, min(0.5, 1.5 * turn)))
+        time.sleep(0.02)
+    send(0.0, 0.0)
+    handle.succeed()
+    return NavigateToPose.Result()
+
+
+if spec.get("navigator"):
+    ActionServer(node, NavigateToPose, "navigate_to_pose", navigate, callback_group=group)
+executor = MultiThreadedExecutor(num_threads=4)
+executor.add_node(node)
+threading.Thread(target=executor.spin, daemon=True).start()
 
 
 def emit(kind: str, /, **values: Any) -> None:
     print(json.dumps({"kind": kind, **values}), flush=True)
 
 
-def spin_until(done: Any, seconds: float) -> bool:
+def wait(done: Any, seconds: float) -> bool:
     end = time.monotonic() + seconds
     while not done() and time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.02)
+        time.sleep(0.02)
     return bool(done())
+
+
+def make_goal(step: dict[str, Any]) -> Any:
+    action = DockRobot if step["action"] == "dock" else UndockRobot
+    goal = action.Goal()
+    for field, value in step.get("goal", {}).items():
+        if field == "dock_pose":
+            x, y, yaw, frame = value
+            goal.dock_pose.header.frame_id = frame
+            goal.dock_pose.pose.position.x, goal.dock_pose.pose.position.y = x, y
+            goal.dock_pose.pose.orientation.z, goal.dock_pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+        else:
+            setattr(goal, field, value)
+    return goal
 
 
 def send(step: dict[str, Any]) -> tuple[Any, list[Any]]:
     """The goal handle (None when not accepted) of a step's goal, and the list its feedback goes to."""
-    action = DockRobot if step["action"] == "dock" else UndockRobot
-    goal = action.Goal()
-    for field, value in step.get("goal", {}).items():
-        setattr(goal, field, value)
     feedback: list[Any] = []
     sent = clients[step["action"]].send_goal_async(
-        goal, feedback_callback=lambda f, into=feedback: into.append(f.feedback)
+        make_goal(step), feedback_callback=lambda f, into=feedback: into.append(f.feedback)
     )
-    spin_until(sent.done, 20)
+    wait(sent.done, 20)
     handle = sent.result()
     return (handle if handle is not None and handle.accepted else None), feedback
 
 
-def report(step: dict[str, Any], result_future: Any, feedback: list[Any], cancelled: Any, **more: Any) -> None:
+def report(
+    step: dict[str, Any], result_future: Any, feedback: list[Any], before: Any, cancelled: Any, **more: Any
+) -> None:
     wrapped = result_future.result() if result_future.done() else None
     result = wrapped.result if wrapped is not None else None
     x, y, heading = truth[-1]
@@ -118,46 +194,50 @@ def report(step: dict[str, Any], result_future: Any, feedback: list[Any], cancel
             "gap_cm": 100 * (-x - robot_config.front_offset),
             "heading_deg": math.degrees(heading),
         },
+        moved_cm=100 * math.hypot(x - before[0], y - before[1]),
+        turned_deg=math.degrees(abs(math.atan2(math.sin(heading - before[2]), math.cos(heading - before[2])))),
         charging=bool(battery) and battery[-1] == BatteryState.POWER_SUPPLY_STATUS_CHARGING,
         **more,
     )
 
 
-ready = spin_until(lambda: all(c.server_is_ready() for c in clients.values()) and truth, 90)
+ready = wait(lambda: all(c.server_is_ready() for c in clients.values()) and truth and odom, 90)
 emit("ready", ok=ready)
 for step in spec["goals"] if ready else []:
+    before = truth[-1]
     handle, feedback = send(step)
     if handle is None:
         emit("goal", action=step["action"], accepted=False)
         continue
     result_future = handle.get_result_async()
     cancel_in, preempt_in = step.get("cancel_in"), step.get("preempt_in")
-    cancelled = None
+    cancelled = handle.cancel_goal_async() if step.get("cancel_at_once") else None
     preempting: tuple[Any, list[Any]] | None = None
     end = time.monotonic() + 150
     while not result_future.done() and time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.02)
+        time.sleep(0.01)
         reached = feedback[-1].state if feedback else None
         if cancel_in is not None and cancelled is None and reached == cancel_in:
             cancelled = handle.cancel_goal_async()
         if preempt_in is not None and preempting is None and reached == preempt_in:
             preempting = send(step["preempt_with"])  # a new goal while this one runs, as a behaviour tree may send
+    wait(lambda: False, 1.0)  # the robot settles, the battery reports
     if preempting is None:
-        spin_until(lambda: False, 1.0)  # the robot settles, the battery reports
-        report(step, result_future, feedback, cancelled)
+        report(step, result_future, feedback, before, cancelled)
         continue
-    # The preempted goal's result (as it was when the new goal took over), then the new goal's to its end.
-    report(step, result_future, feedback, cancelled, preempted=True)
+    report(step, result_future, feedback, before, cancelled, preempted=True)
     second, second_feedback = preempting
     if second is None:
         emit("goal", action=step["preempt_with"]["action"], accepted=False)
         continue
     second_future = second.get_result_async()
-    spin_until(second_future.done, 150)
-    spin_until(lambda: False, 1.0)
-    report(step["preempt_with"], second_future, second_feedback, None, preempting=True)
+    wait(second_future.done, 150)
+    wait(lambda: False, 1.0)
+    report(step["preempt_with"], second_future, second_feedback, before, None, preempting=True)
 
+emit("navigator", goals=navigated)
 stop_nodes(dock, sim)
 emit("end", dock=dock.returncode, sim=sim.returncode)
+executor.shutdown()
 node.destroy_node()
 rclpy.shutdown()

@@ -18,7 +18,7 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Twist
+from geometry_msgs.msg import TwistStamped
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
@@ -56,7 +56,7 @@ def drive(node: Any) -> None:
         stderr=subprocess.PIPE,
         text=True,
     )
-    cmd = node.create_publisher(Twist, "cmd_vel", 10)  # before the recorder looks: it records what is published
+    cmd = node.create_publisher(TwistStamped, "cmd_vel", 10)  # before the recorder looks: it records what is published
     images: list[float] = []
     node.create_subscription(Image, "image", lambda _: images.append(time.time()), qos_profile_sensor_data)
     sent: list[float] = []
@@ -69,8 +69,8 @@ def drive(node: Any) -> None:
         spin_for(node, 1.0)
         start = time.monotonic()
         while ready and time.monotonic() - start < 2.0:
-            twist = Twist()
-            twist.linear.x = 0.1
+            twist = TwistStamped()  # the sim's default, as the docking node sends it
+            twist.twist.linear.x = 0.1
             cmd.publish(twist)
             sent.append(time.time())
             spin_for(node, 0.05)

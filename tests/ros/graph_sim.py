@@ -11,7 +11,7 @@ import time
 from typing import Any
 
 import rclpy
-from geometry_msgs.msg import PoseStamped, Twist
+from geometry_msgs.msg import PoseStamped, TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.qos import DurabilityPolicy, QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import BatteryState, CameraInfo, Image, Range
@@ -79,7 +79,7 @@ node.create_subscription(
 node.create_subscription(PoseStamped, "ground_truth", on_truth, 10)
 node.create_subscription(BatteryState, "battery_state", lambda m: seen["battery"].append(stamp(m)), 10)
 node.create_subscription(Range, "rear_range", lambda m: seen["range"].append(m.range), sensor)
-cmd = node.create_publisher(Twist, "cmd_vel", 10)
+cmd = node.create_publisher(TwistStamped, "cmd_vel", 10)  # the sim's default, as the docking node sends it
 start = time.monotonic()
 driving_from: float | None = None
 while time.monotonic() - start < 30 and sim.poll() is None:
@@ -87,8 +87,8 @@ while time.monotonic() - start < 30 and sim.poll() is None:
     if seen["image"] and driving_from is None:
         driving_from = time.monotonic()
     if driving_from is not None and time.monotonic() - driving_from < 2.0:
-        twist = Twist()
-        twist.linear.x = 0.1
+        twist = TwistStamped()
+        twist.twist.linear.x = 0.1
         cmd.publish(twist)
         sent.append(time.time())
 rclpy.shutdown()

@@ -6,8 +6,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from monodock.dock.controller import State
-from monodock.ros.dock_actions import FeedbackState, feedback_state
+from monodock.dock.nav2 import FeedbackState
+from monodock.dock.states import State, feedback_state
 
 ACTION = Path(__file__).resolve().parents[2] / "interfaces" / "upstream" / "nav2_msgs" / "action" / "DockRobot.action"
 

@@ -251,7 +251,7 @@ def test_a_recorded_drive_matches_the_sims_ground_truth(tmp_path: Path) -> None:
     sent = run.first("sent")
     cmd = messages["/cmd_vel"]
     assert 0.9 * sent["count"] <= len(cmd) <= sent["count"]
-    assert all(msg.linear.x == pytest.approx(0.1) for _, msg in cmd)
+    assert all(msg.twist.linear.x == pytest.approx(0.1) for _, msg in cmd)
     first_cmd, last_cmd = cmd[0][0], cmd[-1][0]
     assert abs(first_cmd - sent["first"]) < 0.2
     assert abs(last_cmd - sent["last"]) < 0.2

@@ -100,7 +100,8 @@ def dock_parser() -> argparse.ArgumentParser:
     d = DockOptions()
     p = _Parser(
         prog="monodock-dock-ros",
-        description="dock and undock on request (~/dock, ~/undock, ~/cancel): cmd_vel out, odom and image in",
+        description="dock and undock on request (Nav2's dock_robot and undock_robot actions; ~/dock, ~/undock, "
+        "~/cancel): cmd_vel out, odom and image in; a lifecycle node",
         epilog="ROS parameters (--ros-args -p name:=value, --params-file FILE) override these flags; the docking "
         "config's keys (docs/docking.yaml) are parameters too, e.g. -p planner.standoff:=1.2",
     )
@@ -123,6 +124,21 @@ def dock_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", default=d.config, help="docking config YAML (docs/docking.md), read before parameters")
     p.add_argument("--odom-timeout", type=float, default=d.odom_timeout, help="odometry older than this: stop, s")
     p.add_argument("--sensor-timeout", type=float, default=d.sensor_timeout, help="other sensors' age limit, s")
+    p.add_argument("--dock-id", default=d.dock_id, help="the one dock's name without a dock database (%(default)s)")
+    p.add_argument(
+        "--autostart",
+        dest="autostart_node",
+        action=argparse.BooleanOptionalAction,
+        default=d.autostart_node,
+        help="configure and activate at start (default); --no-autostart: wait for nav2_lifecycle_manager",
+    )
+    p.add_argument(
+        "--stamped-cmd-vel",
+        dest="enable_stamped_cmd_vel",
+        action=argparse.BooleanOptionalAction,
+        default=d.enable_stamped_cmd_vel,
+        help="cmd_vel as TwistStamped (default, as Kilted); --no-stamped-cmd-vel: Twist",
+    )
     _add_camera_source(p, d)
     return p
 

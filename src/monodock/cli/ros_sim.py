@@ -19,8 +19,8 @@ USAGE = """usage: monodock-sim-ros [-h] [--ros-args -p NAME:=VALUE ... [--params
 node monodock_sim: the simulator as a robot on a ROS 2 graph. It publishes image, camera_info, odom, /tf,
 /tf_static, battery_state, contact, rear_range, ground_truth and /clock, and drives by cmd_vel. Its settings are
 ROS parameters: start:=[x,y,yaw] (m, rad; the robot in the dock frame), seed, layout, robot, camera, camera_rate,
-cmd_vel_timeout, nuisances (default|clean), frame_id, odom_frame, camera_frame, camera_frame_id, rear_range_frame
-(docs/ros2.md, "The simulated robot").
+cmd_vel_timeout, enable_stamped_cmd_vel (TwistStamped, default true), nuisances (default|clean), frame_id,
+odom_frame, camera_frame, camera_frame_id, rear_range_frame (docs/ros2.md, "The simulated robot").
 """
 
 

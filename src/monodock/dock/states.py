@@ -5,7 +5,9 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-__all__ = ["FailureReason", "State"]
+from monodock.dock.nav2 import FeedbackState, Nav2Code
+
+__all__ = ["FailureReason", "State", "feedback_state"]
 
 
 class State(StrEnum):
@@ -129,7 +131,9 @@ class FailureReason(StrEnum):
     ``OBSTACLE_BEHIND``     ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, cannot reverse)
     ``REVERSE_LIMIT``       ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, a reverse leg too long)
     ``NOT_CHARGING``        ``FAILED_TO_CHARGE`` = 906 (``FailedToCharge``, all re-seats used)
-    ``TIMEOUT``             ``TIMEOUT`` = 907
+    ``TIMEOUT``             ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``: Nav2's docking server ends its
+                            approach, rotation and undocking time-outs so; it never uses ``TIMEOUT`` = 907)
+    ``STAGING_TIMEOUT``     ``FAILED_TO_STAGE`` = 903 (``FailedToStage``, staging took over ``max_staging_time``)
     ``ODOMETRY_LOST``       ``FAILED_TO_CONTROL`` = 905 (``FailedToControl``, no odometry to steer by)
     ``CANCELLED``           ``NONE`` = 0 (Nav2 ends a cancelled action as CANCELED, not with an error code)
     ======================  ==============================================================================
@@ -167,7 +171,11 @@ class FailureReason(StrEnum):
     """At the face inside the tolerances, the charger never reported charging, after ``max_reseats`` re-seats."""
 
     TIMEOUT = "timeout"
-    """The mission ran longer than ``mission_timeout``."""
+    """The mission ran longer than ``mission_timeout`` (or, aborted from outside, than a goal's time limit)."""
+
+    STAGING_TIMEOUT = "staging-timeout"
+    """The far approach (monodock's own way to the staging point) ran longer than a DockRobot goal's
+    ``max_staging_time`` (``DockingMission.abort`` by the ROS node)."""
 
     ODOMETRY_LOST = "odometry-lost"
     """The robot's odometry stopped coming (``DockingMission.abort`` by whoever runs the mission, e.g. the ROS node)."""
@@ -176,24 +184,41 @@ class FailureReason(StrEnum):
     """Cancelled from outside (``DockingMission.abort``): a second call, a cancel request, a shutdown."""
 
     @property
-    def nav2_error_code(self) -> int:
+    def nav2_error_code(self) -> Nav2Code:
         """The nearest ``DockRobot.Result`` error code of Nav2's docking server (see the table above)."""
         return _NAV2_ERROR_CODE[self]
 
 
-# nav2_msgs/action/DockRobot.action's result codes.
-_FAILED_TO_DETECT_DOCK, _FAILED_TO_CONTROL, _FAILED_TO_CHARGE, _TIMEOUT = 904, 905, 906, 907
 _NAV2_ERROR_CODE = {
-    FailureReason.NOT_IN_VIEW: _FAILED_TO_DETECT_DOCK,
-    FailureReason.NOT_FOUND: _FAILED_TO_DETECT_DOCK,
-    FailureReason.MARKERS_LOST: _FAILED_TO_DETECT_DOCK,
-    FailureReason.DOCK_LOST: _FAILED_TO_DETECT_DOCK,
-    FailureReason.APPROACH_STALLED: _FAILED_TO_CONTROL,
-    FailureReason.OUTSIDE_TOLERANCES: _FAILED_TO_CONTROL,
-    FailureReason.OBSTACLE_BEHIND: _FAILED_TO_CONTROL,
-    FailureReason.REVERSE_LIMIT: _FAILED_TO_CONTROL,
-    FailureReason.NOT_CHARGING: _FAILED_TO_CHARGE,
-    FailureReason.TIMEOUT: _TIMEOUT,
-    FailureReason.ODOMETRY_LOST: _FAILED_TO_CONTROL,
-    FailureReason.CANCELLED: 0,
+    FailureReason.NOT_IN_VIEW: Nav2Code.FAILED_TO_DETECT_DOCK,
+    FailureReason.NOT_FOUND: Nav2Code.FAILED_TO_DETECT_DOCK,
+    FailureReason.MARKERS_LOST: Nav2Code.FAILED_TO_DETECT_DOCK,
+    FailureReason.DOCK_LOST: Nav2Code.FAILED_TO_DETECT_DOCK,
+    FailureReason.APPROACH_STALLED: Nav2Code.FAILED_TO_CONTROL,
+    FailureReason.OUTSIDE_TOLERANCES: Nav2Code.FAILED_TO_CONTROL,
+    FailureReason.OBSTACLE_BEHIND: Nav2Code.FAILED_TO_CONTROL,
+    FailureReason.REVERSE_LIMIT: Nav2Code.FAILED_TO_CONTROL,
+    FailureReason.NOT_CHARGING: Nav2Code.FAILED_TO_CHARGE,
+    FailureReason.TIMEOUT: Nav2Code.FAILED_TO_CONTROL,
+    FailureReason.STAGING_TIMEOUT: Nav2Code.FAILED_TO_STAGE,
+    FailureReason.ODOMETRY_LOST: Nav2Code.FAILED_TO_CONTROL,
+    FailureReason.CANCELLED: Nav2Code.NONE,
 }
+
+
+_PERCEIVING = {State.ACQUIRE, State.CENTER, State.CALCULATE}
+_RETRYING = {State.RECOVER, State.RESEAT, State.BACK_OFF}
+_CHARGING = {State.SETTLE, State.CHARGE_WAIT, State.DOCKED}
+
+
+def feedback_state(state: State) -> FeedbackState:
+    """The ``DockRobot.Feedback`` state of a mission state: what Nav2's docking server would be doing."""
+    if state in _PERCEIVING:
+        return FeedbackState.INITIAL_PERCEPTION
+    if state is State.FAR_APPROACH:  # legs to the staging point on the dock's axis: Nav2's staging, on our own pose
+        return FeedbackState.NAV_TO_STAGING_POSE
+    if state in _RETRYING:
+        return FeedbackState.RETRY
+    if state in _CHARGING:
+        return FeedbackState.WAIT_FOR_CHARGE
+    return FeedbackState.CONTROLLING

@@ -454,10 +454,24 @@ def room_success_map(results: Sequence[TrialResult], config: DockSimConfig, path
         Line2D([], [], marker=_OUTCOME_MARKERS[i % len(_OUTCOME_MARKERS)], color="tab:red", ls="none", label=f)
         for i, f in enumerate(failures)
     ]
-    fig.legend(handles=handles, loc="lower center", ncol=min(4, len(handles)), fontsize=7.5, frameon=False)
-    fig.suptitle("room starts by outcome (a tick: the start heading)", fontsize=9)
-    fig.tight_layout(rect=(0, 0.06, 1, 0.97))
-    fig.savefig(path, dpi=90)
+    fig.tight_layout()
+    # The panels keep the room's aspect, so they do not fill their cells: the title and the legend go against the
+    # panels as drawn, and the blank bands around them are cropped.
+    shown = [ax for ax in axes.flat if ax.get_visible()]
+    for ax in shown:
+        ax.apply_aspect()
+    top = max(ax.get_position().y1 for ax in shown)
+    bottom = min(ax.get_position().y0 for ax in shown)
+    fig.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, bottom - 0.1 / rows),
+        ncol=min(4, len(handles)),
+        fontsize=7.5,
+        frameon=False,
+    )
+    fig.suptitle("room starts by outcome (a tick: the start heading)", fontsize=9, y=top + 0.08 / rows)
+    fig.savefig(path, dpi=90, bbox_inches="tight", pad_inches=0.1)
     plt.close(fig)
     del methods
 

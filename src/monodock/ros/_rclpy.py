@@ -5,6 +5,7 @@ from __future__ import annotations
 try:
     # The one module-level import of rclpy: the nodes import it from here (nothing else in monodock does).
     import rclpy  # type: ignore[import-not-found, unused-ignore]
+    from rclpy.lifecycle import LifecycleNode  # type: ignore[import-not-found, unused-ignore]
     from rclpy.node import Node  # type: ignore[import-not-found, unused-ignore]
 except ImportError as _exc:  # the message should say what to do, not only what is missing
     raise ModuleNotFoundError(
@@ -13,4 +14,4 @@ except ImportError as _exc:  # the message should say what to do, not only what 
         name="rclpy",
     ) from _exc
 
-__all__ = ["Node", "rclpy"]
+__all__ = ["LifecycleNode", "Node", "rclpy"]

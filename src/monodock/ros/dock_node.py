@@ -1,30 +1,34 @@
-"""``monodock-dock-ros`` (node ``monodock_dock``): docking and undocking on request, for as long as it runs.
+"""``monodock-dock-ros`` (node ``monodock_dock``): docking and undocking on request, a Nav2 lifecycle node.
 
-Services (std_srvs/Trigger; the reply says accepted or why not, the mission runs after it):
+Nav2's interface (``monodock.ros.dock_actions``): the ``dock_robot`` and ``undock_robot`` actions
+(nav2_msgs/action/DockRobot, UndockRobot) with the goal semantics of Nav2's docking server, the dock database of its
+parameters (``monodock.ros.dock_database``) and ``~/reload_database``. The node is a lifecycle node
+(``monodock.ros.lifecycle``): ``nav2_lifecycle_manager`` configures and activates it and keeps a bond with it, or it
+starts itself (``autostart_node``, true from the command line). Goals and requests are refused unless it is active.
 
-- ``~/dock``: dock from wherever the robot stands (the mission of ``monodock.dock.controller``);
-- ``~/undock``: back out straight to the staging pose;
-- ``~/cancel``: stop the running mission. A ``~/dock`` or ``~/undock`` call while one runs cancels it too.
+monodock's own services (std_srvs/Trigger; the reply says accepted or why not, the mission runs after it):
+``~/dock`` (dock from wherever the robot stands, at the node's default dock), ``~/undock`` (back out to the staging
+pose), ``~/cancel`` (stop the running mission; a ``~/dock`` or ``~/undock`` call while one runs cancels it too).
 
-Topics: ``~/state`` (std_msgs/String, transient-local: the state's name on every change, ``idle`` before the
-first mission), ``~/result`` (diagnostic_msgs/DiagnosticStatus, transient-local: OK when the mission succeeded,
-ERROR with the failure and its Nav2 error code otherwise; the robot's own estimate of the final lateral_cm,
-gap_cm, heading_deg, and retries, re-seats, recoveries, duration), and the dock filter's pose on
-``detected_dock_pose`` (PoseStamped) and ``detected_dock_pose_with_covariance`` in base_link while it tracks the
-dock, for Nav2's docking server. It drives by ``cmd_vel`` from ``odom``, the camera ``image`` (``camera_info``
-when no camera file is given), ``battery_state`` (charging), ``contact`` and ``rear_range``.
+Topics: ``~/state`` (std_msgs/String, transient-local: the state's name on every change, ``idle`` before the first
+mission), ``~/result`` (diagnostic_msgs/DiagnosticStatus, transient-local: OK when the mission succeeded, ERROR with
+the failure and its Nav2 error code otherwise; the robot's own estimate of the final lateral_cm, gap_cm, heading_deg,
+and retries, re-seats, recoveries, duration), the dock filter's pose on ``detected_dock_pose`` (PoseStamped) and
+``detected_dock_pose_with_covariance`` in base_link while it tracks the dock, and Nav2's debug topics in the odometry
+frame: ``filtered_dock_pose`` (the dock's face), ``dock_pose`` (where base_link stands docked), ``staging_pose``
+(in the dock's frame when the database gives it) and ``docking_trajectory`` (nav_msgs/Path: the plan to the dock). It
+drives by ``cmd_vel`` (TwistStamped; Twist with ``enable_stamped_cmd_vel: false``) from ``odom``, the camera ``image``
+(``camera_info`` when no camera file is given), ``battery_state`` (charging), ``contact`` and ``rear_range``.
 
 The docking config is ROS parameters of the same names as the config file's keys (``planner.standoff``,
-``max_reseats``, ...; ``config`` loads a file first); each mission reads them when it starts, so they may change
-between missions. Every exit of a mission commands zero velocity, a shutdown (SIGINT, SIGTERM) included; if the
-node dies outright, the base's own ``cmd_vel`` time-out stops the robot.
-
-Missions run in a thread of their own; the main thread spins the node, so services and sensor callbacks are
-served while the robot moves. Needs rclpy (monodock.ros._rclpy says how to get it).
+``max_reseats``, ...; ``config`` loads a file first); each mission reads them when it starts. Every exit of a mission
+commands zero velocity, a shutdown (SIGINT, SIGTERM) included; if the node dies outright, the base's own ``cmd_vel``
+time-out stops the robot. Needs rclpy (monodock.ros._rclpy says how to get it).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import sys
@@ -45,17 +49,21 @@ from monodock.dock.controller import (
     DockingMission,
     FailureReason,
     MissionResult,
+    State,
     blind_gap,
     make_perceive,
     run_mission,
 )
-from monodock.dock.interface import CameraFrame, Odometry
+from monodock.dock.database import DockDatabase, DockType
+from monodock.dock.interface import Odometry
 from monodock.dock.pose_filter import MeasurementNoise
-from monodock.errors import InputError, MonodockError
+from monodock.errors import ConfigError, InputError, MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.recording import messages as m
-from monodock.ros._rclpy import Node, rclpy
+from monodock.ros._rclpy import LifecycleNode, rclpy
 from monodock.ros.dock_actions import DOCK_ACTION, UNDOCK_ACTION, DockActions
+from monodock.ros.dock_database import declare_database, read_database
+from monodock.ros.lifecycle import LIFECYCLE_PARAMETERS, ManagerBond, autostart
 from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
 from monodock.ros.parameters import (
     Parameter,
@@ -65,14 +73,18 @@ from monodock.ros.parameters import (
     refuse_unknown_overrides,
     unflatten,
 )
+from monodock.ros.ros2_robot import ChargingSignal, RobotTopics, Ros2Robot
 from monodock.ros.shutdown import ShutdownFlag
-from monodock.ros.tf import CameraMountFromTF
+from monodock.ros.tf import CameraMountFromTF, TransformListener
 
-__all__ = ["PARAMETERS", "DockNode", "DockOptions", "Ros2Robot", "run_dock"]
+__all__ = ["PARAMETERS", "DockNode", "DockOptions", "StopCheck", "run_dock"]
 
 # spin_once calls after odometry is first seen stale before it counts as lost: enough for the executor to take the
 # callbacks that were already waiting (the clock's, the odometry's and the sensors') in one round.
 STALE_SPINS = 8
+
+# Why a running mission must stop, asked of its caller every control step: (reason, words) or None to go on.
+StopCheck = Callable[[DockingMission], tuple[FailureReason, str] | None]
 
 
 @dataclass(frozen=True)
@@ -92,12 +104,18 @@ class DockOptions(EstimatorOptions):
     config: str = ""
     odom_timeout: float = 1.0
     sensor_timeout: float = 1.0
-    dock_id: str = "dock"
+    dock_id: str = "home_dock"
     dock_type: str = "monodock"
+    enable_stamped_cmd_vel: bool = True
+    dock_prestaging_tolerance: float = 0.5
+    navigator_bt_xml: str = ""
+    autostart_node: bool = True
+    bond_heartbeat_period: float = 0.1
 
 
 # One per DockOptions field, of the same name, all read once at start-up (the docking config's keys are parameters
-# too, declared with the config's values as defaults: DockNode._declare_config).
+# too, declared with the config's values as defaults: DockNode._declare_config; the dock database's names are
+# declared by monodock.ros.dock_database).
 PARAMETERS: dict[str, Parameter] = {
     **ESTIMATOR_PARAMETERS,
     "robot": Parameter(
@@ -105,9 +123,10 @@ PARAMETERS: dict[str, Parameter] = {
     ),
     "camera_info_topic": Parameter("sensor_msgs/CameraInfo, used when no camera file is given"),
     "odom_topic": Parameter("nav_msgs/Odometry of the base"),
-    "cmd_vel_topic": Parameter("geometry_msgs/Twist to the base"),
+    "cmd_vel_topic": Parameter("geometry_msgs/TwistStamped (Twist with enable_stamped_cmd_vel: false) to the base"),
     "battery_topic": Parameter(
-        "sensor_msgs/BatteryState: CHARGING or FULL confirms docking (empty: no charging signal)"
+        "sensor_msgs/BatteryState: current above a dock type's charging_threshold (or, with no current, CHARGING or "
+        "FULL) confirms docking (empty: no charging signal)"
     ),
     "contact_topic": Parameter("std_msgs/Bool, true on contact with the charger (empty: none)"),
     "rear_range_topic": Parameter("sensor_msgs/Range behind the robot, watched while reversing (empty: none)"),
@@ -119,209 +138,121 @@ PARAMETERS: dict[str, Parameter] = {
     "sensor_timeout": Parameter(
         "battery, contact and rear range readings older than this count as absent, s", positive=True
     ),
-    "dock_id": Parameter("this dock's name for Nav2's DockRobot goals (use_dock_id: true with it, or empty)"),
-    "dock_type": Parameter("this dock's type for DockRobot and UndockRobot goals (it, or empty)"),
+    "dock_id": Parameter("the one dock's name when no docks or dock_database are given (DockRobot's dock_id)"),
+    "dock_type": Parameter("the one dock type's name when no dock_plugins are given"),
+    "enable_stamped_cmd_vel": Parameter("cmd_vel as geometry_msgs/TwistStamped (Kilted's default); false: Twist"),
+    "dock_prestaging_tolerance": Parameter(
+        "a robot this close to the staging pose (m, with the heading error in rad) is not sent there", positive=True
+    ),
+    "navigator_bt_xml": Parameter("the behaviour tree navigate_to_pose runs to the staging pose; empty: its default"),
+    **LIFECYCLE_PARAMETERS,
 }
 
 
-class _Latest:
-    """The newest message of a topic with its arrival time (monotonic), written by callbacks, read by the mission."""
-
-    def __init__(self) -> None:
-        self.value: Any = None
-        self.at = -math.inf
-
-    def set(self, value: Any) -> None:
-        self.value, self.at = value, time.monotonic()
-
-    def fresh(self, max_age: float) -> Any:
-        return self.value if time.monotonic() - self.at <= max_age else None
-
-
-class Ros2Robot:
-    """The controller's robot interface over ROS 2 topics, safe to call from the mission thread.
-
-    Callbacks (the node's executor thread) store the newest message; images are decoded there only while a mission
-    runs, so a node that is not docking decodes nothing.
-    """
-
-    def __init__(self, node: Node, options: DockOptions) -> None:
-        from geometry_msgs.msg import Twist  # type: ignore[import-not-found, unused-ignore]
-        from nav_msgs.msg import Odometry as OdometryMsg  # type: ignore[import-not-found, unused-ignore]
-        from rclpy.qos import qos_profile_sensor_data  # type: ignore[import-not-found, unused-ignore]
-        from sensor_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
-            BatteryState,
-            CompressedImage,
-            Image,
-            Range,
-        )
-        from std_msgs.msg import Bool  # type: ignore[import-not-found, unused-ignore]
-
-        self.node, self.options = node, options
-        self._twist = Twist
-        self._charging_states = {BatteryState.POWER_SUPPLY_STATUS_CHARGING, BatteryState.POWER_SUPPLY_STATUS_FULL}
-        self.odom, self.battery, self.contact_msg, self.rear = (_Latest() for _ in range(4))
-        self._frame: CameraFrame | None = None
-        self.image_frame_id = ""  # the newest image's frame, for the camera mount from /tf_static
-        self.active = False  # a mission is running: decode images (an idle node decodes nothing)
-        compressed = options.image_is_compressed
-        self._msgtype = m.COMPRESSED_IMAGE if compressed else m.IMAGE
-        self._cmd = node.create_publisher(Twist, options.cmd_vel_topic, 10)
-        sensor = qos_profile_sensor_data  # best effort subscribers match best-effort and reliable publishers
-        node.create_subscription(OdometryMsg, options.odom_topic, self.odom.set, sensor)
-        image_type = CompressedImage if compressed else Image
-        node.create_subscription(image_type, options.subscribed_image_topic, self._on_image, sensor)
-        if options.battery_topic:
-            node.create_subscription(BatteryState, options.battery_topic, self.battery.set, sensor)
-        if options.contact_topic:
-            node.create_subscription(Bool, options.contact_topic, self.contact_msg.set, sensor)
-        if options.rear_range_topic:
-            node.create_subscription(Range, options.rear_range_topic, self.rear.set, sensor)
-
-    def now(self) -> float:
-        return float(self.node.get_clock().now().nanoseconds) * 1e-9
-
-    def send_velocity(self, linear: float, angular: float) -> None:
-        msg = self._twist()
-        msg.linear.x, msg.angular.z = float(linear), float(angular)
-        self._cmd.publish(msg)
-
-    def stop_and_flush(self, timeout: float = 1.0) -> None:
-        """Command zero and wait until the subscribers have it: a node that exits right after publishing would
-        otherwise take its last message down with it."""
-        from rclpy.duration import Duration  # type: ignore[import-not-found, unused-ignore]
-
-        self.send_velocity(0.0, 0.0)
-        self._cmd.wait_for_all_acked(Duration(seconds=timeout))
-
-    def odometry_age(self) -> float:
-        """How old the odometry is: the lesser of the time since it arrived (wall clock) and the node's clock minus
-        its stamp. Both grow when odometry stops; a simulation that stalls (its /clock stalls too) or a robot whose
-        clocks disagree by a little makes only one of them grow."""
-        msg = self.odom.value
-        if msg is None:
-            return math.inf
-        arrived = time.monotonic() - self.odom.at
-        return min(arrived, max(0.0, self.now() - m.header_stamp(msg)))
-
-    def wait_for_odometry(self, timeout: float) -> bool:
-        end = time.monotonic() + timeout
-        while self.odom.value is None and time.monotonic() < end:
-            time.sleep(0.01)
-        return self.odom.value is not None
-
-    def odometry(self) -> Odometry:
-        msg = self.odom.value
-        if msg is None:
-            raise InputError(f"no odometry on {self.options.odom_topic}")
-        p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
-        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-        return Odometry(m.header_stamp(msg), Pose2D(p.x, p.y, yaw), t.linear.x, t.angular.z)
-
-    def _on_image(self, msg: Any) -> None:
-        """Decode while a mission runs (only good frames are kept: a malformed image never hides the last good one)."""
-        self.image_frame_id = str(msg.header.frame_id)
-        if not self.active:
-            return
-        try:
-            frame = CameraFrame(m.header_stamp(msg), m.decode_image(msg, self._msgtype))
-        except m.DecodeError as exc:
-            self.node.get_logger().warning(f"image skipped: {exc}", throttle_duration_sec=5.0)
-            return
-        self._frame = frame
-
-    def latest_frame(self) -> CameraFrame | None:
-        return self._frame
-
-    def watch(self, on: bool) -> None:
-        """Start or stop decoding images; a new mission never sees a frame from before it began."""
-        self._frame = None
-        self.active = on
-
-    def contact(self) -> bool | None:
-        msg = self.contact_msg.fresh(self.options.sensor_timeout)
-        return None if msg is None else bool(msg.data)
-
-    def charging(self) -> bool | None:
-        msg = self.battery.fresh(self.options.sensor_timeout)
-        return None if msg is None else msg.power_supply_status in self._charging_states
-
-    def rear_range(self) -> float | None:
-        msg = self.rear.fresh(self.options.sensor_timeout)
-        if msg is None:
-            return None
-        r = float(msg.range)
-        return math.inf if math.isinf(r) and r > 0 else (r if math.isfinite(r) else None)
-
-    def sleep(self, seconds: float) -> None:
-        time.sleep(max(0.0, seconds))  # the executor thread serves callbacks meanwhile
-
-
-class DockNode(Node):  # type: ignore[misc, unused-ignore]
-    """The long-running docking node: services in, one mission at a time in a thread, state and result out."""
+class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
+    """The long-running docking node: goals and requests in, one mission at a time, state and result out."""
 
     def __init__(self, options: DockOptions) -> None:
         super().__init__("monodock_dock")
-        from diagnostic_msgs.msg import DiagnosticStatus  # type: ignore[import-not-found, unused-ignore]
-        from geometry_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
-            PoseStamped,
-            PoseWithCovarianceStamped,
-        )
-        from rclpy.qos import DurabilityPolicy, QoSProfile  # type: ignore[import-not-found, unused-ignore]
         from sensor_msgs.msg import CameraInfo  # type: ignore[import-not-found, unused-ignore]
-        from std_msgs.msg import String  # type: ignore[import-not-found, unused-ignore]
-        from std_srvs.srv import Trigger  # type: ignore[import-not-found, unused-ignore]
 
-        self._msgs = {"String": String, "DiagnosticStatus": DiagnosticStatus, "PoseStamped": PoseStamped}
-        self._pose_cov = PoseWithCovarianceStamped
         self.options = declare_options(self, options, PARAMETERS)
         base = load_docking_config(self.options.config) if self.options.config else DockingConfig()
         self._config_names = list(flatten(docking_config_to_dict(base)))
         self._config_base = base
-        self._config_declared = False
+        self._estimators: dict[str, Estimator] = {}  # by layout file ("": the node's own)
         self.estimator: Estimator | None = None
         self.method = ""
         self._file_robot: RobotConfig | None = None  # the robot file's (or the bundle's), before /tf_static
         self._tf_waited = False  # the first mission waits for /tf_static's camera chain
         self.spins = 0  # the executor's spin_once calls, counted by run_dock: see _odometry_lost
         self._stale_at_spin: int | None = None
-        self._camera_info = _Latest()
+        self._camera_info: Any = None
         if self.options.model or self.options.camera:
             self._make_estimator(None)
         else:
             _check_calibration(self.options)
             self.create_subscription(
-                CameraInfo, self.options.camera_info_topic, self._camera_info.set, rclpy.qos.qos_profile_sensor_data
+                CameraInfo,
+                self.options.camera_info_topic,
+                lambda msg: setattr(self, "_camera_info", msg),
+                rclpy.qos.qos_profile_sensor_data,
             )
         self._declare_config()
         self.docking_config()  # a bad value in the parameters or the config file: refused before anything runs
+        declare_database(self, self.options.dock_type)
+        self.database: DockDatabase = read_database(self, self.options.dock_id)  # a bad one: refused here too
         refuse_unknown_overrides(self)
         self.add_on_set_parameters_callback(self._check_new_parameters)
-        self.robot = Ros2Robot(self, self.options)
+        self._create_interfaces()
+        self.active = False  # the lifecycle state is active: goals and requests are served
+        self.mission_lock = threading.Lock()  # held while a mission runs (one at a time)
+        self._thread: threading.Thread | None = None  # a Trigger-started mission's thread
+        self._mission: DockingMission | None = None
+        self._cancel: str | None = None  # why the running mission must stop, set by another thread
+        self._stop_check: StopCheck | None = None
+        self._on_mission_tick: Callable[[DockingMission], None] | None = None
+        self.docked_at: Pose2D | None = None  # where (odometry) the last successful docking ended
+        self.docked_type: DockType | None = None
+        self._state = ""
+        self._publish_state("idle")
+        self.bond = ManagerBond(self, self.options.bond_heartbeat_period)
+        self.actions = self._action_servers()
+        if self.options.autostart_node:
+            autostart(self)
+
+    def _create_interfaces(self) -> None:
+        """The robot's topics, TF, what the node publishes and monodock's services."""
+        from diagnostic_msgs.msg import DiagnosticStatus  # type: ignore[import-not-found, unused-ignore]
+        from geometry_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            PoseStamped,
+            PoseWithCovarianceStamped,
+        )
+        from nav_msgs.msg import Path  # type: ignore[import-not-found, unused-ignore]
+        from rclpy.qos import DurabilityPolicy, QoSProfile  # type: ignore[import-not-found, unused-ignore]
+        from std_msgs.msg import String  # type: ignore[import-not-found, unused-ignore]
+        from std_srvs.srv import Trigger  # type: ignore[import-not-found, unused-ignore]
+
+        self._msgs = {"String": String, "DiagnosticStatus": DiagnosticStatus, "PoseStamped": PoseStamped, "Path": Path}
+        self._pose_cov = PoseWithCovarianceStamped
         o = self.options
+        self.robot = Ros2Robot(
+            self,
+            RobotTopics(
+                odom=o.odom_topic,
+                cmd_vel=o.cmd_vel_topic,
+                image=o.subscribed_image_topic,
+                image_is_compressed=o.image_is_compressed,
+                battery=o.battery_topic,
+                contact=o.contact_topic,
+                rear_range=o.rear_range_topic,
+                frame_id=o.frame_id,
+                sensor_timeout=o.sensor_timeout,
+                stamped_cmd_vel=o.enable_stamped_cmd_vel,
+            ),
+        )
         tolerance = (o.mount_tolerance_m, o.mount_tolerance_deg)
         self.mount = CameraMountFromTF(self, o.frame_id, source=o.camera_mount_source, tolerance=tolerance)
+        self.tf = TransformListener(self)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.pub_state = self.create_publisher(String, "~/state", latched)
         self.pub_result = self.create_publisher(DiagnosticStatus, "~/result", latched)
-        self.pub_pose = self.create_publisher(PoseStamped, self.options.pose_topic, 10)
-        self.pub_pose_cov = self.create_publisher(PoseWithCovarianceStamped, self.options.pose_covariance_topic, 10)
+        self.pub_pose = self.create_publisher(PoseStamped, o.pose_topic, 10)
+        self.pub_pose_cov = self.create_publisher(PoseWithCovarianceStamped, o.pose_covariance_topic, 10)
+        # Nav2's debug topics (SimpleChargingDock's and the controller's names).
+        self.pub_debug = {
+            name: self.create_publisher(PoseStamped, name, 1)
+            for name in ("dock_pose", "filtered_dock_pose", "staging_pose")
+        }
+        self.pub_trajectory = self.create_publisher(Path, "docking_trajectory", 1)
         self.create_service(Trigger, "~/dock", lambda _req, res: self._start("dock", res))
         self.create_service(Trigger, "~/undock", lambda _req, res: self._start("undock", res))
         self.create_service(Trigger, "~/cancel", self._on_cancel)
-        self._lock = threading.Lock()
-        self._thread: threading.Thread | None = None
-        self._mission: DockingMission | None = None
-        self._cancel: str | None = None  # why the running mission must stop, set by another thread
-        self._on_done: Callable[[MissionResult | None, str], None] | None = None  # the running mission's caller
-        self._state = ""
-        self._publish_state("idle")
-        self.actions = self._action_servers()
 
     def _action_servers(self) -> DockActions | None:
         """Nav2's DockRobot/UndockRobot servers, when the interfaces were built at install time."""
         try:
-            return DockActions(self, self.start_mission, self.cancel_mission)
+            return DockActions(self)
         except ImportError as exc:
             self.get_logger().warning(
                 f"no {DOCK_ACTION}/{UNDOCK_ACTION} action servers: {exc} (nav2_msgs is built when monodock is "
@@ -329,7 +260,53 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             )
             return None
 
-    # --- set-up -----------------------------------------------------------------------------
+    # --- lifecycle ----------------------------------------------------------------------------
+
+    def on_configure(self, _state: Any) -> Any:
+        """Read the docking config and the dock database again (they may have changed since the node started)."""
+        from rclpy.lifecycle import TransitionCallbackReturn  # type: ignore[import-not-found, unused-ignore]
+
+        try:
+            self.docking_config()
+            self.database = read_database(self, self.options.dock_id)
+        except MonodockError as exc:
+            self.get_logger().error(f"configure failed: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        types, docks = len(self.database.types), len(self.database.docks)
+        self.get_logger().info(f"Configured: {types} dock type(s) and {docks} dock(s) available.")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, _state: Any) -> Any:
+        from rclpy.lifecycle import TransitionCallbackReturn  # type: ignore[import-not-found, unused-ignore]
+
+        self.active = True
+        self.bond.create()
+        self.get_logger().info(f"Activated: docking with {self.method or 'the camera from camera_info'}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, _state: Any) -> Any:
+        """Stop serving: a running mission is cancelled (the robot stops) before the node is inactive."""
+        from rclpy.lifecycle import TransitionCallbackReturn  # type: ignore[import-not-found, unused-ignore]
+
+        self.active = False
+        self.halt("cancelled: the node is being deactivated")
+        self.bond.destroy()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, _state: Any) -> Any:
+        from rclpy.lifecycle import TransitionCallbackReturn  # type: ignore[import-not-found, unused-ignore]
+
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, _state: Any) -> Any:
+        from rclpy.lifecycle import TransitionCallbackReturn  # type: ignore[import-not-found, unused-ignore]
+
+        self.active = False
+        self.halt("cancelled: the node is shutting down")
+        self.bond.destroy()
+        return TransitionCallbackReturn.SUCCESS
+
+    # --- set-up -------------------------------------------------------------------------------
 
     def _declare_config(self) -> None:
         """The docking config's keys as parameters, defaulting to the config file's (or the built-in) values.
@@ -342,7 +319,6 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             base = dataclasses.replace(base, measurement=MeasurementNoise.for_method(self.method))
         for name, default in flatten(docking_config_to_dict(base)).items():
             declare(self, name, Parameter(f"docking config: {name} (docs/docking.md)", read_only=False), default)
-        self._config_declared = True
 
     def docking_config(self) -> DockingConfig:
         """The docking config of the parameters as they are now (checked like a config file)."""
@@ -365,6 +341,7 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         self.estimator = self.options.estimator(camera, robot)
         self.method = self.estimator.method
         self.estimator.warm_up()
+        self._estimators = {"": self.estimator}
         if robot is None:
             self._file_robot = self.estimator.robot
 
@@ -386,10 +363,67 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         if robot != self.estimator.robot:
             self._make_estimator(self.estimator.camera, robot)
 
-    # --- services ---------------------------------------------------------------------------
+    def _ensure_estimator(self) -> None:
+        """The estimator, with the camera from camera_info when no camera file was given (waits a little for it)."""
+        if self.estimator is not None:
+            return
+        end = time.monotonic() + max(2.0, 3 * self.options.sensor_timeout)
+        camera = None
+        while camera is None and time.monotonic() < end:
+            msg = self._camera_info
+            camera = None if msg is None else m.camera_from_msg(msg, rectified=self.options.image_is_rectified)
+            if camera is None:
+                time.sleep(0.02)
+        if camera is None:
+            raise InputError(f"no calibrated camera_info on {self.options.camera_info_topic}")
+        self._make_estimator(camera)
+        self.get_logger().info(f"camera {camera.width}x{camera.height} from camera_info; docking with {self.method}")
+
+    def estimator_for(self, layout: str) -> Estimator:
+        """The estimator of a dock's layout file ("": the node's own), made once and kept.
+
+        Raises:
+            MonodockError: the layout cannot be read, or a model bundle was trained for another layout.
+        """
+        self._ensure_estimator()
+        self._mount_from_tf()
+        assert self.estimator is not None
+        if not layout or layout == self.options.layout:
+            return self.estimator
+        found = self._estimators.get(layout)
+        if found is None or found.robot != self.estimator.robot:
+            found = dataclasses.replace(self.options, layout=layout).estimator(
+                self.estimator.camera, self.estimator.robot
+            )
+            found.warm_up()
+            self._estimators[layout] = found
+        return found
+
+    # --- the robot on its dock --------------------------------------------------------------
+
+    def is_docked(self, dock_type: DockType) -> bool:
+        """Whether the robot stands on a dock of ``dock_type`` (SimpleChargingDock's ``isDocked() ||
+        isCharging()``): charging by the battery, the contact switch closed, or within ``docking_threshold`` (by
+        odometry) of where the last docking ended."""
+        self.robot.charging_signal = ChargingSignal(dock_type.charging_threshold, dock_type.use_battery_status)
+        if self.robot.charging() or self.robot.contact():
+            return True
+        if self.docked_at is None or self.robot.odom.value is None:
+            return False
+        here = self.robot.odometry().pose
+        return math.hypot(here.x - self.docked_at.x, here.y - self.docked_at.y) < dock_type.docking_threshold
+
+    def now(self) -> float:
+        """The node's clock (ROS time), in seconds."""
+        return self.robot.now()
+
+    # --- monodock's services ------------------------------------------------------------------
 
     def _start(self, task: str, response: Any) -> Any:
         """A Trigger request: a call while a mission runs cancels it (and starts nothing)."""
+        if not self.active:
+            response.success, response.message = False, "the node is not active (configure and activate it first)"
+            return response
         if self.cancel_mission(f"cancelled by a {task} request"):
             response.success, response.message = True, f"cancelled the running {self._mission_task()} mission"
             return response
@@ -401,35 +435,40 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         response.success, response.message = True, f"{task} started"
         return response
 
-    def start_mission(self, task: str, on_done: Callable[[MissionResult | None, str], None] | None = None) -> None:
-        """Start a dock or undock mission in its thread; ``on_done(result, error)`` is called when it ends.
+    def start_mission(self, task: str) -> None:
+        """Start a dock or undock mission at the node's default dock, in a thread of its own.
 
         Raises:
             InputError: a mission runs already, the docking config is invalid, or an undock while not docked.
         """
-        # A cancelled mission reports its end (on_done) just before its thread ends: a caller that waited for that
-        # report (a preempting goal) must not find the thread still alive.
-        ending = self._thread
-        if ending is not None and ending.is_alive() and self._cancel is not None:
-            ending.join(timeout=5.0)
-        with self._lock:
-            if self._thread is not None and self._thread.is_alive():
-                raise InputError(f"a {self._mission_task()} mission is running: cancel it first")
-            config = self.docking_config()
-            if task == "undock" and not self._docked():
-                raise InputError("not docked: no docking mission ended docked and the charger does not report charging")
-            self._cancel = None
-            self._on_done = on_done
-            self._thread = threading.Thread(target=self._run, args=(task, config), name=f"monodock-{task}")
-            self._thread.start()
+        dock_type = self.docked_type or next(iter(self.database.types.values()))
+        if task == "dock":
+            found = self.database.docks.get(self.options.dock_id)
+            layout = found.layout if found is not None else ""
+        else:
+            layout = ""
+        self.docking_config()
+        if task == "undock" and not self.is_docked(dock_type):
+            raise InputError("not docked: no docking mission ended docked and the charger does not report charging")
+        if self.mission_lock.locked():
+            raise InputError(f"a {self._mission_task()} mission is running: cancel it first")
+
+        def run() -> None:
+            with contextlib.suppress(MonodockError):  # published on ~/result and logged by run_mission
+                self.run_mission(task, dock_type, layout)
+
+        self._thread = threading.Thread(target=run, name=f"monodock-{task}")
+        self._thread.start()
+        end = time.monotonic() + 1.0
+        while not self.mission_lock.locked() and self._thread.is_alive() and time.monotonic() < end:
+            time.sleep(0.002)  # the reply says "started" once the mission holds the lock
 
     def cancel_mission(self, why: str) -> bool:
         """Ask the running mission to stop (it commands zero velocity and ends CANCELLED); False if none runs."""
-        with self._lock:
-            if self._thread is None or not self._thread.is_alive():
-                return False
-            self._cancel = why
-            return True
+        if not self.mission_lock.locked():
+            return False
+        self._cancel = why
+        return True
 
     def _on_cancel(self, _request: Any, response: Any) -> Any:
         if not self.cancel_mission("cancelled by request"):
@@ -438,78 +477,82 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         response.success, response.message = True, f"cancelled the running {self._mission_task()} mission"
         return response
 
-    def _docked(self) -> bool:
-        """Whether the robot stands on the dock: the last mission docked it, or the charger says it is charging."""
-        return self._state == "docked" or self.robot.charging() is True
-
     def _mission_task(self) -> str:
         return self._mission.task if self._mission is not None else "starting"
 
-    def _ensure_estimator(self) -> None:
-        """The estimator, with the camera from camera_info when no camera file was given (waits a little for it)."""
-        if self.estimator is not None:
-            return
-        end = time.monotonic() + max(2.0, 3 * self.options.sensor_timeout)
-        camera = None
-        while camera is None and time.monotonic() < end:
-            msg = self._camera_info.value
-            camera = None if msg is None else m.camera_from_msg(msg, rectified=self.options.image_is_rectified)
-            if camera is None:
-                time.sleep(0.02)
-        if camera is None:
-            raise InputError(f"no calibrated camera_info on {self.options.camera_info_topic}")
-        self._make_estimator(camera)
-        self.get_logger().info(f"camera {camera.width}x{camera.height} from camera_info; docking with {self.method}")
-
     # --- the mission ------------------------------------------------------------------------
 
-    def _run(self, task: str, config: DockingConfig) -> None:
-        """One mission, start to end, in the mission thread; zero velocity whatever happens."""
+    def run_mission(
+        self,
+        task: str,
+        dock_type: DockType,
+        layout: str = "",
+        *,
+        stop_check: StopCheck | None = None,
+        on_tick: Callable[[DockingMission], None] | None = None,
+    ) -> MissionResult:
+        """One mission, start to end, in the caller's thread; zero velocity whatever happens. ``stop_check`` is
+        asked every control step why the mission must stop, ``on_tick`` told of every step.
+
+        Raises:
+            MonodockError: a mission runs already, or it cannot start (no camera, no odometry, a bad config or
+                layout); published on ~/result as well.
+        """
+        if not self.mission_lock.acquire(blocking=False):
+            raise InputError(f"a {self._mission_task()} mission is running: cancel it first")
         robot = self.robot
-        result: MissionResult | None = None
-        error = ""
         try:
-            self._ensure_estimator()
-            self._mount_from_tf()
-            estimator = self.estimator
-            assert estimator is not None
+            self._cancel = None
+            config = self.docking_config()
+            estimator = self.estimator_for(layout or dock_type.layout)
             if not robot.wait_for_odometry(max(2.0, self.options.odom_timeout)) or robot.now() <= 0.0:
-                error = f"no odometry on {self.options.odom_topic}"
-                self._publish_result(task, None, error)
-                return
+                raise InputError(f"no odometry on {self.options.odom_topic}")
+            robot.charging_signal = ChargingSignal(dock_type.charging_threshold, dock_type.use_battery_status)
             blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
             mission = DockingMission(config, estimator.robot, blind, task=task)
             self._stale_at_spin = None
-            self._mission = mission
+            self._mission, self._stop_check, self._on_mission_tick = mission, stop_check, on_tick
             self._publish_state(mission.state.value)
             robot.watch(True)
             track = (lambda: mission.track) if config.predicted_markers else None
-            perceive = make_perceive(estimator, self.method, track=track)
+            perceive = make_perceive(estimator, estimator.method, track=track)
             result = run_mission(robot, perceive, mission, on_tick=self._on_tick)
+            self._remember(result, dock_type)
             self._publish_result(task, result, "")
+            return result
         except MonodockError as exc:
-            error = str(exc)
-            self._publish_result(task, None, error)
+            self._publish_result(task, None, str(exc))
+            raise
         finally:
             robot.watch(False)
             robot.send_velocity(0.0, 0.0)
-            on_done, self._on_done = self._on_done, None
-            if on_done is not None:
-                on_done(result, error)
+            self._stop_check = self._on_mission_tick = None
+            self.mission_lock.release()
+
+    def _remember(self, result: MissionResult, dock_type: DockType) -> None:
+        """Where the robot docked (for ``is_docked``), or that it left the dock."""
+        if result.docked and self.robot.odom.value is not None:
+            self.docked_at, self.docked_type = self.robot.odometry().pose, dock_type
+        elif result.state is State.UNDOCKED:
+            self.docked_at, self.docked_type = None, None
 
     def _on_tick(self, mission: DockingMission, odom: Odometry) -> None:
-        """After each control step: stop on cancel or lost odometry; publish the state and the dock filter's pose."""
+        """After each control step: stop on cancel, lost odometry or the caller's word; publish the state, the dock
+        filter's pose and the debug topics."""
         now = self.robot.now()
+        stop = self._stop_check(mission) if self._stop_check is not None else None
         if self._cancel is not None:
             mission.abort(now, FailureReason.CANCELLED, self._cancel)
+        elif stop is not None:
+            mission.abort(now, *stop)
         elif self._odometry_lost():
             age = self.robot.odometry_age()
             mission.abort(now, FailureReason.ODOMETRY_LOST, f"no odometry for {age:.2f} s")
         if mission.state.value != self._state:
             self._publish_state(mission.state.value)
         self._publish_pose(mission, odom)
-        if self.actions is not None:
-            self.actions.feedback(mission)
+        if self._on_mission_tick is not None:
+            self._on_mission_tick(mission)
 
     def _odometry_lost(self) -> bool:
         """Odometry older than odom_timeout, and still so after the executor has taken what was already waiting.
@@ -524,22 +567,32 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
             self._stale_at_spin = self.spins
         return self.spins - self._stale_at_spin >= STALE_SPINS
 
+    # --- what it publishes --------------------------------------------------------------------
+
     def _publish_state(self, state: str) -> None:
         self._state = state
         msg = self._msgs["String"]()
         msg.data = state
         self.pub_state.publish(msg)
 
+    def _stamped(self, frame: str, stamp: float, pose: Pose2D) -> Any:
+        out = self._msgs["PoseStamped"]()
+        out.header.stamp.sec, out.header.stamp.nanosec = m.split_stamp(stamp)
+        out.header.frame_id = frame
+        out.pose.position.x, out.pose.position.y = pose.x, pose.y
+        out.pose.orientation.z, out.pose.orientation.w = math.sin(0.5 * pose.theta), math.cos(0.5 * pose.theta)
+        return out
+
+    def publish_staging_pose(self, frame: str, pose: Pose2D) -> None:
+        """Nav2's ``staging_pose`` debug topic."""
+        self.pub_debug["staging_pose"].publish(self._stamped(frame, self.now(), pose))
+
     def _publish_pose(self, mission: DockingMission, odom: Odometry) -> None:
         placed = mission.track.dock_at(odom.stamp)  # the filtered dock in base_link at this odometry
         if placed is None:
             return
         dock, cov = placed
-        out = self._msgs["PoseStamped"]()
-        out.header.stamp.sec, out.header.stamp.nanosec = m.split_stamp(odom.stamp)
-        out.header.frame_id = self.options.frame_id
-        out.pose.position.x, out.pose.position.y = dock.x, dock.y
-        out.pose.orientation.z, out.pose.orientation.w = math.sin(0.5 * dock.yaw), math.cos(0.5 * dock.yaw)
+        out = self._stamped(self.options.frame_id, odom.stamp, Pose2D(dock.x, dock.y, dock.yaw))
         self.pub_pose.publish(out)
         with_cov = self._pose_cov()
         with_cov.header = out.header
@@ -549,6 +602,25 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         full[np.ix_(index, index)] = cov
         with_cov.pose.covariance = [float(v) for v in full.ravel()]
         self.pub_pose_cov.publish(with_cov)
+        self._publish_debug(mission, odom)
+
+    def _publish_debug(self, mission: DockingMission, odom: Odometry) -> None:
+        """Nav2's debug topics in the odometry frame: the dock's face, where base_link stands docked, and the plan."""
+        face = mission.track.mean
+        if face is None:
+            return
+        frame = str(self.robot.odom.value.header.frame_id) if self.robot.odom.value is not None else "odom"
+        docked = face.compose(Pose2D(-mission.robot.front_offset, 0.0, 0.0))
+        self.pub_debug["filtered_dock_pose"].publish(self._stamped(frame, odom.stamp, face))
+        self.pub_debug["dock_pose"].publish(self._stamped(frame, odom.stamp, docked))
+        path = self._msgs["Path"]()
+        path.header = self._stamped(frame, odom.stamp, docked).header
+        waypoints = [odom.pose]
+        if mission.manoeuvre is not None and mission.state.value.startswith(("moving1", "moving2")):
+            waypoints.append(face.compose(mission.manoeuvre.point_a))
+        waypoints.append(docked)
+        path.poses = [self._stamped(frame, odom.stamp, p) for p in waypoints]
+        self.pub_trajectory.publish(path)
 
     def _publish_result(self, task: str, result: MissionResult | None, error: str) -> None:
         status = self._msgs["DiagnosticStatus"]()
@@ -571,17 +643,28 @@ class DockNode(Node):  # type: ignore[misc, unused-ignore]
         else:
             self.get_logger().error(f"{task}: {status.message}")
 
+    # --- the end ------------------------------------------------------------------------------
+
+    def halt(self, why: str, timeout: float = 5.0) -> None:
+        """Cancel a running mission and wait (at most ``timeout``) until it has stopped the robot."""
+        self.cancel_mission(why)
+        end = time.monotonic() + timeout
+        while self.mission_lock.locked() and time.monotonic() < end:
+            time.sleep(0.01)
+
     def stop(self, why: str) -> None:
-        """Cancel a running mission, wait for its thread, and command zero velocity."""
-        with self._lock:
-            thread = self._thread
-            if thread is not None and thread.is_alive():
-                self._cancel = why
-        if thread is not None:
-            thread.join(timeout=5.0)
+        """The node is going away: stop the actions, cancel a running mission, command zero velocity that reaches
+        the base, and publish nothing more."""
+        self.active = False
+        if self.actions is not None:
+            self.actions.stop_serving()
+        self.halt(why)
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
         self.robot.stop_and_flush()
         if self.actions is not None:
             self.actions.shutdown()
+        self.bond.close()
 
 
 def _result_values(result: MissionResult, front_offset: float) -> dict[str, str]:
@@ -589,7 +672,7 @@ def _result_values(result: MissionResult, front_offset: float) -> dict[str, str]
     out = {
         "state": result.state.value,
         "failure": result.failure.value if result.failure else "",
-        "nav2_error_code": str(result.failure.nav2_error_code if result.failure else 0),
+        "nav2_error_code": str(int(result.failure.nav2_error_code) if result.failure else 0),
         "retries": str(result.retries),
         "recoveries": str(result.recoveries),
         "reseats": str(result.reseats),
@@ -630,7 +713,8 @@ def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
     node: DockNode | None = None
     try:
         node = DockNode(options)
-        node.get_logger().info(f"ready: docking with {node.method or 'the camera from camera_info'}")
+        state = "starting" if node.options.autostart_node else "waiting for a lifecycle manager to configure it"
+        node.get_logger().info(f"ready ({state})")
         # One executor for the node's life: rclpy.spin_once(node) adds and removes the node on every call, and
         # odometry, the clock and the sensors bring a few hundred callbacks a second.
         executor = SingleThreadedExecutor()
@@ -638,7 +722,7 @@ def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
         while rclpy.ok() and not stop:
             executor.spin_once(timeout_sec=0.1)
             node.spins += 1
-    except MonodockError as exc:
+    except (MonodockError, ConfigError) as exc:
         print(f"monodock-dock-ros: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # a Ctrl-C before the flag was installed

@@ -47,7 +47,7 @@ __all__ = [
 @dataclass(frozen=True)
 class Parameter:
     """How one ROS parameter is declared and checked; its type is its default's (bool, int, float, str, or a
-    tuple of floats).
+    tuple of floats; a tuple of strings with ``strings``).
 
     Attributes:
         description: what it is for, in its descriptor.
@@ -57,6 +57,7 @@ class Parameter:
             alone says so).
         choices: the strings allowed ("" among them where empty means not given).
         length: how many numbers a tuple has.
+        strings: a list of strings (a tuple default, which may be empty).
     """
 
     description: str
@@ -65,6 +66,7 @@ class Parameter:
     positive: bool = False
     choices: tuple[str, ...] = ()
     length: int | None = None
+    strings: bool = False
 
     @property
     def constraints(self) -> str:
@@ -111,7 +113,10 @@ def declare(node: Any, name: str, spec: Parameter, default: Any) -> Any:
     _accept_integers_for_reals(node)
     loose = ParameterDescriptor(description=spec.description, dynamic_typing=True)
     value = checked(name, spec, node.declare_parameter(name, _ros_value(default), loose).value, default)
-    typed = RosParameter(name, value=_ros_value(value))
+    if spec.strings:  # typed by the spec: an empty list has no element to tell rclpy its type
+        typed = RosParameter(name, RosParameter.Type.STRING_ARRAY, list(value))
+    else:
+        typed = RosParameter(name, value=_ros_value(value))
     descriptor = ParameterDescriptor(
         description=spec.description,
         read_only=spec.read_only,
@@ -159,6 +164,11 @@ def checked(name: str, spec: Parameter, value: Any, default: Any) -> Any:
         if isinstance(value, bool) or not isinstance(value, int):
             raise InputError(f"parameter {name} is an integer, got {value!r}")
         return value
+    if spec.strings:
+        items = list(value) if isinstance(value, list | tuple) else None
+        if items is None or not all(isinstance(v, str) for v in items):
+            raise InputError(f"parameter {name} is a list of strings, got {value!r}")
+        return tuple(items)
     if isinstance(default, tuple | list):
         return _numbers(name, spec, value)
     if not isinstance(value, str):
@@ -201,7 +211,7 @@ def _numbers(name: str, spec: Parameter, value: Any) -> tuple[float, ...]:
 
 
 def _ros_value(value: Any) -> Any:
-    """A value as rclpy takes it: a tuple as a list."""
+    """A value as rclpy takes it: a tuple as a list (an empty list of strings is typed by ``declare`` after)."""
     return list(value) if isinstance(value, tuple) else value
 
 

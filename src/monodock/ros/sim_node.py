@@ -3,7 +3,8 @@
 The simulated differential drive (``monodock.sim.diffdrive``) runs in real time (``monodock.sim.realtime``): its
 camera publishes every frame ``camera_latency`` after the exposure, stamped with the exposure time; odometry,
 the rear range, the contact switch, the battery's charging state and the ground truth go out every control
-period (50 Hz), ``/clock`` with them. It drives by ``cmd_vel`` through the base's latency, lag and slip, and
+period (50 Hz), ``/clock`` with them. It drives by ``cmd_vel`` (TwistStamped, or Twist with
+``enable_stamped_cmd_vel: false``) through the base's latency, lag and slip, and
 stops when ``cmd_vel`` falls silent for ``cmd_vel_timeout`` simulated seconds, as real bases do. Its stamps are the
 wall clock at the start plus the simulated time. Real-time pacing keeps the two together on an idle machine; on a
 busy one the simulation runs slower than the wall clock, so nodes that time sensor data against their own clock
@@ -54,6 +55,10 @@ PARAMETERS: dict[str, Parameter] = {
     "cmd_vel_timeout": Parameter(
         "simulated seconds of cmd_vel silence before the base stops", read_only=False, positive=True
     ),
+    "enable_stamped_cmd_vel": Parameter(
+        "cmd_vel is geometry_msgs/TwistStamped (Kilted's default, as monodock_dock sends it); false: Twist",
+        read_only=False,
+    ),
     "nuisances": Parameter(
         "the camera's nuisances: default (a cheap indoor webcam) or clean (the exact render)",
         read_only=False,
@@ -83,7 +88,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
 
     def __init__(self) -> None:
         super().__init__("monodock_sim")
-        from geometry_msgs.msg import PoseStamped, Twist  # type: ignore[import-not-found, unused-ignore]
+        from geometry_msgs.msg import PoseStamped, Twist, TwistStamped  # type: ignore[import-not-found, unused-ignore]
         from nav_msgs.msg import Odometry as OdometryMsg  # type: ignore[import-not-found, unused-ignore]
         from rosgraph_msgs.msg import Clock  # type: ignore[import-not-found, unused-ignore]
         from sensor_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
@@ -128,7 +133,8 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.pub_contact = self.create_publisher(Bool, "contact", 10)
         self.pub_range = self.create_publisher(Range, "rear_range", qos_sensor)
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
-        self.create_subscription(Twist, "cmd_vel", self._on_cmd_vel, 1)  # the latest command wins: no backlog
+        twist = TwistStamped if s.enable_stamped_cmd_vel else Twist
+        self.create_subscription(twist, "cmd_vel", self._on_cmd_vel, 1)  # the latest command wins: no backlog
         self.pub_tf = self._tf_publishers(sim.robot)
         # Faults on demand (std_srvs/SetBool, true silences): a camera or an odometry that stops publishing.
         from std_srvs.srv import SetBool  # type: ignore[import-not-found, unused-ignore]
@@ -182,7 +188,8 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         return on_request
 
     def _on_cmd_vel(self, msg: Any) -> None:
-        v, w = float(msg.linear.x), float(msg.angular.z)
+        twist = msg.twist if self.settings.enable_stamped_cmd_vel else msg
+        v, w = float(twist.linear.x), float(twist.angular.z)
         if math.isfinite(v) and math.isfinite(w):
             self.last_cmd = (self.robot.t, v, w)  # simulated time: callbacks run between physics steps
 

@@ -24,6 +24,7 @@ class SimSettings:
     camera: str = ""
     camera_rate: float = 15.0
     cmd_vel_timeout: float = 0.5
+    enable_stamped_cmd_vel: bool = True  # cmd_vel is TwistStamped (Kilted's default, as the docking node sends it)
     nuisances: str = "default"  # the camera's: "default" (a cheap indoor webcam) or "clean" (the exact render)
     frame_id: str = "base_link"
     camera_frame_id: str = "camera_optical_frame"

@@ -1,4 +1,5 @@
-"""TF for the nodes: the camera mount read from ``/tf_static``, and transforms written as tf2 messages.
+"""TF for the nodes: the camera mount read from ``/tf_static``, the robot's pose in a fixed frame from ``/tf``, and
+transforms written as tf2 messages.
 
 A robot's URDF, published by robot_state_publisher, puts ``base_link → … → camera_optical_frame`` on ``/tf_static``
 (latched). The detector and the docking node compose that chain to the frame their images name (the image's
@@ -9,6 +10,10 @@ example one measured by ``monodock commission``, better than the URDF's) and sti
 
 tf2_msgs is built from its upstream definitions when monodock is installed (interfaces/README.md); without it the
 nodes run on the robot file alone and say so once.
+
+The docking node also reads ``/tf`` (``TransformListener``), to know where the robot stands in a dock's frame (``map``
+or ``odom``) before it sends Nav2 to the dock's staging pose. It keeps the latest transform of each frame, as a tf2
+lookup at time 0 (the latest) does, which is what Nav2's docking server asks for there.
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ from monodock.recording.messages import DecodeError, matrix_from_quaternion, qua
 
 __all__ = [
     "CameraMountFromTF",
+    "TransformListener",
+    "TransformTree",
     "mount_difference",
     "set_transform",
     "transform_matrix",
@@ -86,6 +93,83 @@ def _camera_link(base_T_optical: NDArray[np.float64]) -> NDArray[np.float64]:
     return T
 
 
+class TransformTree:
+    """The latest transform of each child frame, composed between any two frames the tree joins; thread-safe."""
+
+    def __init__(self) -> None:
+        self._parents: dict[str, tuple[str, NDArray[np.float64]]] = {}  # child -> (parent, parent_T_child)
+        self._lock = threading.Lock()
+        self.version = 0  # counts the transforms set: what was worked out before one is still right until then
+
+    def set(self, parent: str, child: str, parent_T_child: NDArray[np.float64]) -> None:
+        with self._lock:
+            self._parents[child.lstrip("/")] = (parent.lstrip("/"), parent_T_child)
+            self.version += 1
+
+    def lookup(self, parent: str, child: str) -> NDArray[np.float64] | None:
+        """parent_T_child, or None when the two frames are not joined."""
+        parent, child = parent.lstrip("/"), child.lstrip("/")
+        with self._lock:
+            up_child = self._chain(child)
+            up_parent = self._chain(parent)
+        common = next((frame for frame in up_child if frame in up_parent), None)
+        if common is None:
+            return None
+        return transforms.invert(up_parent[common]) @ up_child[common]
+
+    def _chain(self, frame: str) -> dict[str, NDArray[np.float64]]:
+        """Every ancestor of ``frame`` (itself included), in order, with ancestor_T_frame."""
+        chain = {frame: np.eye(4)}
+        T = np.eye(4)
+        while frame in self._parents and len(chain) <= len(self._parents):
+            frame, parent_T = self._parents[frame]
+            if frame in chain:  # a loop in a malformed tree
+                break
+            T = parent_T @ T
+            chain[frame] = T
+        return chain
+
+    def take(self, msg: Any, on_bad: Any) -> None:
+        """A tf2_msgs/TFMessage's transforms (one that does not decode goes to ``on_bad(child, parent, why)``)."""
+        for t in msg.transforms:
+            child = t.child_frame_id.lstrip("/")
+            try:
+                parent_T_child = transform_matrix(t.transform)
+            except DecodeError as exc:
+                on_bad(child, t.header.frame_id, exc)
+                continue
+            self.set(t.header.frame_id, child, parent_T_child)
+
+
+class TransformListener:
+    """``/tf`` and ``/tf_static`` on ``node``, for where the robot stands in a fixed frame; ``available`` is False
+    (and nothing is subscribed) without tf2_msgs."""
+
+    def __init__(self, node: Any) -> None:
+        self.node, self.tree = node, TransformTree()
+        try:
+            from tf2_msgs.msg import TFMessage  # type: ignore[import-not-found, unused-ignore]
+        except ImportError:
+            self.available = False
+            return
+        from rclpy.qos import DurabilityPolicy, QoSProfile  # type: ignore[import-not-found, unused-ignore]
+
+        latched = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        node.create_subscription(TFMessage, "/tf", self._on_tf, QoSProfile(depth=100))
+        node.create_subscription(TFMessage, "/tf_static", self._on_tf, latched)
+        self.available = True
+
+    def _on_tf(self, msg: Any) -> None:
+        self.tree.take(msg, lambda *_: None)
+
+    def pose(self, frame: str, base_frame: str) -> tuple[float, float, float] | None:
+        """(x, y, yaw) of ``base_frame`` in ``frame`` on the floor, or None when TF does not join them."""
+        T = self.tree.lookup(frame, base_frame)
+        if T is None:
+            return None
+        return float(T[0, 3]), float(T[1, 3]), math.atan2(float(T[1, 0]), float(T[0, 0]))
+
+
 class CameraMountFromTF:
     """The camera mount from ``/tf_static``: listens on ``node``, composes ``base_frame`` → the images' frame.
 
@@ -102,10 +186,8 @@ class CameraMountFromTF:
         subscribe: bool = True,
     ) -> None:
         self.node, self.base_frame, self.source, self.tolerance = node, base_frame, source, tolerance
-        self._parents: dict[str, tuple[str, NDArray[np.float64]]] = {}  # child -> (parent, parent_T_child)
-        self._lock = threading.Lock()
+        self.tree = TransformTree()
         self._said: set[tuple[str, str]] = set()
-        self._version = 0  # counts /tf_static messages: a robot worked out before one is still right until then
         self._cached: tuple[tuple[Any, ...], RobotConfig] | None = None
         self.available = not subscribe or self._subscribe()
 
@@ -128,41 +210,15 @@ class CameraMountFromTF:
 
     def on_tf_static(self, msg: Any) -> None:
         """A /tf_static message: its transforms kept (a later one of a child replaces the earlier)."""
-        for t in msg.transforms:
-            child = t.child_frame_id.lstrip("/")
-            try:
-                parent_T_child = transform_matrix(t.transform)
-            except DecodeError as exc:
-                self._say_once(
-                    ("bad", child), f"/tf_static's {t.header.frame_id} -> {child} skipped: {exc}", warning=True
-                )
-                continue
-            with self._lock:
-                self._parents[child] = (t.header.frame_id.lstrip("/"), parent_T_child)
-                self._version += 1
+
+        def bad(child: str, parent: str, exc: Exception) -> None:
+            self._say_once(("bad", child), f"/tf_static's {parent} -> {child} skipped: {exc}", warning=True)
+
+        self.tree.take(msg, bad)
 
     def lookup(self, parent: str, child: str) -> NDArray[np.float64] | None:
         """parent_T_child composed over /tf_static, or None when the two frames are not joined there."""
-        parent, child = parent.lstrip("/"), child.lstrip("/")
-        with self._lock:
-            up_child = self._chain(child)
-            up_parent = self._chain(parent)
-        common = next((frame for frame in up_child if frame in up_parent), None)
-        if common is None:
-            return None
-        return transforms.invert(up_parent[common]) @ up_child[common]
-
-    def _chain(self, frame: str) -> dict[str, NDArray[np.float64]]:
-        """Every ancestor of ``frame`` (itself included), in order, with ancestor_T_frame."""
-        chain = {frame: np.eye(4)}
-        T = np.eye(4)
-        while frame in self._parents and len(chain) <= len(self._parents):
-            frame, parent_T = self._parents[frame]
-            if frame in chain:  # a loop in a malformed tree
-                break
-            T = parent_T @ T
-            chain[frame] = T
-        return chain
+        return self.tree.lookup(parent, child)
 
     def robot(self, file_robot: RobotConfig, frame_id: str) -> RobotConfig:
         """The robot to estimate with for images in ``frame_id``: the file's, with the camera mount from /tf_static
@@ -171,7 +227,7 @@ class CameraMountFromTF:
         if not frame_id or not self.available:
             return file_robot
         # Called for every image: worked out again only when /tf_static, the frames or the file change.
-        key = (self._version, self.base_frame, frame_id, self.source, file_robot)
+        key = (self.tree.version, self.base_frame, frame_id, self.source, file_robot)
         cached = self._cached
         if cached is not None and cached[0] == key:
             return cached[1]

@@ -1,0 +1,209 @@
+"""The docking mission's robot (``monodock.dock.interface.RobotInterface``) over ROS 2 topics: odometry, camera,
+battery, contact switch and rear range in, ``cmd_vel`` out.
+
+Every age is measured on the node's clock (ROS time: the simulator's ``/clock`` under ``use_sim_time``), so a robot
+whose simulation slows down is not taken for one whose sensors stopped. ``cmd_vel`` is ``geometry_msgs/TwistStamped``
+(Kilted's default, ``enable_stamped_cmd_vel``) or ``Twist``. Charging is read as Nav2's ``SimpleChargingDock`` reads
+it: the battery's ``current`` above ``charging_threshold``; a battery that does not measure its current (NaN) is read
+by its ``power_supply_status`` instead, and one that reports neither cannot tell (None), as one with no battery topic.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from monodock.core.pose2d import Pose2D
+from monodock.dock.interface import CameraFrame, Odometry
+from monodock.errors import InputError
+from monodock.recording import messages as m
+
+__all__ = ["ChargingSignal", "RobotTopics", "Ros2Robot"]
+
+
+@dataclass(frozen=True)
+class RobotTopics:
+    """Where the robot's topics are and how its messages are read."""
+
+    odom: str = "odom"
+    cmd_vel: str = "cmd_vel"
+    image: str = "image"
+    image_is_compressed: bool = False
+    battery: str = "battery_state"
+    contact: str = "contact"
+    rear_range: str = "rear_range"
+    frame_id: str = "base_link"
+    sensor_timeout: float = 1.0  # s: battery, contact and rear range readings older than this are absent
+    stamped_cmd_vel: bool = True
+
+
+@dataclass(frozen=True)
+class ChargingSignal:
+    """How the battery says it charges (a dock type's ``charging_threshold`` and ``use_battery_status``)."""
+
+    threshold: float = 0.5  # A
+    use_battery_status: bool = True
+
+
+class _Latest:
+    """The newest message of a topic with its arrival time on the node's clock, written by callbacks."""
+
+    def __init__(self, clock: Any) -> None:
+        self._clock = clock
+        self.value: Any = None
+        self.at = -math.inf
+
+    def set(self, value: Any) -> None:
+        self.value, self.at = value, _seconds(self._clock)
+
+    def age(self) -> float:
+        return _seconds(self._clock) - self.at if self.value is not None else math.inf
+
+    def fresh(self, max_age: float) -> Any:
+        return self.value if self.age() <= max_age else None
+
+
+def _seconds(clock: Any) -> float:
+    return float(clock.now().nanoseconds) * 1e-9
+
+
+class Ros2Robot:
+    """The controller's robot interface over ROS 2 topics, safe to call from the mission thread.
+
+    Callbacks (the node's executor thread) store the newest message; images are decoded there only while a mission
+    runs, so a node that is not docking decodes nothing.
+    """
+
+    def __init__(self, node: Any, topics: RobotTopics) -> None:
+        from geometry_msgs.msg import Twist, TwistStamped  # type: ignore[import-not-found, unused-ignore]
+        from nav_msgs.msg import Odometry as OdometryMsg  # type: ignore[import-not-found, unused-ignore]
+        from rclpy.qos import qos_profile_sensor_data  # type: ignore[import-not-found, unused-ignore]
+        from sensor_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            BatteryState,
+            CompressedImage,
+            Image,
+            Range,
+        )
+        from std_msgs.msg import Bool  # type: ignore[import-not-found, unused-ignore]
+
+        self.node, self.topics = node, topics
+        self.clock = node.get_clock()
+        self._twist = TwistStamped if topics.stamped_cmd_vel else Twist
+        self._charging_states = {BatteryState.POWER_SUPPLY_STATUS_CHARGING, BatteryState.POWER_SUPPLY_STATUS_FULL}
+        self._not_charging_states = {
+            BatteryState.POWER_SUPPLY_STATUS_DISCHARGING,
+            BatteryState.POWER_SUPPLY_STATUS_NOT_CHARGING,
+        }
+        self.charging_signal = ChargingSignal()
+        self.odom, self.battery, self.contact_msg, self.rear = (_Latest(self.clock) for _ in range(4))
+        self._frame: CameraFrame | None = None
+        self.image_frame_id = ""  # the newest image's frame, for the camera mount from /tf_static
+        self.active = False  # a mission is running: decode images (an idle node decodes nothing)
+        self.enabled = True  # False once the node is going away: nothing more is published
+        self._msgtype = m.COMPRESSED_IMAGE if topics.image_is_compressed else m.IMAGE
+        self._cmd = node.create_publisher(self._twist, topics.cmd_vel, 10)
+        sensor = qos_profile_sensor_data  # best effort subscribers match best-effort and reliable publishers
+        node.create_subscription(OdometryMsg, topics.odom, self.odom.set, sensor)
+        image_type = CompressedImage if topics.image_is_compressed else Image
+        node.create_subscription(image_type, topics.image, self._on_image, sensor)
+        if topics.battery:
+            node.create_subscription(BatteryState, topics.battery, self.battery.set, sensor)
+        if topics.contact:
+            node.create_subscription(Bool, topics.contact, self.contact_msg.set, sensor)
+        if topics.rear_range:
+            node.create_subscription(Range, topics.rear_range, self.rear.set, sensor)
+
+    def now(self) -> float:
+        return _seconds(self.clock)
+
+    def send_velocity(self, linear: float, angular: float) -> None:
+        if not self.enabled:
+            return
+        msg = self._twist()
+        twist = msg.twist if self.topics.stamped_cmd_vel else msg
+        if self.topics.stamped_cmd_vel:
+            msg.header.stamp = self.clock.now().to_msg()
+            msg.header.frame_id = self.topics.frame_id
+        twist.linear.x, twist.angular.z = float(linear), float(angular)
+        self._cmd.publish(msg)
+
+    def stop_and_flush(self, timeout: float = 1.0) -> None:
+        """Command zero and wait until the subscribers have it: a node that exits right after publishing would
+        otherwise take its last message down with it. Nothing is published after this."""
+        from rclpy.duration import Duration  # type: ignore[import-not-found, unused-ignore]
+
+        self.send_velocity(0.0, 0.0)
+        self._cmd.wait_for_all_acked(Duration(seconds=timeout))
+        self.enabled = False
+
+    def odometry_age(self) -> float:
+        """How old the odometry is on the node's clock: the lesser of the time since it arrived and the clock minus
+        its stamp. Both grow when odometry stops; a robot whose clocks disagree by a little makes only one grow."""
+        msg = self.odom.value
+        if msg is None:
+            return math.inf
+        return min(self.odom.age(), max(0.0, self.now() - m.header_stamp(msg)))
+
+    def wait_for_odometry(self, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while self.odom.value is None and time.monotonic() < end:
+            time.sleep(0.01)
+        return self.odom.value is not None
+
+    def odometry(self) -> Odometry:
+        msg = self.odom.value
+        if msg is None:
+            raise InputError(f"no odometry on {self.topics.odom}")
+        p, q, t = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        return Odometry(m.header_stamp(msg), Pose2D(p.x, p.y, yaw), t.linear.x, t.angular.z)
+
+    def _on_image(self, msg: Any) -> None:
+        """Decode while a mission runs (only good frames are kept: a malformed image never hides the last good one)."""
+        self.image_frame_id = str(msg.header.frame_id)
+        if not self.active:
+            return
+        try:
+            frame = CameraFrame(m.header_stamp(msg), m.decode_image(msg, self._msgtype))
+        except m.DecodeError as exc:
+            self.node.get_logger().warning(f"image skipped: {exc}", throttle_duration_sec=5.0)
+            return
+        self._frame = frame
+
+    def latest_frame(self) -> CameraFrame | None:
+        return self._frame
+
+    def watch(self, on: bool) -> None:
+        """Start or stop decoding images; a new mission never sees a frame from before it began."""
+        self._frame = None
+        self.active = on
+
+    def contact(self) -> bool | None:
+        msg = self.contact_msg.fresh(self.topics.sensor_timeout)
+        return None if msg is None else bool(msg.data)
+
+    def charging(self) -> bool | None:
+        """Whether the battery charges (None: it cannot tell): its current above the threshold, else its status."""
+        if not self.charging_signal.use_battery_status:
+            return None
+        msg = self.battery.fresh(self.topics.sensor_timeout)
+        if msg is None:
+            return None
+        current = float(msg.current)
+        if math.isfinite(current):
+            return current > self.charging_signal.threshold
+        if msg.power_supply_status in self._charging_states:
+            return True
+        return False if msg.power_supply_status in self._not_charging_states else None
+
+    def rear_range(self) -> float | None:
+        msg = self.rear.fresh(self.topics.sensor_timeout)
+        if msg is None:
+            return None
+        r = float(msg.range)
+        return math.inf if math.isinf(r) and r > 0 else (r if math.isfinite(r) else None)
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(max(0.0, seconds))  # the executor thread serves callbacks meanwhile
