@@ -36,7 +36,7 @@ from geometry_msgs.msg import PoseStamped, TwistStamped
 from graph_processes import DOCK, SIM, stop_nodes
 from nav2_msgs.action import DockRobot, NavigateToPose, UndockRobot
 from nav_msgs.msg import Odometry
-from rclpy.action import ActionClient, ActionServer
+from rclpy.action import ActionClient, ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from sensor_msgs.msg import BatteryState
@@ -125,7 +125,14 @@ def navigate(handle: Any) -> Any:
 
 
 if spec.get("navigator"):
-    ActionServer(node, NavigateToPose, "navigate_to_pose", navigate, callback_group=group)
+    ActionServer(
+        node,
+        NavigateToPose,
+        "navigate_to_pose",
+        navigate,
+        cancel_callback=lambda _handle: CancelResponse.ACCEPT,
+        callback_group=group,
+    )
 executor = MultiThreadedExecutor(num_threads=4)
 executor.add_node(node)
 threading.Thread(target=executor.spin, daemon=True).start()

@@ -49,6 +49,7 @@ from monodock.estimation.overlay import draw_overlay
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
+from monodock.ros.lifecycle import LIFECYCLE_PARAMETERS, ManagerBond, autostart
 from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
 from monodock.ros.parameters import Parameter, declare_options
 from monodock.ros.tf import CameraMountFromTF, set_transform
@@ -93,6 +94,8 @@ class DetectorOptions(EstimatorOptions):
         debug_image_topic: sensor_msgs/Image of each estimated frame with the markers, corners, dock axes, pose
             and sigma drawn; drawn only while something subscribes.
         lifecycle: a managed node (``managed_detector``): it estimates only while active.
+        autostart_node, bond_heartbeat_period: a managed node's (``monodock.ros.lifecycle``): configure and activate
+            at start; the bond to nav2_lifecycle_manager while active.
     """
 
     image_topic: str = "image"
@@ -106,6 +109,8 @@ class DetectorOptions(EstimatorOptions):
     active: bool = True
     debug_image_topic: str = "~/debug_image"
     lifecycle: bool = False  # the command line's alone (the node's class depends on it): not a ROS parameter
+    autostart_node: bool = False
+    bond_heartbeat_period: float = 0.1
 
 
 # One per DetectorOptions field, of the same name; read-only ones are read once, at start-up.
@@ -124,6 +129,8 @@ PARAMETERS: dict[str, Parameter] = {
         "estimate from the start; false: only after ~/start or ~/toggle (Nav2's detector_service_name)"
     ),
     "debug_image_topic": Parameter("the image with markers, corners, dock axes and the pose drawn (while subscribed)"),
+    # A managed node's (--lifecycle); the plain node has no lifecycle and ignores them.
+    **LIFECYCLE_PARAMETERS,
 }
 
 
@@ -636,7 +643,8 @@ def non_ros_arguments(argv: Sequence[str]) -> list[str]:
 
 def managed_detector(options: DetectorOptions) -> DockPoseNode:
     """The detector as a lifecycle node, for nav2_lifecycle_manager and ``ros2 lifecycle set``: it starts
-    unconfigured and estimates only while active (``activate`` is ``~/start``, ``deactivate`` is ``~/stop``).
+    unconfigured (``autostart_node``: it brings itself up) and estimates only while active (``activate`` is
+    ``~/start``, ``deactivate`` is ``~/stop``); while active it keeps a bond with its lifecycle manager.
 
     Its files are read and checked when it is created, so a bad one still ends the process with one line at start-up,
     not at ``configure``.
@@ -650,13 +658,22 @@ def managed_detector(options: DetectorOptions) -> DockPoseNode:
         def __init__(self) -> None:
             DockPoseNode.__init__(self, dataclasses.replace(options, active=False))
             LifecycleNodeMixin.__init__(self)
+            self.bond = ManagerBond(self, self.options.bond_heartbeat_period)
+            if self.options.autostart_node:
+                autostart(self)
 
         def on_activate(self, _state: Any) -> Any:
             self._switch(_Reply(), True)
+            self.bond.create()
             return TransitionCallbackReturn.SUCCESS
 
         def on_deactivate(self, _state: Any) -> Any:
             self._switch(_Reply(), False)
+            self.bond.destroy()
+            return TransitionCallbackReturn.SUCCESS
+
+        def on_shutdown(self, _state: Any) -> Any:
+            self.bond.destroy()
             return TransitionCallbackReturn.SUCCESS
 
     return ManagedDockPoseNode()

@@ -35,7 +35,7 @@ are ``docking_server.cpp``'s unless another file is named.
 - **Feedback** (DockRobot only): the mission's state as Nav2's (``feedback_state``), ``docking_time`` on the node's
   ROS clock since the goal began, and the retries; on every change of state and at most every ``FEEDBACK_PERIOD``.
 
-The servers live on a small node of their own (``monodock_dock_actions``, in the docking node's namespace) spun by
+The servers live on a small node of their own (``<node>_actions``, in the docking node's namespace) spun by
 a multi-threaded executor in a thread of its own: a goal's execution blocks one of its threads for the whole
 mission, while its other threads take cancel requests, new goals and navigate_to_pose's answers, and the docking
 node's single-threaded executor keeps serving odometry and images.
@@ -186,11 +186,14 @@ class DockActions:
         self._said: set[str] = set()
         self._feedback_at = (-math.inf, -1)  # (ROS time, state) of the last feedback
         self._goal_start = 0.0
+        # Its own name beside the docking node's (no global arguments: a ``-r __node:=docking_server`` would name
+        # it docking_server too), in the docking node's namespace, as the docking server's actions are.
         self.actions_node = Node(
-            "monodock_dock_actions",
+            f"{node.get_name()}_actions",
             namespace=node.get_namespace(),
             context=node.context,
             start_parameter_services=False,
+            use_global_arguments=False,
         )
         group = ReentrantCallbackGroup()
         self.servers = [
@@ -424,7 +427,8 @@ class DockActions:
 
     def _on_dock_tick(self, handle: Any, mission: DockingMission, retries: list[int]) -> None:
         retries[0] = mission.retries
-        self._feedback(handle, feedback_state(mission.state), mission.retries)
+        if not mission.finished:  # the result says how it ended
+            self._feedback(handle, feedback_state(mission.state), mission.retries)
 
     def _feedback(self, handle: Any, state: int, retries: int) -> None:
         """``publishDockingFeedback``, on every change of state and at most every ``FEEDBACK_PERIOD`` between."""

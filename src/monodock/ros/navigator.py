@@ -51,6 +51,8 @@ class Navigator:
         Raises:
             FailedToStage: preempted or cancelled, out of time, or navigation failed twice.
         """
+        if preempted():  # a cancel that came first: no navigation starts (upstream sends the goal, then looks)
+            raise FailedToStage("Navigation request to staging pose preempted.")
         start = self.now()
         goal = self._action.Goal()
         goal.pose.header.frame_id = frame
