@@ -84,10 +84,13 @@ setup(
     packages=[*_monodock_packages(), *(p for name in built for p in INTERFACE_PACKAGES[name])],
     package_dir={"": "src", **{name: str((GENERATED / name).relative_to(ROOT)) for name in built}},
     package_data={"monodock": ["py.typed"], **dict.fromkeys(built, BINARIES)},
-    # A ROS 2 package's marker in the ament index and its manifest (package.xml), where colcon and ros2 look.
+    # A ROS 2 package's marker in the ament index and its manifest (package.xml), where colcon and ros2 look; its
+    # parameter files and launch description where `ros2 launch monodock ...` and get_package_share_directory do.
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/monodock"]),
         ("share/monodock", ["package.xml"]),
+        ("share/monodock/config", sorted(str(p.relative_to(ROOT)) for p in (ROOT / "config").glob("*.yaml"))),
+        ("share/monodock/launch", sorted(str(p.relative_to(ROOT)) for p in (ROOT / "launch").glob("*.launch.py"))),
     ],
     setup_requires=[] if COLCON else _requirements(),
     distclass=BinaryDistribution if built else ColconDistribution if COLCON else Distribution,

@@ -39,7 +39,7 @@ def _manifest() -> ET.Element:
 
 def _ros_imports() -> set[str]:
     """The ROS 2 packages monodock's sources import (rclpy and the interface packages)."""
-    pattern = re.compile(r"^\s*(?:from|import)\s+(rclpy|rcl_interfaces|std_srvs|\w+_msgs)\b", re.M)
+    pattern = re.compile(r"^\s*(?:from|import)\s+(rclpy|rcl_interfaces|std_srvs|bond|\w+_msgs)\b", re.M)
     return {m for path in (ROOT / "src" / "monodock").rglob("*.py") for m in pattern.findall(path.read_text())}
 
 
@@ -139,6 +139,9 @@ def test_colcon_build_registers_monodock_in_the_ament_index(workspace: Path) -> 
     share = prefix / "share" / "monodock"
     assert (prefix / "share" / "ament_index" / "resource_index" / "packages" / "monodock").is_file()
     assert (share / "package.xml").read_bytes() == (ROOT / "package.xml").read_bytes()
+    # The parameter files and the launch description, where `ros2 launch monodock ...` finds them.
+    for name in ("config/monodock_docking.yaml", "config/layout.yaml", "launch/monodock_docking.launch.py"):
+        assert (share / name).read_bytes() == (ROOT / name).read_bytes(), name
     warnings: list[str] = []
     package = parse_package(str(share / "package.xml"), warnings=warnings)
     package.validate(warnings=warnings)

@@ -191,7 +191,7 @@ def on_feedback(r: str, message: Any) -> None:
 
 sent_at = time.monotonic()
 if ready:
-    goal = DockRobot.Goal(use_dock_id=True, dock_id="", navigate_to_staging_pose=False)
+    goal = DockRobot.Goal(use_dock_id=True, dock_id="home_dock", navigate_to_staging_pose=False)
     sent_at = time.monotonic()
     sent = {
         r: c.send_goal_async(goal, feedback_callback=lambda f, r=r: on_feedback(r, f)) for r, c in clients.items()

@@ -223,7 +223,7 @@ def test_both_recipes_load_with_rclpy_and_set_what_docking_with_monodock_needs()
         v = {k: value for k, (_, value) in params.items()}
         assert v["fixed_frame"] == "odom"
         assert v["base_frame"] == "base_link"
-        assert v["enable_stamped_cmd_vel"] is False  # monodock's sim and Twist bases
+        assert v["enable_stamped_cmd_vel"] is True  # Kilted's default, and monodock's sim's
         assert v["controller.use_collision_detection"] is False  # no costmap in the recipe
         (plugin,) = v["dock_plugins"]
         p = {k.removeprefix(f"{plugin}."): value for k, value in v.items() if k.startswith(f"{plugin}.")}
