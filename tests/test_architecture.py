@@ -34,9 +34,10 @@ _SCRIPT = textwrap.dedent(
     class Node:
         def __init__(self, *args, **kwargs):
             pass
-    for name in ("rclpy", "rclpy.node", "rclpy.utilities"):
+    for name in ("rclpy", "rclpy.node", "rclpy.lifecycle", "rclpy.utilities"):
         sys.modules[name] = types.ModuleType(name)
     sys.modules["rclpy.node"].Node = Node
+    sys.modules["rclpy.lifecycle"].LifecycleNode = Node
     sys.modules["rclpy.utilities"].remove_ros_args = lambda args: args
 
     import monodock.dock

@@ -66,7 +66,8 @@ def test_camera_mismatch_names_what_disagrees_beyond_one_percent(monkeypatch: py
     import importlib
     import types
 
-    for name, attrs in (("rclpy", {}), ("rclpy.node", {"Node": object})):
+    stand_ins = (("rclpy", {}), ("rclpy.node", {"Node": object}), ("rclpy.lifecycle", {"LifecycleNode": object}))
+    for name, attrs in stand_ins:
         module = types.ModuleType(name)
         module.__dict__.update(attrs)
         monkeypatch.setitem(sys.modules, name, module)
