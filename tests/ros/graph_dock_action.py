@@ -4,22 +4,27 @@ Nav2's behaviour tree nodes send them.
 
 Argument: one JSON object with
     start: [x, y, yaw] of the robot in the dock frame;
-    dock_params: optional, more ``-p name:=value`` for monodock_dock;
+    sim_layout: optional, "lab": the sim's dock carries the lab layout (ids 11-13, written to FOLDER/lab.yaml), not
+        the node's own layout (ids 1-3, FOLDER/layout.yaml);
+    files: optional, {name: text} written to FOLDER/name ("{folder}" in the text is FOLDER);
+    dock_params: optional, more ``-p name:=value`` for monodock_dock ("{folder}" is FOLDER);
     navigator: optional, true: this driver also serves navigate_to_pose (a plain go-to-pose controller on the sim's
         odometry, as Nav2's navigation would drive), and reports the goals it got;
-    goals: in turn, each {"action": "dock" | "undock", "goal": {field: value} (DockRobot/UndockRobot goal fields;
+    goals: in turn, each {"action": "reload", "file": name} (~/reload_database with FOLDER/name) or
+           {"action": "dock" | "undock", "goal": {field: value} (DockRobot/UndockRobot goal fields;
            "dock_pose": [x, y, yaw, frame] for a PoseStamped),
            "cancel_in": optional, the feedback state (CONTROLLING = 3, ...) that makes the client cancel the goal,
            "cancel_at_once": optional, cancel as soon as the goal is accepted,
            "preempt_in", "preempt_with": optional, the feedback state at which the client sends the step
            ``preempt_with`` while this goal runs}.
 Prints JSON lines: {"kind": "ready"}, per goal {"kind": "goal", accepted, status, result fields, feedback states,
-the last feedback's docking time and retries, the truth before it and after it, charging}, {"kind": "navigator"},
-{"kind": "end", ...}.
+the last feedback's docking time and retries, the truth before it and after it, charging, the last message of each of
+Nav2's debug topics}, per reload {"kind": "reload", success}, {"kind": "navigator"}, {"kind": "end", ...}.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -35,7 +40,9 @@ from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped, TwistStamped
 from graph_processes import DOCK, SIM, stop_nodes
 from nav2_msgs.action import DockRobot, NavigateToPose, UndockRobot
+from nav2_msgs.srv import ReloadDockDatabase
 from nav_msgs.msg import Odometry
+from nav_msgs.msg import Path as PathMsg
 from rclpy.action import ActionClient, ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -46,15 +53,21 @@ from monodock.core.robot import RobotConfig
 
 spec = json.loads(sys.argv[1])
 folder = Path(tempfile.mkdtemp())
-DockLayout.default().save(folder / "layout.yaml")
+own = DockLayout.default()
+own.save(folder / "layout.yaml")
+lab = dataclasses.replace(own, markers=tuple(dataclasses.replace(m, id=m.id + 10) for m in own.markers))
+lab.save(folder / "lab.yaml")
 robot_config = RobotConfig.default()
 robot_config.save(folder / "robot.yaml")
+for name, text in spec.get("files", {}).items():
+    (folder / name).write_text(text.replace("{folder}", str(folder)))
 
-sim = subprocess.Popen(
-    [sys.executable, "-c", SIM, "--ros-args", "-p", f"start:={json.dumps(spec['start'])}", "-p", "seed:=1"]
-)
+sim_args = ["-p", f"start:={json.dumps(spec['start'])}", "-p", "seed:=1"]
+if spec.get("sim_layout") == "lab":
+    sim_args += ["-p", f"layout:={folder / 'lab.yaml'}"]
+sim = subprocess.Popen([sys.executable, "-c", SIM, "--ros-args", *sim_args])
 dock_args = ["--method", "board", "--layout", str(folder / "layout.yaml"), "--robot", str(folder / "robot.yaml")]
-more = [arg for p in spec.get("dock_params", []) for arg in ("-p", p)]
+more = [arg for p in spec.get("dock_params", []) for arg in ("-p", p.replace("{folder}", str(folder)))]
 dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args, "--ros-args", "-p", "use_sim_time:=true", *more])
 
 rclpy.init()
@@ -83,6 +96,24 @@ node.create_subscription(
     BatteryState, "/battery_state", lambda msg: battery.append(msg.power_supply_status), 50, callback_group=group
 )
 node.create_subscription(Odometry, "/odom", on_odom, 50, callback_group=group)
+debug: dict[str, Any] = {}
+
+
+def on_debug(name: str, msg: Any) -> None:
+    p, q = msg.pose.position, msg.pose.orientation
+    debug[name] = [p.x, p.y, 2.0 * math.atan2(q.z, q.w), msg.header.frame_id]
+
+
+for topic in ("dock_pose", "filtered_dock_pose", "staging_pose"):
+    node.create_subscription(PoseStamped, topic, lambda m, t=topic: on_debug(t, m), 10, callback_group=group)
+
+
+def on_trajectory(msg: Any) -> None:
+    debug["docking_trajectory"] = [[p.pose.position.x, p.pose.position.y, p.header.frame_id] for p in msg.poses]
+
+
+node.create_subscription(PathMsg, "docking_trajectory", on_trajectory, 10, callback_group=group)
+reload_client = node.create_client(ReloadDockDatabase, "/monodock_dock/reload_database", callback_group=group)
 clients = {
     "dock": ActionClient(node, DockRobot, "dock_robot", callback_group=group),
     "undock": ActionClient(node, UndockRobot, "undock_robot", callback_group=group),
@@ -135,7 +166,19 @@ if spec.get("navigator"):
     )
 executor = MultiThreadedExecutor(num_threads=4)
 executor.add_node(node)
-threading.Thread(target=executor.spin, daemon=True).start()
+spinning = threading.Event()
+spinning.set()
+
+
+def spin() -> None:
+    """The executor's own loop, ended before the executor is shut down (a thread still inside spin() when the
+    process exits aborts it)."""
+    while spinning.is_set():
+        executor.spin_once(timeout_sec=0.05)
+
+
+spinner = threading.Thread(target=spin)
+spinner.start()
 
 
 def emit(kind: str, /, **values: Any) -> None:
@@ -204,6 +247,7 @@ def report(
         moved_cm=100 * math.hypot(x - before[0], y - before[1]),
         turned_deg=math.degrees(abs(math.atan2(math.sin(heading - before[2]), math.cos(heading - before[2])))),
         charging=bool(battery) and battery[-1] == BatteryState.POWER_SUPPLY_STATUS_CHARGING,
+        debug=dict(debug),
         **more,
     )
 
@@ -211,6 +255,13 @@ def report(
 ready = wait(lambda: all(c.server_is_ready() for c in clients.values()) and truth and odom, 90)
 emit("ready", ok=ready)
 for step in spec["goals"] if ready else []:
+    if step["action"] == "reload":
+        request = ReloadDockDatabase.Request(filepath=str(folder / step["file"]))
+        answered = reload_client.call_async(request)
+        wait(answered.done, 20)
+        emit("reload", success=bool(answered.done() and answered.result().success))
+        continue
+    debug.clear()
     before = truth[-1]
     handle, feedback = send(step)
     if handle is None:
@@ -245,6 +296,8 @@ for step in spec["goals"] if ready else []:
 emit("navigator", goals=navigated)
 stop_nodes(dock, sim)
 emit("end", dock=dock.returncode, sim=sim.returncode)
+spinning.clear()
+spinner.join(timeout=10)
 executor.shutdown()
 node.destroy_node()
 rclpy.shutdown()

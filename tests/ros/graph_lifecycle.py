@@ -60,7 +60,19 @@ rclpy.init()
 node = rclpy.create_node("lifecycle_manager_navigation")
 executor = MultiThreadedExecutor(num_threads=3)
 executor.add_node(node)
-threading.Thread(target=executor.spin, daemon=True).start()
+spinning = threading.Event()
+spinning.set()
+
+
+def spin() -> None:
+    """The executor's own loop, ended before the executor is shut down (a thread still inside spin() when the
+    process exits aborts it)."""
+    while spinning.is_set():
+        executor.spin_once(timeout_sec=0.05)
+
+
+spinner = threading.Thread(target=spin)
+spinner.start()
 
 
 def emit(kind: str, /, **values: Any) -> None:
@@ -194,5 +206,7 @@ stop_nodes(detector)
 _, detector_err = detector.communicate()
 _, dock_err = dock.communicate()
 emit("end", detector=detector.returncode, detector_stderr=detector_err[-3000:], dock_stderr=dock_err[-3000:])
+spinning.clear()
+spinner.join(timeout=10)
 executor.shutdown()
 rclpy.shutdown()

@@ -25,7 +25,7 @@ from private_graph import can_isolate, run_private_graph
 HERE = Path(__file__).parent
 TOL = DockingConfig()
 # DockRobot.Feedback's states (interfaces/upstream/nav2_msgs/action/DockRobot.action).
-NAV_TO_STAGING_POSE, INITIAL_PERCEPTION, CONTROLLING, WAIT_FOR_CHARGE = 1, 2, 3, 4
+NAV_TO_STAGING_POSE, INITIAL_PERCEPTION, CONTROLLING, WAIT_FOR_CHARGE, RETRY = 1, 2, 3, 4, 5
 BT_DEFAULT = {"action": "dock", "goal": {"dock_id": "home_dock", "navigate_to_staging_pose": True}}
 
 pytestmark = [
@@ -47,26 +47,50 @@ def _docked_by_truth(goal: dict[str, object]) -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_nav2_s_default_goals_dock_stay_docked_and_undock() -> None:
+    """The dock database from a file in Nav2's format, its dock with a layout of its own (the sim's charger carries
+    markers 11-13, the node's own layout 1-3); Nav2's default goals; ~/reload_database; a cancel in RETRY."""
+    start = [-1.2, 0.12, 0.15]
+    front = RobotConfig.default().front_offset
+    docked_pose = _in_odom(start, Pose2D(-front, 0.0, 0.0))
+    database = (
+        f"docks:\n  home_dock: {{type: monodock, frame: odom, pose: {docked_pose}, layout: '{{folder}}/lab.yaml'}}\n"
+    )
+    reloaded = database + f"  charger_7: {{type: stubborn, frame: odom, pose: {docked_pose}}}\n"
+    params = [
+        "dock_plugins:=[monodock, stubborn]",
+        "dock_database:={folder}/docks.yaml",
+        # A dock type whose charger never charges (no current reaches 100 A): the mission re-seats (RETRY).
+        "stubborn.charging_threshold:=100.0",
+        "stubborn.layout:={folder}/lab.yaml",
+    ]
     goals = [
         BT_DEFAULT,  # exactly what Nav2's DockRobot BT node sends by default (its example's dock_id)
         BT_DEFAULT,  # again, while docked
         {"action": "undock", "goal": {}},  # UndockRobot's defaults: no dock_type, max_undocking_time 30 s
-        {"action": "undock", "goal": {}},  # not docked now
+        {"action": "undock", "goal": {"dock_type": "monodock"}},  # not docked now
+        {"action": "undock", "goal": {}},  # two dock types, none docked at, none named: nothing to undock from
         {"action": "dock", "goal": {"dock_id": "charger_7"}},
         {
             "action": "dock",
             "goal": {"use_dock_id": False, "dock_pose": [0.0, 0.0, 0.0, "odom"], "dock_type": "tag_dock"},
         },
+        {"action": "reload", "file": "reloaded.yaml"},
+        {"action": "dock", "goal": {"dock_id": "charger_7", "navigate_to_staging_pose": False}, "cancel_in": RETRY},
     ]
-    run = run_private_graph(
-        HERE / "graph_dock_action.py", json.dumps({"start": [-1.2, 0.12, 0.15], "goals": goals}), timeout=540
-    )
+    spec = {
+        "start": start,
+        "sim_layout": "lab",
+        "files": {"docks.yaml": database, "reloaded.yaml": reloaded},
+        "dock_params": params,
+        "goals": goals,
+    }
+    run = run_private_graph(HERE / "graph_dock_action.py", json.dumps(spec), timeout=540)
     assert run.returncode == 0, run.stderr[-3000:]
     assert "Traceback" not in run.stderr, run.stderr[-3000:]
     assert run.first("ready")["ok"], run.stderr[-3000:]
-    docked, again, undocked, not_docked, unknown, bad_type = run.all("goal")
+    docked, again, undocked, not_docked, no_type, unknown, bad_type, retrying = run.all("goal")
 
-    # Docked: succeeded with Nav2's result fields, on the contacts by the sim's truth, charging.
+    # Docked with the dock's own layout: succeeded with Nav2's result fields, on the contacts by the sim's truth.
     assert docked["succeeded"], docked
     assert (docked["success"], docked["error_code"], docked["error_msg"]) == (True, 0, "")
     _docked_by_truth(docked)
@@ -79,6 +103,15 @@ def test_nav2_s_default_goals_dock_stay_docked_and_undock() -> None:
     assert states[-1] == WAIT_FOR_CHARGE, states
     assert states.index(INITIAL_PERCEPTION) < states.index(CONTROLLING)
     assert docked["docking_time"] > 2.0
+    # Nav2's debug topics: the staging pose 0.7 m before the database's pose; dock_pose (where base_link stands
+    # docked, as the camera measured it) on the database's pose, which is the truth's (odometry drifts by mm); the
+    # trajectory ends there.
+    debug = docked["debug"]
+    x, y, yaw = docked_pose
+    assert debug["staging_pose"] == pytest.approx([x - 0.7 * math.cos(yaw), y - 0.7 * math.sin(yaw), yaw, "odom"])
+    assert debug["dock_pose"][3] == debug["filtered_dock_pose"][3] == "odom"
+    assert math.hypot(debug["dock_pose"][0] - x, debug["dock_pose"][1] - y) < 0.03, debug
+    assert debug["docking_trajectory"][-1][:2] == pytest.approx(debug["dock_pose"][:2], abs=0.02)
 
     # Already docked: succeeds at once, the robot still on its charger (upstream: no motion at all).
     assert again["succeeded"], again
@@ -99,8 +132,11 @@ def test_nav2_s_default_goals_dock_stay_docked_and_undock() -> None:
     assert not_docked["aborted"], not_docked
     assert (not_docked["success"], not_docked["error_code"]) == (True, 0)
     assert not_docked["moved_cm"] < 0.5
+    assert no_type["aborted"], no_type
+    assert no_type["error_code"] == 902, no_type
+    assert no_type["error_msg"] == "No dock information to undock from!"
 
-    # A dock the database does not hold: DOCK_NOT_IN_DB; a pose goal of a type without a plugin: DOCK_NOT_VALID.
+    # A dock the database does not hold (yet): DOCK_NOT_IN_DB; a pose goal of a type without a plugin: DOCK_NOT_VALID.
     assert unknown["aborted"], unknown
     assert unknown["error_code"] == 901, unknown
     assert "not in database" in unknown["error_msg"]
@@ -108,6 +144,15 @@ def test_nav2_s_default_goals_dock_stay_docked_and_undock() -> None:
     assert bad_type["error_code"] == 902, bad_type
     assert unknown["moved_cm"] < 0.5
     assert bad_type["moved_cm"] < 0.5
+
+    # Reloaded, the database holds charger_7; its charger never charges, so the mission re-seats (RETRY), where the
+    # cancel stops it.
+    assert run.first("reload")["success"]
+    assert retrying["canceled"], retrying
+    assert retrying["cancel_accepted"] is True, retrying
+    assert retrying["feedback_states"][-1] == RETRY, retrying
+    assert WAIT_FOR_CHARGE in retrying["feedback_states"], retrying
+    assert abs(retrying["truth"]["gap_cm"]) < 10.0, retrying
     end = run.first("end")
     assert (end["dock"], end["sim"]) == (0, 0), (end, run.stderr[-3000:])
 
@@ -137,6 +182,8 @@ def test_cancel_at_every_phase_preemption_staging_and_undock_time_limit() -> Non
         {"action": "dock", "goal": {"dock_id": "home_dock"}, "cancel_in": INITIAL_PERCEPTION},
         {"action": "dock", "goal": stay, "cancel_in": CONTROLLING},
         {"action": "dock", "goal": stay, "preempt_in": CONTROLLING, "preempt_with": {"action": "dock", "goal": stay}},
+        # An undock while a dock runs: not a preemption (another action), it waits for the docking to end.
+        {"action": "dock", "goal": stay, "preempt_in": CONTROLLING, "preempt_with": {"action": "undock", "goal": {}}},
         {
             "action": "dock",
             "goal": {"use_dock_id": False, "dock_pose": [*docked_pose, "odom"], "navigate_to_staging_pose": False},
@@ -150,9 +197,9 @@ def test_cancel_at_every_phase_preemption_staging_and_undock_time_limit() -> Non
     assert run.returncode == 0, run.stderr[-3000:]
     assert "Traceback" not in run.stderr, run.stderr[-3000:]
     assert run.first("ready")["ok"], run.stderr[-3000:]
-    at_once, staging, perceiving, controlling, preempted, preempting, charging, undock_at_once, undock_late = run.all(
-        "goal"
-    )
+    goals_run = run.all("goal")
+    at_once, staging, perceiving, controlling, preempted, preempting, docking, waiting = goals_run[:8]
+    charging, undock_at_once, undock_late = goals_run[8:]
 
     # Each cancel ends the goal CANCELED. A cancel seen before the goal starts ends it with a default result (success
     # true, as upstream's terminate_all()); one seen later, unsuccessful.
@@ -185,6 +232,14 @@ def test_cancel_at_every_phase_preemption_staging_and_undock_time_limit() -> Non
     assert preempted["aborted"], (preempted, preempting)
     assert preempting["aborted"], (preempted, preempting)
     assert not preempted["charging"]
+
+    # Dock and undock exclude each other: the docking went on to its end, then the undock ran. Sent mid-approach,
+    # the undock would have found the robot not docked (aborted, as above) had it not waited.
+    assert docking["succeeded"], docking
+    assert docking["success"], docking
+    assert waiting["succeeded"], waiting
+    assert waiting["truth"]["gap_cm"] > 10.0, waiting
+    assert not waiting["charging"], waiting
 
     # A dock_pose goal (dock_type empty: the only type), cancelled at the face while it waits for the charge.
     assert charging["feedback_states"][-1] == WAIT_FOR_CHARGE, charging
