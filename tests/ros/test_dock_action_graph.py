@@ -103,15 +103,7 @@ def test_nav2_s_default_goals_dock_stay_docked_and_undock() -> None:
     assert states[-1] == WAIT_FOR_CHARGE, states
     assert states.index(INITIAL_PERCEPTION) < states.index(CONTROLLING)
     assert docked["docking_time"] > 2.0
-    # Nav2's debug topics: the staging pose 0.7 m before the database's pose; dock_pose (where base_link stands
-    # docked, as the camera measured it) on the database's pose, which is the truth's (odometry drifts by mm); the
-    # trajectory ends there.
-    debug = docked["debug"]
-    x, y, yaw = docked_pose
-    assert debug["staging_pose"] == pytest.approx([x - 0.7 * math.cos(yaw), y - 0.7 * math.sin(yaw), yaw, "odom"])
-    assert debug["dock_pose"][3] == debug["filtered_dock_pose"][3] == "odom"
-    assert math.hypot(debug["dock_pose"][0] - x, debug["dock_pose"][1] - y) < 0.03, debug
-    assert debug["docking_trajectory"][-1][:2] == pytest.approx(debug["dock_pose"][:2], abs=0.02)
+    _debug_topics_agree(docked["debug"], docked_pose)
 
     # Already docked: succeeds at once, the robot still on its charger (upstream: no motion at all).
     assert again["succeeded"], again
@@ -155,6 +147,18 @@ def test_nav2_s_default_goals_dock_stay_docked_and_undock() -> None:
     assert abs(retrying["truth"]["gap_cm"]) < 10.0, retrying
     end = run.first("end")
     assert (end["dock"], end["sim"]) == (0, 0), (end, run.stderr[-3000:])
+
+
+def _debug_topics_agree(debug: dict[str, list[object]], docked_pose: list[float]) -> None:
+    """Nav2's debug topics: the staging pose 0.7 m before the database's pose; dock_pose (where base_link stands
+    docked, as the camera measured it) on the database's pose, which is the truth's (odometry drifts by mm); the
+    trajectory ends there."""
+    x, y, yaw = docked_pose
+    assert debug["staging_pose"] == pytest.approx([x - 0.7 * math.cos(yaw), y - 0.7 * math.sin(yaw), yaw, "odom"])
+    dock_pose = debug["dock_pose"]
+    assert dock_pose[3] == debug["filtered_dock_pose"][3] == "odom"
+    assert math.hypot(float(dock_pose[0]) - x, float(dock_pose[1]) - y) < 0.03, debug  # type: ignore[arg-type]
+    assert debug["docking_trajectory"][-1][:2] == pytest.approx(dock_pose[:2], abs=0.02)  # type: ignore[index]
 
 
 def _in_odom(start: list[float], in_dock: Pose2D) -> list[float]:
