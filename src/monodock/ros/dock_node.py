@@ -405,8 +405,8 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         """Whether the robot stands on a dock of ``dock_type`` (SimpleChargingDock's ``isDocked() ||
         isCharging()``): charging by the battery, the contact switch closed, or within ``docking_threshold`` (by
         odometry) of where the last docking ended."""
-        self.robot.charging_signal = ChargingSignal(dock_type.charging_threshold, dock_type.use_battery_status)
-        if self.robot.charging() or self.robot.contact():
+        signal = ChargingSignal(dock_type.charging_threshold, dock_type.use_battery_status)
+        if self.robot.charging(signal) or self.robot.contact():
             return True
         if self.docked_at is None or self.robot.odom.value is None:
             return False
@@ -441,17 +441,16 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         Raises:
             InputError: a mission runs already, the docking config is invalid, or an undock while not docked.
         """
-        dock_type = self.docked_type or next(iter(self.database.types.values()))
-        if task == "dock":
-            found = self.database.docks.get(self.options.dock_id)
-            layout = found.layout if found is not None else ""
-        else:
-            layout = ""
+        if self.mission_lock.locked():
+            raise InputError(f"a {self._mission_task()} mission is running: cancel it first")
+        first = next(iter(self.database.types.values()))
+        dock_type, layout = self.docked_type or first, ""
+        found = self.database.docks.get(self.options.dock_id)
+        if task == "dock" and found is not None:  # the default dock: its type, its layout
+            dock_type, layout = self.database.find_type(found.type) or first, found.layout
         self.docking_config()
         if task == "undock" and not self.is_docked(dock_type):
             raise InputError("not docked: no docking mission ended docked and the charger does not report charging")
-        if self.mission_lock.locked():
-            raise InputError(f"a {self._mission_task()} mission is running: cancel it first")
 
         def run() -> None:
             with contextlib.suppress(MonodockError):  # published on ~/result and logged by run_mission

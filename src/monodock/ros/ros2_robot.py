@@ -184,16 +184,18 @@ class Ros2Robot:
         msg = self.contact_msg.fresh(self.topics.sensor_timeout)
         return None if msg is None else bool(msg.data)
 
-    def charging(self) -> bool | None:
-        """Whether the battery charges (None: it cannot tell): its current above the threshold, else its status."""
-        if not self.charging_signal.use_battery_status:
+    def charging(self, signal: ChargingSignal | None = None) -> bool | None:
+        """Whether the battery charges (None: it cannot tell): its current above the threshold, else its status;
+        by ``signal`` (a dock type's), else by the running mission's."""
+        signal = signal or self.charging_signal
+        if not signal.use_battery_status:
             return None
         msg = self.battery.fresh(self.topics.sensor_timeout)
         if msg is None:
             return None
         current = float(msg.current)
         if math.isfinite(current):
-            return current > self.charging_signal.threshold
+            return current > signal.threshold
         if msg.power_supply_status in self._charging_states:
             return True
         return False if msg.power_supply_status in self._not_charging_states else None
