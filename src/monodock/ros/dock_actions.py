@@ -46,6 +46,7 @@ from __future__ import annotations
 import contextlib
 import math
 import threading
+import time
 from typing import TYPE_CHECKING, Any
 
 from monodock.core.pose2d import Pose2D
@@ -299,7 +300,7 @@ class DockActions:
         result = Result()
         result.success = False
         with self.mutex:
-            self._goal_start = self.node.now()
+            self._goal_start = self._clock_now()
             self._feedback_at = (-math.inf, -1)
             if not self.node.active:
                 return result
@@ -478,7 +479,7 @@ class DockActions:
                 if not self.node.is_docked(dock_type):
                     log.info("Robot is not in the dock, no need to undock")
                     return Result()  # no result state: the server ends it ABORTED with a default result
-                start, budget = self.node.now(), float(goal.max_undocking_time)
+                start, budget = self._clock_now(), float(goal.max_undocking_time)
 
                 def check(_mission: DockingMission) -> tuple[FailureReason, str] | None:
                     if slots.cancel_requested():
@@ -511,6 +512,14 @@ class DockActions:
             log.error(result.error_msg)
             _settle(handle)
             return result
+
+    def _clock_now(self, wait: float = 5.0) -> float:
+        """The node's clock, once it runs: under ``use_sim_time`` it reads 0 until the first /clock message, and a
+        goal timed from 0 would report the epoch as its docking_time (and an undock would time out at once)."""
+        end = time.monotonic() + wait
+        while self.node.now() <= 0.0 and time.monotonic() < end:
+            time.sleep(0.01)
+        return self.node.now()
 
     def _say_once(self, key: str, text: str) -> None:
         if key not in self._said:
