@@ -30,7 +30,6 @@ import math
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -38,14 +37,13 @@ from typing import Any
 import rclpy
 from action_msgs.msg import GoalStatus
 from geometry_msgs.msg import PoseStamped, TwistStamped
-from graph_processes import DOCK, SIM, stop_nodes
+from graph_processes import DOCK, SIM, Spinner, emit, stop_nodes, wait
 from nav2_msgs.action import DockRobot, NavigateToPose, UndockRobot
 from nav2_msgs.srv import ReloadDockDatabase
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from rclpy.action import ActionClient, ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from sensor_msgs.msg import BatteryState
 
 from monodock.core.layout import DockLayout
@@ -164,32 +162,7 @@ if spec.get("navigator"):
         cancel_callback=lambda _handle: CancelResponse.ACCEPT,
         callback_group=group,
     )
-executor = MultiThreadedExecutor(num_threads=4)
-executor.add_node(node)
-spinning = threading.Event()
-spinning.set()
-
-
-def spin() -> None:
-    """The executor's own loop, ended before the executor is shut down (a thread still inside spin() when the
-    process exits aborts it)."""
-    while spinning.is_set():
-        executor.spin_once(timeout_sec=0.05)
-
-
-spinner = threading.Thread(target=spin)
-spinner.start()
-
-
-def emit(kind: str, /, **values: Any) -> None:
-    print(json.dumps({"kind": kind, **values}), flush=True)
-
-
-def wait(done: Any, seconds: float) -> bool:
-    end = time.monotonic() + seconds
-    while not done() and time.monotonic() < end:
-        time.sleep(0.02)
-    return bool(done())
+spinner = Spinner(node, threads=4)
 
 
 def make_goal(step: dict[str, Any]) -> Any:
@@ -296,8 +269,6 @@ for step in spec["goals"] if ready else []:
 emit("navigator", goals=navigated)
 stop_nodes(dock, sim)
 emit("end", dock=dock.returncode, sim=sim.returncode)
-spinning.clear()
-spinner.join(timeout=10)
-executor.shutdown()
+spinner.stop()
 node.destroy_node()
 rclpy.shutdown()

@@ -16,11 +16,9 @@ Prints JSON lines: {"kind": "step", ...} per step, {"kind": "end", ...}.
 from __future__ import annotations
 
 import itertools
-import json
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 import uuid
 from pathlib import Path
@@ -28,12 +26,11 @@ from typing import Any
 
 import rclpy
 from bond.msg import Status
-from graph_processes import DOCK, ORPHANS_END, stop_nodes
+from graph_processes import DOCK, ORPHANS_END, Spinner, emit, stop_nodes, wait
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from nav2_msgs.action import DockRobot
 from rclpy.action import ActionClient
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.qos import QoSProfile
 
 from monodock.core.layout import DockLayout
@@ -58,32 +55,7 @@ detector = subprocess.Popen([sys.executable, "-c", DETECTOR, *files, "--lifecycl
 
 rclpy.init()
 node = rclpy.create_node("lifecycle_manager_navigation")
-executor = MultiThreadedExecutor(num_threads=3)
-executor.add_node(node)
-spinning = threading.Event()
-spinning.set()
-
-
-def spin() -> None:
-    """The executor's own loop, ended before the executor is shut down (a thread still inside spin() when the
-    process exits aborts it)."""
-    while spinning.is_set():
-        executor.spin_once(timeout_sec=0.05)
-
-
-spinner = threading.Thread(target=spin)
-spinner.start()
-
-
-def emit(kind: str, /, **values: Any) -> None:
-    print(json.dumps({"kind": kind, **values}), flush=True)
-
-
-def wait(done: Any, seconds: float) -> bool:
-    end = time.monotonic() + seconds
-    while not done() and time.monotonic() < end:
-        time.sleep(0.01)
-    return bool(done())
+spinner = Spinner(node, threads=3)
 
 
 class ManagerBond:
@@ -206,7 +178,5 @@ stop_nodes(detector)
 _, detector_err = detector.communicate()
 _, dock_err = dock.communicate()
 emit("end", detector=detector.returncode, detector_stderr=detector_err[-3000:], dock_stderr=dock_err[-3000:])
-spinning.clear()
-spinner.join(timeout=10)
-executor.shutdown()
+spinner.stop()
 rclpy.shutdown()

@@ -1,12 +1,18 @@
-"""The graph drivers' node processes (tests/ros/graph_dock*.py): how they start and how they end.
+"""The graph drivers' node processes (tests/ros/graph_dock*.py): how they start and how they end; and what the
+drivers that are clients themselves share: a spinning executor, waiting, printing a record.
 
 Each node gets SIGTERM when its driver ends, however the driver ends (PR_SET_PDEATHSIG): none outlives its run.
 """
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
 
 ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
 SIM = ORPHANS_END + "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv)"
@@ -31,3 +37,40 @@ def stop_nodes(*processes: subprocess.Popen[bytes]) -> None:
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait()
+
+
+def emit(kind: str, /, **values: Any) -> None:
+    """One JSON record on stdout, for the test (tests/private_graph.py's GraphRun)."""
+    print(json.dumps({"kind": kind, **values}), flush=True)
+
+
+def wait(done: Callable[[], Any], seconds: float) -> bool:
+    """Whether ``done()`` came true within ``seconds`` (something else spins meanwhile)."""
+    end = time.monotonic() + seconds
+    while not done() and time.monotonic() < end:
+        time.sleep(0.01)
+    return bool(done())
+
+
+class Spinner:
+    """A driver's node served by a multi-threaded executor in a loop of its own, which ``stop`` ends before the
+    executor is shut down (a thread still inside ``spin()`` when the process exits aborts it)."""
+
+    def __init__(self, node: Any, threads: int = 4) -> None:
+        from rclpy.executors import MultiThreadedExecutor
+
+        self.executor = MultiThreadedExecutor(num_threads=threads)
+        self.executor.add_node(node)
+        self._running = threading.Event()
+        self._running.set()
+        self._thread = threading.Thread(target=self._spin)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while self._running.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def stop(self) -> None:
+        self._running.clear()
+        self._thread.join(timeout=10)
+        self.executor.shutdown()

@@ -136,6 +136,14 @@ class _GoalSlots:
         with self.lock:
             return self.preempt
 
+    def stop_reason(self, action: str) -> tuple[FailureReason, str] | None:
+        """Why a running mission must stop for its goal (``checkAndWarnIfCancelled``/``IfPreempted``), or None."""
+        if self.cancel_requested():
+            return FailureReason.CANCELLED, f"Goal was cancelled. Cancelling {action} action"
+        if self.preempt_requested():
+            return FailureReason.CANCELLED, f"Goal was preempted. Cancelling {action} action"
+        return None
+
     def terminate_all(self, handle: Any, result: Any) -> None:
         """``terminate_all``: the running goal and the pending one end (CANCELED when cancel was asked, else
         ABORTED)."""
@@ -410,10 +418,9 @@ class DockActions:
         budget = float(goal.max_staging_time)
 
         def check(mission: DockingMission) -> tuple[FailureReason, str] | None:
-            if slots.cancel_requested():
-                return FailureReason.CANCELLED, "Goal was cancelled. Cancelling dock_robot action"
-            if slots.preempt_requested():
-                return FailureReason.CANCELLED, "Goal was preempted. Cancelling dock_robot action"
+            stop = slots.stop_reason(DOCK_ACTION)
+            if stop is not None:
+                return stop
             now = self.node.now()
             if mission.state is State.FAR_APPROACH and not math.isnan(staging[1]):
                 staging[0] += now - staging[1]
@@ -482,13 +489,10 @@ class DockActions:
                 start, budget = self._clock_now(), float(goal.max_undocking_time)
 
                 def check(_mission: DockingMission) -> tuple[FailureReason, str] | None:
-                    if slots.cancel_requested():
-                        return FailureReason.CANCELLED, "Goal was cancelled. Cancelling undock_robot action"
-                    if slots.preempt_requested():
-                        return FailureReason.CANCELLED, "Goal was preempted. Cancelling undock_robot action"
-                    if self.node.now() - start > budget:
+                    stop = slots.stop_reason(UNDOCK_ACTION)
+                    if stop is None and self.node.now() - start > budget:
                         return FailureReason.TIMEOUT, "Undocking timed out"
-                    return None
+                    return stop
 
                 mission = self.node.run_mission("undock", dock_type, stop_check=check)
                 if mission.failure is FailureReason.CANCELLED:
