@@ -186,6 +186,8 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         self.add_on_set_parameters_callback(self._check_new_parameters)
         self._create_interfaces()
         self.active = False  # the lifecycle state is active: goals and requests are served
+        self.closing = False  # the node is going away: nothing more is published
+        self._publishing = threading.Lock()
         self.mission_lock = threading.Lock()  # held while a mission runs (one at a time)
         self._thread: threading.Thread | None = None  # a Trigger-started mission's thread
         self._mission: DockingMission | None = None
@@ -568,11 +570,17 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
 
     # --- what it publishes --------------------------------------------------------------------
 
+    def _publish(self, publisher: Any, msg: Any) -> None:
+        """Publish unless the node is closing (a mission thread that outlives ``stop`` publishes nothing)."""
+        with self._publishing:
+            if not self.closing:
+                publisher.publish(msg)
+
     def _publish_state(self, state: str) -> None:
         self._state = state
         msg = self._msgs["String"]()
         msg.data = state
-        self.pub_state.publish(msg)
+        self._publish(self.pub_state, msg)
 
     def _stamped(self, frame: str, stamp: float, pose: Pose2D) -> Any:
         out = self._msgs["PoseStamped"]()
@@ -584,7 +592,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
 
     def publish_staging_pose(self, frame: str, pose: Pose2D) -> None:
         """Nav2's ``staging_pose`` debug topic."""
-        self.pub_debug["staging_pose"].publish(self._stamped(frame, self.now(), pose))
+        self._publish(self.pub_debug["staging_pose"], self._stamped(frame, self.now(), pose))
 
     def _publish_pose(self, mission: DockingMission, odom: Odometry) -> None:
         placed = mission.track.dock_at(odom.stamp)  # the filtered dock in base_link at this odometry
@@ -592,7 +600,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
             return
         dock, cov = placed
         out = self._stamped(self.options.frame_id, odom.stamp, Pose2D(dock.x, dock.y, dock.yaw))
-        self.pub_pose.publish(out)
+        self._publish(self.pub_pose, out)
         with_cov = self._pose_cov()
         with_cov.header = out.header
         with_cov.pose.pose = out.pose
@@ -600,7 +608,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         index = [0, 1, 5]  # x, y, yaw in ROS's (x, y, z, roll, pitch, yaw)
         full[np.ix_(index, index)] = cov
         with_cov.pose.covariance = [float(v) for v in full.ravel()]
-        self.pub_pose_cov.publish(with_cov)
+        self._publish(self.pub_pose_cov, with_cov)
         self._publish_debug(mission, odom)
 
     def _publish_debug(self, mission: DockingMission, odom: Odometry) -> None:
@@ -610,8 +618,8 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
             return
         frame = str(self.robot.odom.value.header.frame_id) if self.robot.odom.value is not None else "odom"
         docked = face.compose(Pose2D(-mission.robot.front_offset, 0.0, 0.0))
-        self.pub_debug["filtered_dock_pose"].publish(self._stamped(frame, odom.stamp, face))
-        self.pub_debug["dock_pose"].publish(self._stamped(frame, odom.stamp, docked))
+        self._publish(self.pub_debug["filtered_dock_pose"], self._stamped(frame, odom.stamp, face))
+        self._publish(self.pub_debug["dock_pose"], self._stamped(frame, odom.stamp, docked))
         path = self._msgs["Path"]()
         path.header = self._stamped(frame, odom.stamp, docked).header
         waypoints = [odom.pose]
@@ -619,7 +627,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
             waypoints.append(face.compose(mission.manoeuvre.point_a))
         waypoints.append(docked)
         path.poses = [self._stamped(frame, odom.stamp, p) for p in waypoints]
-        self.pub_trajectory.publish(path)
+        self._publish(self.pub_trajectory, path)
 
     def _publish_result(self, task: str, result: MissionResult | None, error: str) -> None:
         status = self._msgs["DiagnosticStatus"]()
@@ -635,7 +643,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
             status.message = result.state.value if ok else f"{result.failure}: {result.reason}"
             values.update(_result_values(result, self.estimator.robot.front_offset if self.estimator else 0.0))
         status.values = [_key_value(k, v) for k, v in values.items()]
-        self.pub_result.publish(status)
+        self._publish(self.pub_result, status)
         self._publish_state(values["state"])
         if status.level == status.OK:
             self.get_logger().info(f"{task}: {status.message}")
@@ -661,6 +669,8 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         if self._thread is not None:
             self._thread.join(timeout=5.0)
         self.robot.stop_and_flush()
+        with self._publishing:
+            self.closing = True
         if self.actions is not None:
             self.actions.shutdown()
         self.bond.close()

@@ -11,6 +11,7 @@ by its ``power_supply_status`` instead, and one that reports neither cannot tell
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -102,6 +103,7 @@ class Ros2Robot:
         self.image_frame_id = ""  # the newest image's frame, for the camera mount from /tf_static
         self.active = False  # a mission is running: decode images (an idle node decodes nothing)
         self.enabled = True  # False once the node is going away: nothing more is published
+        self._publishing = threading.Lock()  # a command is never sent while (or after) the node closes
         self._msgtype = m.COMPRESSED_IMAGE if topics.image_is_compressed else m.IMAGE
         self._cmd = node.create_publisher(self._twist, topics.cmd_vel, 10)
         sensor = qos_profile_sensor_data  # best effort subscribers match best-effort and reliable publishers
@@ -119,24 +121,26 @@ class Ros2Robot:
         return _seconds(self.clock)
 
     def send_velocity(self, linear: float, angular: float) -> None:
-        if not self.enabled:
-            return
         msg = self._twist()
         twist = msg.twist if self.topics.stamped_cmd_vel else msg
         if self.topics.stamped_cmd_vel:
             msg.header.stamp = self.clock.now().to_msg()
             msg.header.frame_id = self.topics.frame_id
         twist.linear.x, twist.angular.z = float(linear), float(angular)
-        self._cmd.publish(msg)
+        with self._publishing:
+            if self.enabled:
+                self._cmd.publish(msg)
 
     def stop_and_flush(self, timeout: float = 1.0) -> None:
         """Command zero and wait until the subscribers have it: a node that exits right after publishing would
-        otherwise take its last message down with it. Nothing is published after this."""
+        otherwise take its last message down with it. Nothing is published after this (a mission thread still
+        running finds the robot closed, not a destroyed publisher)."""
         from rclpy.duration import Duration  # type: ignore[import-not-found, unused-ignore]
 
         self.send_velocity(0.0, 0.0)
+        with self._publishing:
+            self.enabled = False
         self._cmd.wait_for_all_acked(Duration(seconds=timeout))
-        self.enabled = False
 
     def odometry_age(self) -> float:
         """How old the odometry is on the node's clock: the lesser of the time since it arrived and the clock minus
