@@ -195,6 +195,7 @@ class _Period:
     refused: int = 0
     idle: int = 0  # images not estimated: stopped, or nothing subscribes
     latencies: list[float] = field(default_factory=list)
+    processing: list[float] = field(default_factory=list)  # wall seconds to decode and estimate each image
 
 
 class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
@@ -455,6 +456,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
 
     def _estimate(self, msg: Any, draw: bool = False) -> None:
         stamp = m.header_stamp(msg)
+        started = time.perf_counter()
         try:
             image = m.decode_image(msg, self.msgtype)
             estimator = self._estimator(msg.header.frame_id)
@@ -465,6 +467,8 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
         except MonodockError as exc:  # e.g. an image of another size than the camera's
             self._refuse("image", f"image skipped: {exc}", f"bad image: {exc}")
             return
+        with self._lock:
+            self._period.processing.append(time.perf_counter() - started)
         est = result.estimates[self.method]
         markers = len(result.detection.roles_seen) if result.detection is not None else 0
         if result.detection is not None and draw:
@@ -542,6 +546,8 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             "poses_out_hz": f"{period.poses / seconds:.2f}",
             "latency_median_ms": _milliseconds(period.latencies, 50),
             "latency_p95_ms": _milliseconds(period.latencies, 95),
+            "processing_median_ms": _milliseconds(period.processing, 50),
+            "processing_p95_ms": _milliseconds(period.processing, 95),
             "markers_seen": "" if markers is None else str(markers),
             "frames_dropped": str(dropped),
             "images_refused": str(refused),
