@@ -104,7 +104,9 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 100)
 
 files = ["--layout", str(folder / "layout.yaml")]
+# use_sim_time: the images' stamps are the sim's clock, which a busy machine slows below the wall clock's pace.
 topics = ["-r", "image:=/image", "-r", "camera_info:=/camera_info", "-p", "diagnostics_period:=0.5"]
+topics += ["-p", "use_sim_time:=true"]
 detectors = {
     "tf_mount": g.detector(
         *files, "--robot", str(folder / "wrong_robot.yaml"), "--ros-args", "-r", "__ns:=/tf_mount", *topics,

@@ -131,3 +131,22 @@ def test_cmd_vel_is_twist_stamped_by_default_and_twist_when_asked() -> None:
     robot.enabled = False  # the node is going away: nothing more goes out
     robot.send_velocity(0.3, 0.0)
     assert len(node.published) == 1
+
+
+def test_a_lost_camera_is_told_from_a_node_that_fell_behind() -> None:
+    from monodock.ros.ros2_robot import CameraStats
+
+    stats = CameraStats()
+    for i in range(30):  # 15 frames a second for 2 s; the mission took one in five
+        stats.on_arrival(10.0 + i / 15)
+        if i % 5 == 0:
+            stats.on_taken(10.0 + i / 15)
+            stats.on_perceived(0.004, 0.07)
+    said = stats.explain(now=12.0, window=1.2)
+    assert "18 camera frames arrived, 3 were perceived and 15 dropped while the node was behind" in said
+    assert "no camera frame arrived" in stats.explain(now=20.0, window=1.2)
+    values = stats.values()
+    assert (values["frames_arrived"], values["frames_perceived"], values["frames_dropped"]) == ("30", "6", "24")
+    assert (values["processing_median_ms"], values["lag_p95_ms"]) == ("4.0", "70.0")
+    stats.reset()
+    assert stats.values()["frames_arrived"] == "0"

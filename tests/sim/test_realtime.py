@@ -74,16 +74,59 @@ def test_frames_arrive_at_the_camera_rate_on_time_and_time_is_paced() -> None:
     assert 0.17 < robot.pose.x - (-1.6) < 0.2
 
 
-def test_a_renderer_slower_than_the_camera_makes_frames_late_and_says_so() -> None:
+def test_a_renderer_slower_than_the_camera_slows_the_simulation_and_says_so() -> None:
     wall = FakeWall()
     robot = _robot(0.120, wall)  # slower than one 67 ms camera period
+    factors: list[float] = []
 
-    report = RealTimeRunner(robot, clock=wall.clock, sleep=wall.sleep).run(1.0)
+    report = RealTimeRunner(robot, clock=wall.clock, sleep=wall.sleep, window=0.5).run(
+        2.0, on_real_time_factor=factors.append
+    )
 
-    assert report.late_frames >= report.frames - 2 > 0
-    assert report.late_mean_ms > 30.0
-    assert report.wall_s > 1.0 + 0.05 * report.frames
-    assert report.busy > 0.9
+    # Each frame's 120 ms of rendering costs the simulation that much wall time: 15 frames a simulated second make
+    # 2.8 wall seconds of it, a real-time factor of 1 / 2.8. Nothing is run in a burst to catch up, so no frame is
+    # due before it is ready.
+    expected = 1.0 / (1.0 + 15 * 0.120)
+    assert report.real_time_factor == pytest.approx(expected, rel=0.08)
+    assert report.wall_s == pytest.approx(2.0 / expected, rel=0.08)
+    assert max(factors) < 0.5
+    assert report.min_real_time_factor == min(factors)
+    assert report.stalls >= report.frames - 1
+    assert report.lost_s == pytest.approx(report.wall_s - 2.0, abs=0.05)
+    assert report.late_frames == 0
+    assert report.busy == pytest.approx(robot.frames_rendered * 0.120 / report.wall_s, rel=1e-6)
+
+
+def test_a_stall_is_lost_to_the_simulation_never_run_in_a_burst() -> None:
+    """A process starved for 1.5 s (the wall clock jumps under it): afterwards simulated time runs at the wall
+    clock's pace again, the stall's seconds are not run at once, and every frame still comes one camera period of
+    wall time after the one before."""
+    wall = FakeWall()
+    robot = _robot(0.005, wall)
+    frames: list[tuple[float, float]] = []  # (simulated time, wall time) at each delivery
+    stalled: list[float] = []
+
+    def command(t: float, _odometry: object) -> None:
+        if t >= 0.5 and not stalled:
+            stalled.append(wall.now)
+            wall.now += 1.5  # the process got no CPU for 1.5 s
+
+    report = RealTimeRunner(robot, clock=wall.clock, sleep=wall.sleep).run(
+        2.0, command=command, on_frame=lambda _frame: frames.append((robot.t, wall.now))
+    )
+
+    assert report.stalls == 1
+    assert report.lost_s == pytest.approx(1.5, abs=0.03)
+    assert report.simulated_s == pytest.approx(2.0)
+    assert report.wall_s == pytest.approx(3.5, abs=0.05)
+    assert report.real_time_factor == pytest.approx(2.0 / 3.5, rel=0.02)
+    period = 1.0 / robot.config.camera_rate
+    after = [(s, w) for s, w in frames if w > stalled[0] + 1.5]
+    gaps = np.diff([w for _, w in after])
+    assert len(after) > 15
+    assert gaps.min() == pytest.approx(period, abs=0.025)  # no burst: frames keep the camera's pace
+    simulated, walled = after[-1][0] - after[0][0], after[-1][1] - after[0][1]
+    assert simulated == pytest.approx(walled, abs=0.03)  # real time again after the stall
 
 
 def test_speed_scales_the_wall_clock() -> None:

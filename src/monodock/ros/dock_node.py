@@ -247,6 +247,11 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
             for name in ("dock_pose", "filtered_dock_pose", "staging_pose")
         }
         self.pub_trajectory = self.create_publisher(Path, "docking_trajectory", 1)
+        from diagnostic_msgs.msg import DiagnosticArray, KeyValue  # type: ignore[import-not-found, unused-ignore]
+
+        self._msgs.update(DiagnosticArray=DiagnosticArray, KeyValue=KeyValue)
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(1.0, self._publish_diagnostics)
         self.create_service(Trigger, "~/dock", lambda _req, res: self._start("dock", res))
         self.create_service(Trigger, "~/undock", lambda _req, res: self._start("undock", res))
         self.create_service(Trigger, "~/cancel", self._on_cancel)
@@ -517,7 +522,18 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
             robot.watch(True)
             track = (lambda: mission.track) if config.predicted_markers else None
             perceive = make_perceive(estimator, estimator.method, track=track)
-            result = run_mission(robot, perceive, mission, on_tick=self._on_tick)
+
+            def timed(stamp: float, image: np.ndarray) -> Any:
+                started = time.perf_counter()
+                observation = perceive(stamp, image)
+                robot.camera_stats.on_perceived(time.perf_counter() - started, robot.now() - stamp)
+                return observation
+
+            result = run_mission(robot, timed, mission, on_tick=self._on_tick)
+            if result.failure in _LOST_MARKERS:  # did the frames come and go unseen, or never come?
+                window = max(config.lost_timeout, 2.0)
+                explained = robot.camera_stats.explain(robot.now(), window)
+                result = dataclasses.replace(result, reason=f"{result.reason}; {explained}")
             self._remember(result, dock_type)
             self._publish_result(task, result, "")
             return result
@@ -629,6 +645,27 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         path.poses = [self._stamped(frame, odom.stamp, p) for p in waypoints]
         self._publish(self.pub_trajectory, path)
 
+    def _publish_diagnostics(self) -> None:
+        """Every second: the state and what became of the camera's frames during the last (or running) mission:
+        frames arrived, perceived and dropped, the time to perceive one and its age by then. WARN when most frames
+        were dropped or perceived over half a second old (the node cannot keep up: a busy machine)."""
+        m = self._msgs
+        stats = self.robot.camera_stats.values()
+        status = m["DiagnosticStatus"]()
+        status.name = f"{self.get_fully_qualified_name().lstrip('/')}: docking"
+        status.hardware_id = self.options.frame_id
+        arrived, dropped = int(stats["frames_arrived"]), int(stats["frames_dropped"])
+        lag = float(stats["lag_p95_ms"] or 0.0)
+        behind = arrived > 10 and (dropped > arrived / 2 or lag > 500.0)
+        status.level = status.WARN if behind else status.OK
+        status.message = f"{self._state}" + (": perception falling behind" if behind else "")
+        values = {"state": self._state, "mission": str(self.mission_lock.locked()).lower(), **stats}
+        status.values = [m["KeyValue"](key=k, value=v) for k, v in values.items()]
+        array = m["DiagnosticArray"]()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [status]
+        self._publish(self.pub_diagnostics, array)
+
     def _publish_result(self, task: str, result: MissionResult | None, error: str) -> None:
         status = self._msgs["DiagnosticStatus"]()
         status.name = f"monodock_dock: {task}"
@@ -674,6 +711,9 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         if self.actions is not None:
             self.actions.shutdown()
         self.bond.close()
+
+
+_LOST_MARKERS = (FailureReason.MARKERS_LOST, FailureReason.DOCK_LOST, FailureReason.NOT_FOUND)
 
 
 def _result_values(result: MissionResult, front_offset: float) -> dict[str, str]:

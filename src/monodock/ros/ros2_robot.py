@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,7 +22,7 @@ from monodock.dock.interface import CameraFrame, Odometry
 from monodock.errors import InputError
 from monodock.recording import messages as m
 
-__all__ = ["ChargingSignal", "RobotTopics", "Ros2Robot"]
+__all__ = ["CameraStats", "ChargingSignal", "RobotTopics", "Ros2Robot"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,77 @@ class ChargingSignal:
 
     threshold: float = 0.5  # A
     use_battery_status: bool = True
+
+
+class CameraStats:
+    """What became of the camera's frames during a mission, on the node's clock: when each arrived, which the
+    mission took (a frame that a newer one replaced before the mission looked was dropped), how long each took to
+    perceive and how old it was by then. Written by the executor's and the mission's threads."""
+
+    def __init__(self, keep: int = 3000) -> None:
+        self._lock = threading.Lock()
+        self.arrived: deque[float] = deque(maxlen=keep)
+        self.taken: deque[float] = deque(maxlen=keep)
+        self.processing: deque[float] = deque(maxlen=keep)  # wall seconds to perceive a frame
+        self.lag: deque[float] = deque(maxlen=keep)  # the node's clock minus the frame's stamp when perceived
+        self.arrived_total = self.taken_total = 0
+
+    def reset(self) -> None:
+        with self._lock:
+            for kept in (self.arrived, self.taken, self.processing, self.lag):
+                kept.clear()
+            self.arrived_total = self.taken_total = 0
+
+    def on_arrival(self, now: float) -> None:
+        with self._lock:
+            self.arrived.append(now)
+            self.arrived_total += 1
+
+    def on_taken(self, now: float) -> None:
+        with self._lock:
+            self.taken.append(now)
+            self.taken_total += 1
+
+    def on_perceived(self, seconds: float, lag: float) -> None:
+        with self._lock:
+            self.processing.append(seconds)
+            self.lag.append(lag)
+
+    def since(self, start: float) -> tuple[int, int]:
+        """(frames arrived, frames taken) since ``start`` on the node's clock."""
+        with self._lock:
+            return sum(t >= start for t in self.arrived), sum(t >= start for t in self.taken)
+
+    def explain(self, now: float, window: float) -> str:
+        """Whether the frames of the last ``window`` seconds came and were dropped, or never came: for a failure
+        for lost markers."""
+        arrived, taken = self.since(now - window)
+        if arrived == 0:
+            return f"no camera frame arrived in the last {window:.1f} s (the camera or the simulation stalled)"
+        dropped = arrived - taken
+        return (
+            f"in the last {window:.1f} s {arrived} camera frames arrived, {taken} were perceived"
+            + (f" and {dropped} dropped while the node was behind" if dropped > 0 else "")
+        )
+
+    def values(self) -> dict[str, str]:
+        """For /diagnostics: the counts, and the median and 95th percentile of processing time and lag (ms)."""
+        with self._lock:
+            processing, lag = sorted(self.processing), sorted(self.lag)
+            arrived, taken = self.arrived_total, self.taken_total
+
+        def ms(values: list[float], q: float) -> str:
+            return f"{1e3 * values[min(len(values) - 1, int(q * len(values)))]:.1f}" if values else ""
+
+        return {
+            "frames_arrived": str(arrived),
+            "frames_perceived": str(taken),
+            "frames_dropped": str(max(0, arrived - taken)),
+            "processing_median_ms": ms(processing, 0.5),
+            "processing_p95_ms": ms(processing, 0.95),
+            "lag_median_ms": ms(lag, 0.5),
+            "lag_p95_ms": ms(lag, 0.95),
+        }
 
 
 class _Latest:
@@ -100,6 +172,8 @@ class Ros2Robot:
         self.charging_signal = ChargingSignal()
         self.odom, self.battery, self.contact_msg, self.rear = (_Latest(self.clock) for _ in range(4))
         self._frame: CameraFrame | None = None
+        self._taken_stamp = -math.inf
+        self.camera_stats = CameraStats()
         self.image_frame_id = ""  # the newest image's frame, for the camera mount from /tf_static
         self.active = False  # a mission is running: decode images (an idle node decodes nothing)
         self.enabled = True  # False once the node is going away: nothing more is published
@@ -174,14 +248,22 @@ class Ros2Robot:
         except m.DecodeError as exc:
             self.node.get_logger().warning(f"image skipped: {exc}", throttle_duration_sec=5.0)
             return
+        self.camera_stats.on_arrival(self.now())
         self._frame = frame
 
     def latest_frame(self) -> CameraFrame | None:
-        return self._frame
+        frame = self._frame
+        if frame is not None and frame.stamp > self._taken_stamp:
+            self._taken_stamp = frame.stamp
+            self.camera_stats.on_taken(self.now())
+        return frame
 
     def watch(self, on: bool) -> None:
-        """Start or stop decoding images; a new mission never sees a frame from before it began."""
+        """Start or stop decoding images; a new mission never sees a frame from before it began (nor its counts)."""
         self._frame = None
+        self._taken_stamp = -math.inf
+        if on:
+            self.camera_stats.reset()
         self.active = on
 
     def contact(self) -> bool | None:

@@ -7,8 +7,10 @@ period (50 Hz), ``/clock`` with them. It drives by ``cmd_vel`` (TwistStamped, or
 ``enable_stamped_cmd_vel: false``) through the base's latency, lag and slip, and
 stops when ``cmd_vel`` falls silent for ``cmd_vel_timeout`` simulated seconds, as real bases do. Its stamps are the
 wall clock at the start plus the simulated time. Real-time pacing keeps the two together on an idle machine; on a
-busy one the simulation runs slower than the wall clock, so nodes that time sensor data against their own clock
-(the docking node) run with ``use_sim_time`` on the ``/clock`` it publishes, as with any simulator.
+busy one the simulation runs slower than the wall clock and never catches up in a burst (``monodock.sim.realtime``),
+so nodes that time sensor data against their own clock run with ``use_sim_time`` on the ``/clock`` it publishes, as
+with any simulator. Its real-time factor goes to ``/diagnostics`` every second, and into the log (once) when it
+falls below ``REAL_TIME_WARNING``.
 
 Faults on demand: ``~/silence_camera`` and ``~/silence_odometry`` (std_srvs/SetBool) stop and restart those
 topics.
@@ -73,6 +75,11 @@ PARAMETERS: dict[str, Parameter] = {
 }
 
 
+# A real-time factor below this is said once in the log (and again after it recovers above REAL_TIME_RECOVERED).
+REAL_TIME_WARNING = 0.9
+REAL_TIME_RECOVERED = 0.98
+
+
 def _stamp(msg_time: Any, seconds: float) -> Any:
     msg_time.sec, msg_time.nanosec = split_stamp(seconds)
     return msg_time
@@ -133,6 +140,16 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
         self.pub_contact = self.create_publisher(Bool, "contact", 10)
         self.pub_range = self.create_publisher(Range, "rear_range", qos_sensor)
         self.pub_clock = self.create_publisher(Clock, "/clock", 10)
+        from diagnostic_msgs.msg import (  # type: ignore[import-not-found, unused-ignore]
+            DiagnosticArray,
+            DiagnosticStatus,
+            KeyValue,
+        )
+
+        self.msgs.update(DiagnosticArray=DiagnosticArray, DiagnosticStatus=DiagnosticStatus, KeyValue=KeyValue)
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.slow = False  # the real-time factor is below REAL_TIME_WARNING (said once)
+        self.worst_factor = math.inf
         twist = TwistStamped if s.enable_stamped_cmd_vel else Twist
         self.create_subscription(twist, "cmd_vel", self._on_cmd_vel, 1)  # the latest command wins: no backlog
         self.pub_tf = self._tf_publishers(sim.robot)
@@ -219,6 +236,31 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             error: BaseException | None = handler.exception()
             if error is not None:
                 raise error
+
+    def report_real_time(self, factor: float) -> None:
+        """The last second's real-time factor: on /diagnostics, and in the log when it drops (and recovers)."""
+        self.worst_factor = min(self.worst_factor, factor)
+        if factor < REAL_TIME_WARNING and not self.slow:
+            self.slow = True
+            self.get_logger().warning(
+                f"the simulation runs slower than real time: real-time factor {factor:.2f} (the machine is busy); "
+                "simulated time goes on at that pace, nodes on use_sim_time keep up with it"
+            )
+        elif factor >= REAL_TIME_RECOVERED and self.slow:
+            self.slow = False
+            self.get_logger().info(f"back to real time: real-time factor {factor:.2f}")
+        m = self.msgs
+        status = m["DiagnosticStatus"]()
+        status.name = f"{self.get_fully_qualified_name().lstrip('/')}: real time"
+        status.hardware_id = "monodock_sim"
+        status.level = status.WARN if factor < REAL_TIME_WARNING else status.OK
+        status.message = f"real-time factor {factor:.2f}"
+        values = {"real_time_factor": f"{factor:.3f}", "worst_real_time_factor": f"{self.worst_factor:.3f}"}
+        status.values = [m["KeyValue"](key=k, value=v) for k, v in values.items()]
+        array = m["DiagnosticArray"]()
+        _stamp(array.header.stamp, self.ros_seconds(self.robot.t))
+        array.status = [status]
+        self.pub_diagnostics.publish(array)
 
     def ros_seconds(self, t: float) -> float:
         return self.epoch + t
@@ -328,13 +370,13 @@ def run_sim(argv: Sequence[str], duration: float = math.inf) -> int:
         runner = RealTimeRunner(node.robot)
         node.robot.sim.render(node.robot.dock_pose())  # load the compiled renderer before the clock starts
         node.epoch = time.time() - node.robot.t  # ROS time starts with the physics, not with the node's set-up
-        # One run: the runner paces simulated time by the wall clock from its start and catches up after a slow
-        # step (chunked runs would each forgive the lag and fall behind for good).
+        # One run: the runner paces simulated time by the wall clock; behind it, it goes on at its pace.
         runner.run(
             duration if math.isfinite(duration) else 1e12,
             command=node.command,
             on_frame=node.publish_frame,
             on_odometry=node.publish_state,
+            on_real_time_factor=node.report_real_time,
         )
     except KeyboardInterrupt:
         pass
