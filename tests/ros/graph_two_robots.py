@@ -29,7 +29,7 @@ from typing import Any
 
 import rclpy
 from action_msgs.msg import GoalStatus
-from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from graph_processes import DOCK, SIM, stop_nodes
 from nav2_msgs.action import DockRobot
@@ -160,6 +160,10 @@ for r in ROBOTS:
         lambda msg, r=r: on_result(r, msg),
         QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL),
     )
+diagnostics: set[str] = set()
+node.create_subscription(
+    DiagnosticArray, "/diagnostics", lambda msg: diagnostics.update(s.name for s in msg.status), DEEP
+)
 node.create_subscription(TFMessage, "/tf", on_tf, DEEP)
 node.create_subscription(TFMessage, "/tf_static", on_tf_static, latched)
 clients = {r: ActionClient(node, DockRobot, f"/{r}/dock_robot") for r in ROBOTS}
@@ -257,7 +261,7 @@ for topic, _types in node.get_topic_names_and_types():
         "publishers": sorted([i.node_namespace, i.node_name] for i in node.get_publishers_info_by_topic(topic)),
         "subscribers": sorted([i.node_namespace, i.node_name] for i in node.get_subscriptions_info_by_topic(topic)),
     }
-emit("graph", topics=graph, client=[node.get_namespace(), node.get_name()])
+emit("graph", topics=graph, client=[node.get_namespace(), node.get_name()], diagnostics=sorted(diagnostics))
 
 stop_nodes(*(p for p, _ in processes.values()))
 for name, (process, log) in processes.items():

@@ -24,7 +24,8 @@ TOL = DockingConfig()
 ROBOTS = ("r1", "r2")
 # DockRobot.Feedback's states (interfaces/upstream/nav2_msgs/action/DockRobot.action).
 INITIAL_PERCEPTION, CONTROLLING, WAIT_FOR_CHARGE = 2, 3, 4
-SHARED = {"/tf", "/tf_static", "/rosout", "/parameter_events"}  # absolute by design, one for the whole graph
+# Absolute by design, one for the whole graph (/diagnostics' statuses carry each node's namespaced name).
+SHARED = {"/tf", "/tf_static", "/rosout", "/parameter_events", "/diagnostics"}
 
 pytestmark = [
     pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
@@ -109,6 +110,9 @@ def test_two_namespaced_robots_dock_side_by_side_on_one_graph() -> None:
     assert "/clock" not in topics, topics.get("/clock")
     outside = sorted(t for t in topics if not t.startswith(("/r1/", "/r2/")) and t not in SHARED)
     assert outside == [], outside
+    # On the shared /diagnostics, each node's status is under its own namespaced name.
+    for r in ROBOTS:
+        assert {f"{r}/monodock_sim: real time", f"{r}/monodock_dock: docking"} <= set(graph["diagnostics"]), graph
     for r in ROBOTS:
         mine = {t: ends for t, ends in topics.items() if t.startswith(f"/{r}/")}
         assert len(mine) > 10, sorted(topics)
