@@ -159,7 +159,9 @@ _GROUPS_FILE = "MONODOCK_XDIST_GROUPS"
 _FIRST = (
     "tests/cli/test_end_to_end.py::test_demo",
     "tests/evaluation/test_dock_sim.py::",
-    "tests/ros/test_dock_graph.py::test_docking_over_dds_from_starts_in_several_cases",
+    "tests/cli/test_commission.py::test_commission_a_wrong_world",
+    "tests/ros/test_dock_graph.py::test_docking_over_dds_",
+    "tests/ros/test_dock_action_graph.py::",
     "tests/ros/test_dock_graph.py::",
     "tests/ros/test_detector_graph.py::",
     "tests/fuzz/test_properties.py::",

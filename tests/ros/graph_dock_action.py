@@ -43,7 +43,6 @@ from nav2_msgs.srv import ReloadDockDatabase
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from rclpy.action import ActionClient, ActionServer, CancelResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
 from sensor_msgs.msg import BatteryState
 
 from monodock.core.layout import DockLayout
@@ -70,7 +69,6 @@ dock = subprocess.Popen([sys.executable, "-c", DOCK, *dock_args, "--ros-args", "
 
 rclpy.init()
 node = rclpy.create_node("nav2_like_client")
-group = ReentrantCallbackGroup()
 truth: list[tuple[float, float, float]] = []
 battery: list[int] = []
 odom: list[tuple[float, float, float]] = []
@@ -89,11 +87,14 @@ def on_odom(msg: Any) -> None:
     odom.append((msg.pose.pose.position.x, msg.pose.pose.position.y, 2.0 * math.atan2(q.z, q.w)))
 
 
-node.create_subscription(PoseStamped, "/ground_truth", on_truth, 50, callback_group=group)
+node.create_subscription(PoseStamped, "/ground_truth", on_truth, 50)
 node.create_subscription(
-    BatteryState, "/battery_state", lambda msg: battery.append(msg.power_supply_status), 50, callback_group=group
+    BatteryState,
+    "/battery_state",
+    lambda msg: battery.append(msg.power_supply_status),
+    50,
 )
-node.create_subscription(Odometry, "/odom", on_odom, 50, callback_group=group)
+node.create_subscription(Odometry, "/odom", on_odom, 50)
 debug: dict[str, Any] = {}
 
 
@@ -103,66 +104,83 @@ def on_debug(name: str, msg: Any) -> None:
 
 
 for topic in ("dock_pose", "filtered_dock_pose", "staging_pose"):
-    node.create_subscription(PoseStamped, topic, lambda m, t=topic: on_debug(t, m), 10, callback_group=group)
+    node.create_subscription(PoseStamped, topic, lambda m, t=topic: on_debug(t, m), 10)
 
 
 def on_trajectory(msg: Any) -> None:
     debug["docking_trajectory"] = [[p.pose.position.x, p.pose.position.y, p.header.frame_id] for p in msg.poses]
 
 
-node.create_subscription(PathMsg, "docking_trajectory", on_trajectory, 10, callback_group=group)
-reload_client = node.create_client(ReloadDockDatabase, "/monodock_dock/reload_database", callback_group=group)
+node.create_subscription(PathMsg, "docking_trajectory", on_trajectory, 10)
+reload_client = node.create_client(ReloadDockDatabase, "/monodock_dock/reload_database")
 clients = {
-    "dock": ActionClient(node, DockRobot, "dock_robot", callback_group=group),
-    "undock": ActionClient(node, UndockRobot, "undock_robot", callback_group=group),
+    "dock": ActionClient(node, DockRobot, "dock_robot"),
+    "undock": ActionClient(node, UndockRobot, "undock_robot"),
 }
 navigated: list[list[float | str]] = []
 
 
-def navigate(handle: Any) -> Any:
-    """navigate_to_pose as Nav2's navigation would serve it: turn, drive, turn, on odometry, in the odom frame."""
-    p, q = handle.request.pose.pose.position, handle.request.pose.pose.orientation
-    goal = (p.x, p.y, 2.0 * math.atan2(q.z, q.w))
-    navigated.append([*goal, handle.request.pose.header.frame_id])
-    cmd = node.create_publisher(TwistStamped, "/cmd_vel", 10)
+class Navigation:
+    """navigate_to_pose as Nav2's navigation would serve it: turn, drive, turn, on odometry, in the odom frame.
 
-    def send(v: float, w: float) -> None:
+    Driven by a 50 Hz timer, not inside the goal's execute callback, so that one single-threaded executor serves it
+    beside everything else: a goal is accepted and held, each tick steers towards it, and it is executed (its result
+    state set) once there or once its cancel comes."""
+
+    def __init__(self) -> None:
+        self.handle: Any = None
+        self.goal = (0.0, 0.0, 0.0)
+        self.cmd = node.create_publisher(TwistStamped, "/cmd_vel", 10)
+        ActionServer(
+            node,
+            NavigateToPose,
+            "navigate_to_pose",
+            lambda _handle: NavigateToPose.Result(),  # executed only to end a goal: see tick
+            handle_accepted_callback=self.accepted,
+            cancel_callback=lambda _handle: CancelResponse.ACCEPT,
+        )
+        node.create_timer(0.02, self.tick)
+
+    def accepted(self, handle: Any) -> None:
+        p, q = handle.request.pose.pose.position, handle.request.pose.pose.orientation
+        self.goal = (p.x, p.y, 2.0 * math.atan2(q.z, q.w))
+        navigated.append([*self.goal, handle.request.pose.header.frame_id])
+        self.handle = handle
+
+    def send(self, v: float, w: float) -> None:
         msg = TwistStamped()
         msg.twist.linear.x, msg.twist.angular.z = v, w
-        cmd.publish(msg)
+        self.cmd.publish(msg)
 
-    def wrap(a: float) -> float:
-        return math.atan2(math.sin(a), math.cos(a))
+    def end(self, how: str) -> None:
+        self.send(0.0, 0.0)
+        handle, self.handle = self.handle, None
 
-    end = time.monotonic() + 60
-    while time.monotonic() < end:
-        if handle.is_cancel_requested:
-            send(0.0, 0.0)
-            handle.canceled()
+        def finish(h: Any) -> Any:
+            getattr(h, how)()
             return NavigateToPose.Result()
+
+        handle.execute(finish)
+
+    def tick(self) -> None:
+        if self.handle is None or not odom:
+            return
+        if self.handle.is_cancel_requested:
+            self.end("canceled")
+            return
         x, y, th = odom[-1]
-        dx, dy = goal[0] - x, goal[1] - y
+        dx, dy = self.goal[0] - x, self.goal[1] - y
         far = math.hypot(dx, dy) > 0.03
-        turn = wrap((math.atan2(dy, dx) if far else goal[2]) - th)
+        turn = math.remainder((math.atan2(dy, dx) if far else self.goal[2]) - th, math.tau)
         if not far and abs(turn) < 0.03:
-            break
-        send(0.15 if far and abs(turn) < 0.2 else 0.0, max(-0.5, min(0.5, 1.5 * turn)))
-        time.sleep(0.02)
-    send(0.0, 0.0)
-    handle.succeed()
-    return NavigateToPose.Result()
+            self.end("succeed")
+            return
+        self.send(0.15 if far and abs(turn) < 0.2 else 0.0, max(-0.5, min(0.5, 1.5 * turn)))
 
 
 if spec.get("navigator"):
-    ActionServer(
-        node,
-        NavigateToPose,
-        "navigate_to_pose",
-        navigate,
-        cancel_callback=lambda _handle: CancelResponse.ACCEPT,
-        callback_group=group,
-    )
-spinner = Spinner(node, threads=4)
+    Navigation()
+spinner = Spinner(node)
 
 
 def make_goal(step: dict[str, Any]) -> Any:
@@ -252,7 +270,7 @@ for step in spec["goals"] if ready else []:
             cancelled = handle.cancel_goal_async()
         if preempt_in is not None and preempting is None and reached == preempt_in:
             preempting = send(step["preempt_with"])  # a new goal while this one runs, as a behaviour tree may send
-    wait(lambda: False, 1.0)  # the robot settles, the battery reports
+    wait(lambda: False, 0.5)  # the robot settles (the base stops within 0.1 s), the battery reports
     if preempting is None:
         report(step, result_future, feedback, before, cancelled)
         continue
@@ -263,7 +281,7 @@ for step in spec["goals"] if ready else []:
         continue
     second_future = second.get_result_async()
     wait(second_future.done, 150)
-    wait(lambda: False, 1.0)
+    wait(lambda: False, 0.5)
     report(step["preempt_with"], second_future, second_feedback, before, None, preempting=True)
 
 emit("navigator", goals=navigated)

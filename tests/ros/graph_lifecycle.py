@@ -55,7 +55,7 @@ detector = subprocess.Popen([sys.executable, "-c", DETECTOR, *files, "--lifecycl
 
 rclpy.init()
 node = rclpy.create_node("lifecycle_manager_navigation")
-spinner = Spinner(node, threads=3)
+spinner = Spinner(node)
 
 
 class ManagerBond:

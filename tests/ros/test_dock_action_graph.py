@@ -170,7 +170,7 @@ def _in_odom(start: list[float], in_dock: Pose2D) -> list[float]:
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_cancel_at_every_phase_preemption_staging_and_undock_time_limit() -> None:
-    start = [-2.4, 0.5, -0.1]
+    start = [-1.9, 0.4, -0.1]
     front = RobotConfig.default().front_offset
     docked_pose = _in_odom(start, Pose2D(-front, 0.0, 0.0))  # where base_link stands docked (Nav2's dock pose)
     params = [

@@ -83,6 +83,18 @@ def check_recording(folder: Path, run: GraphRun) -> None:
         assert counts.get("/monodock_dock/result", 0) >= 1, counts
     said = [s for r in run.records if r["kind"] == "step" for s in r["states"]]
     assert [s for s in states if s in said][-3:] == said[-3:], (states, said)
+    # /diagnostics: the sim's real-time factor every second, and the docking node's camera frames.
+    with AnyReader([folder]) as reader:
+        statuses = [
+            (s.name, {v.key: v.value for v in s.values})
+            for c, _, raw in reader.messages([c for c in reader.connections if c.topic == "/diagnostics"])
+            for s in reader.deserialize(raw, c.msgtype).status
+        ]
+    factors = [float(v["real_time_factor"]) for n, v in statuses if n.endswith("monodock_sim: real time")]
+    assert factors, statuses[:5]
+    assert all(0.0 < f < 1.5 for f in factors), factors
+    docking = [v for n, v in statuses if n.endswith("monodock_dock: docking")]
+    assert any(int(v["frames_perceived"]) > 0 for v in docking), docking[-3:]
 
 
 def steps(run: GraphRun) -> list[dict[str, Any]]:
@@ -174,6 +186,27 @@ def test_the_camera_stopping_mid_approach_is_recovered_from(record: Path) -> Non
     assert_docked(step)
     assert int(step["values"]["recoveries"]) >= 1
     assert "recover" in step["states"]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_a_camera_that_stays_silent_fails_the_docking_saying_no_frame_came(record: Path) -> None:
+    """No retries, and the camera silent from Moving₃ on: the mission fails for lost markers, and says the frames
+    never came (not that they came and were dropped); the robot stops short of the dock."""
+    run = run_graph(
+        {
+            "start": [-1.4, 0.05, 0.0],
+            "steps": ["dock"],
+            "params": {"max_retries": 0},
+            "fault": {"kind": "camera", "state": "moving3", "for": 10.0},
+        },
+        record=record,
+    )
+    (step,) = steps(run)
+    assert step["values"]["failure"] == "markers-lost", step
+    assert "no camera frame arrived in the last" in step["message"], step
+    assert step["truth"]["gap_cm"] > 2.0, step
+    assert not step["charging"], step
 
 
 @pytest.mark.slow

@@ -531,8 +531,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
 
             result = run_mission(robot, timed, mission, on_tick=self._on_tick)
             if result.failure in _LOST_MARKERS:  # did the frames come and go unseen, or never come?
-                window = max(config.lost_timeout, 2.0)
-                explained = robot.camera_stats.explain(robot.now(), window)
+                explained = robot.camera_stats.explain(robot.now(), config.lost_timeout)
                 result = dataclasses.replace(result, reason=f"{result.reason}; {explained}")
             self._remember(result, dock_type)
             self._publish_result(task, result, "")

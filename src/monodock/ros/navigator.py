@@ -38,10 +38,16 @@ class Navigator:
         self._action = NavigateToPose
         self._client: Any = ActionClient(node, NavigateToPose, NAVIGATE_TO_POSE, callback_group=callback_group)
         self.now, self.behavior_tree = now, behavior_tree
+        self._missing = False  # the last look found no server
 
     def available(self, timeout: float = 1.0) -> bool:
-        """Whether a navigate_to_pose server answers (navigator.cpp waits 1 s for one)."""
-        return bool(self._client.wait_for_server(timeout_sec=timeout))
+        """Whether a navigate_to_pose server answers (navigator.cpp waits 1 s for one). Once one was looked for in
+        vain, later goals look only briefly (a server that comes up later is seen by discovery meanwhile)."""
+        if self._client.server_is_ready():
+            return True
+        found = bool(self._client.wait_for_server(timeout_sec=0.1 if self._missing else timeout))
+        self._missing = not found
+        return found
 
     def go_to_pose(
         self, frame: str, pose: Pose2D, budget: float, preempted: Callable[[], bool], *, retried: bool = False

@@ -95,9 +95,8 @@ class CameraStats:
         if arrived == 0:
             return f"no camera frame arrived in the last {window:.1f} s (the camera or the simulation stalled)"
         dropped = arrived - taken
-        return (
-            f"in the last {window:.1f} s {arrived} camera frames arrived, {taken} were perceived"
-            + (f" and {dropped} dropped while the node was behind" if dropped > 0 else "")
+        return f"in the last {window:.1f} s {arrived} camera frames arrived, {taken} were perceived" + (
+            f" and {dropped} dropped while the node was behind" if dropped > 0 else " (the markers were not in them)"
         )
 
     def values(self) -> dict[str, str]:
