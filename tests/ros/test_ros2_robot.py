@@ -144,9 +144,11 @@ def test_a_lost_camera_is_told_from_a_node_that_fell_behind() -> None:
             stats.on_perceived(0.004, 0.07)
     said = stats.explain(now=12.0, window=1.2)
     assert "18 camera frames arrived, 3 were perceived and 15 dropped while the node was behind" in said
-    assert "no camera frame arrived" in stats.explain(now=20.0, window=1.2)
+    assert "no camera frame arrived in the last 8.1 s" in stats.explain(now=20.0, window=1.2)
+    stats.on_arrival(19.3)  # one frame still in flight when the camera went silent
+    assert "no camera frame arrived in the last 0.7 s" in stats.explain(now=20.0, window=1.2)
     values = stats.values()
-    assert (values["frames_arrived"], values["frames_perceived"], values["frames_dropped"]) == ("30", "6", "24")
+    assert (values["frames_arrived"], values["frames_perceived"], values["frames_dropped"]) == ("31", "6", "25")
     assert (values["processing_median_ms"], values["lag_p95_ms"]) == ("4.0", "70.0")
     stats.reset()
     assert stats.values()["frames_arrived"] == "0"

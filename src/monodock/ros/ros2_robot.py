@@ -89,11 +89,15 @@ class CameraStats:
             return sum(t >= start for t in self.arrived), sum(t >= start for t in self.taken)
 
     def explain(self, now: float, window: float) -> str:
-        """Whether the frames of the last ``window`` seconds came and were dropped, or never came: for a failure
-        for lost markers."""
+        """Whether the frames of the last ``window`` seconds came and were dropped, or stopped coming: for a failure
+        for lost markers. Frames stopped when none came in the last half of the window (one still in flight when the
+        camera went silent does not make it a camera that kept sending)."""
         arrived, taken = self.since(now - window)
-        if arrived == 0:
-            return f"no camera frame arrived in the last {window:.1f} s (the camera or the simulation stalled)"
+        with self._lock:
+            last = self.arrived[-1] if self.arrived else -math.inf
+        if now - last > window / 2:
+            silent = f"{now - last:.1f} s" if math.isfinite(last) else "the whole mission"
+            return f"no camera frame arrived in the last {silent} (the camera or the simulation stalled)"
         dropped = arrived - taken
         return f"in the last {window:.1f} s {arrived} camera frames arrived, {taken} were perceived" + (
             f" and {dropped} dropped while the node was behind" if dropped > 0 else " (the markers were not in them)"

@@ -19,8 +19,10 @@ lookup at time 0 (the latest) does, which is what Nav2's docking server asks for
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import math
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -142,29 +144,37 @@ class TransformTree:
 
 
 class TransformListener:
-    """``/tf`` and ``/tf_static`` on ``node``, for where the robot stands in a fixed frame; ``available`` is False
-    (and nothing is subscribed) without tf2_msgs."""
+    """``/tf`` and ``/tf_static`` on ``node``, for where the robot stands in a fixed frame. It subscribes at its first
+    ``pose`` (a node that never asks never pays for decoding /tf at 50 Hz) and waits a little then for the transforms
+    to come; ``available`` is False without tf2_msgs."""
 
     def __init__(self, node: Any) -> None:
         self.node, self.tree = node, TransformTree()
-        try:
-            from tf2_msgs.msg import TFMessage  # type: ignore[import-not-found, unused-ignore]
-        except ImportError:
-            self.available = False
-            return
+        self._subscribed = False
+        self.available = importlib.util.find_spec("tf2_msgs") is not None
+
+    def _subscribe(self) -> None:
         from rclpy.qos import DurabilityPolicy, QoSProfile  # type: ignore[import-not-found, unused-ignore]
+        from tf2_msgs.msg import TFMessage  # type: ignore[import-not-found, unused-ignore]
 
         latched = QoSProfile(depth=100, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(TFMessage, "/tf", self._on_tf, QoSProfile(depth=100))
-        node.create_subscription(TFMessage, "/tf_static", self._on_tf, latched)
-        self.available = True
+        self.node.create_subscription(TFMessage, "/tf", self._on_tf, QoSProfile(depth=100))
+        self.node.create_subscription(TFMessage, "/tf_static", self._on_tf, latched)
+        self._subscribed = True
 
     def _on_tf(self, msg: Any) -> None:
         self.tree.take(msg, lambda *_: None)
 
-    def pose(self, frame: str, base_frame: str) -> tuple[float, float, float] | None:
-        """(x, y, yaw) of ``base_frame`` in ``frame`` on the floor, or None when TF does not join them."""
-        T = self.tree.lookup(frame, base_frame)
+    def pose(self, frame: str, base_frame: str, wait: float = 1.0) -> tuple[float, float, float] | None:
+        """(x, y, yaw) of ``base_frame`` in ``frame`` on the floor, or None when TF does not join them (within
+        ``wait`` seconds of the first call). Called from a thread other than the node's executor's."""
+        if not self.available:
+            return None
+        if not self._subscribed:
+            self._subscribe()
+        end = time.monotonic() + wait
+        while (T := self.tree.lookup(frame, base_frame)) is None and time.monotonic() < end:
+            time.sleep(0.02)
         if T is None:
             return None
         return float(T[0, 3]), float(T[1, 3]), math.atan2(float(T[1, 0]), float(T[0, 0]))
