@@ -19,7 +19,6 @@ lookup at time 0 (the latest) does, which is what Nav2's docking server asks for
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import math
 import threading
 import time
@@ -151,7 +150,12 @@ class TransformListener:
     def __init__(self, node: Any) -> None:
         self.node, self.tree = node, TransformTree()
         self._subscribed = False
-        self.available = importlib.util.find_spec("tf2_msgs") is not None
+        try:
+            import tf2_msgs.msg  # type: ignore[import-not-found, unused-ignore]  # noqa: F401
+        except ImportError:
+            self.available = False
+        else:
+            self.available = True
 
     def _subscribe(self) -> None:
         from rclpy.qos import DurabilityPolicy, QoSProfile  # type: ignore[import-not-found, unused-ignore]
