@@ -156,10 +156,11 @@ _GROUPS_FILE = "MONODOCK_XDIST_GROUPS"
 
 # The tests of a minute or more (on a quiet 2-core machine), first: the slow tier's end-to-end runs, ROS 2 graphs
 # and long fuzz profiles, then the default tier's longest modules and tests.
+# The ROS 2 graphs are one group (below) and go to one worker as a unit, where its first test would be: right
+# after the longest CPU-bound runs, so that the group (about ten minutes, mostly real time) starts early.
 _FIRST = (
     "tests/cli/test_end_to_end.py::test_demo",
     "tests/evaluation/test_dock_sim.py::",
-    "tests/cli/test_commission.py::test_commission_a_wrong_world",
     "tests/ros/test_dock_graph.py::test_docking_over_dds_",
     "tests/ros/test_dock_action_graph.py::",
     "tests/ros/test_dock_graph.py::",
@@ -167,6 +168,7 @@ _FIRST = (
     "tests/fuzz/test_properties.py::",
     "tests/evaluation/test_robustness.py::",
     "tests/learning/test_pipeline.py::test_any_layout",
+    "tests/cli/test_commission.py::test_commission_a_wrong_world",
     "tests/dock/test_mission.py::test_dock_sim_writes",
     "tests/ros/",
 )
