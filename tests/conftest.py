@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import json
 import os
 import shutil
@@ -49,12 +50,21 @@ def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Calla
     (pytest's own for this run): the first worker to get the lock builds, the others wait for it and reuse the
     result. A build that failed leaves no ``.done`` mark: the next worker tries again (and fails the same way).
     The folder is the tests' to read, not to change.
+
+    With ``MONODOCK_TEST_CACHE`` set (.ci/run sets it), the folder is kept there across runs, keyed by the source
+    of monodock and of the tests' builders: CI's default tier builds it and its slow tier reuses it, and any change
+    to the code builds it afresh.
     """
-    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+    cache = os.environ.get("MONODOCK_TEST_CACHE")
+    if cache:
+        root = Path(cache) / f"{name}-{_source_key()}"
+    elif os.environ.get("PYTEST_XDIST_WORKER") is None:
         root = tmp_path_factory.mktemp(name)
         build(root)
         return root
-    root = tmp_path_factory.getbasetemp().parent / f"shared-{name}"
+    else:
+        root = tmp_path_factory.getbasetemp().parent / f"shared-{name}"
+    root.parent.mkdir(parents=True, exist_ok=True)
     with (root.parent / f"shared-{name}.lock").open("w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (root / ".done").exists():
@@ -63,6 +73,16 @@ def built_once(tmp_path_factory: pytest.TempPathFactory, name: str, build: Calla
             build(root)
             (root / ".done").touch()
     return root
+
+
+def _source_key() -> str:
+    """A digest of monodock's sources and of this file and tests/shared.py (what builds the fixtures)."""
+    here = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted([*(here.parent / "src" / "monodock").rglob("*.py"), here / "conftest.py", here / "shared.py"]):
+        digest.update(str(path.relative_to(here.parent)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
 
 
 def _record(path: Path, sim: Simulator, stops: int, seed: int) -> None:
