@@ -102,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
             failed = [r.get("failure", "") for r in docks if r.get("state") != "docked"]
             recoveries.append(count)
             factors.append(recording["worst_factor"])
-            per_start.append(f"{name}: {count}" + (f" ({', '.join(failed)})" if failed else ""))
+            shown = name.split("/", 1)[-1] if len(args.tests) == 1 else name  # one test: its starts are enough
+            per_start.append(f"{shown}: {count}" + (f" ({', '.join(failed)})" if failed else ""))
         worst = min((f for f in factors[-len(per_start) :] if not math.isnan(f)), default=math.nan)
         rows.append(
             [str(i + 1), "passed" if ok else "FAILED", "; ".join(per_start) or "—", fmt(worst), f"{run['wall']:.0f}"]
