@@ -17,7 +17,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-__all__ = ["GRACE_S", "Terminated", "exit_on_signal", "install_signal_handlers", "received", "sigint_blocked"]
+__all__ = [
+    "GRACE_S",
+    "HeldSignals",
+    "Terminated",
+    "exit_on_signal",
+    "install_signal_handlers",
+    "received",
+    "sigint_blocked",
+]
 
 # A second signal this soon after the first is ignored: the clean-up the first one started must finish.
 GRACE_S = 5.0
@@ -95,3 +103,38 @@ def sigint_blocked() -> Iterator[None]:
     finally:
         signal.signal(signal.SIGINT, previous)
         signal.pthread_sigmask(signal.SIG_SETMASK, previous_mask)
+
+
+class HeldSignals:
+    """Ctrl-C and SIGTERM held while worker processes start, until ``release()``: SIGINT ignored and blocked as
+    ``sigint_blocked`` does (the workers inherit the ignoring), and SIGTERM only noted, then raised by ``release()``
+    through the handler it had (main thread only, as ``signal.signal`` is).
+
+    Why SIGTERM too: a spawned worker first reads what its parent sends it over a pipe; SIGTERM raised in the parent
+    between the worker's start and that write left the worker to die of ``EOFError`` with a traceback on the user's
+    terminal (CI caught it). Held, it is raised once every worker has what it needs and the caller's clean-up is in
+    place. It is noted by a handler, not blocked: a process-directed signal goes to any thread that does not block
+    it (OpenCV's and BLAS's included), and only the handler runs in the main thread whichever thread took it. The
+    workers start with SIGTERM's default action (a handler is not inherited across exec), so terminate ends them.
+    """
+
+    def __init__(self) -> None:
+        self._noted: list[int] = []
+        self._mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        self._sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        self._sigterm = signal.signal(signal.SIGTERM, self._note)
+        self._held = True
+
+    def _note(self, signum: int, _frame: FrameType | None) -> None:
+        self._noted.append(signum)
+
+    def release(self) -> None:
+        """The handlers and the mask as they were; a SIGINT or SIGTERM held meanwhile is raised here. Once only."""
+        if not self._held:
+            return
+        self._held = False
+        signal.signal(signal.SIGINT, self._sigint)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if self._sigterm is None else self._sigterm)
+        signal.pthread_sigmask(signal.SIG_SETMASK, self._mask)
+        if self._noted:
+            signal.raise_signal(signal.SIGTERM)

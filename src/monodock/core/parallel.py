@@ -21,7 +21,7 @@ from typing import Any, TypeVar
 import cv2
 
 from monodock.core.cluster import active_client, cluster_map
-from monodock.core.interrupt import sigint_blocked
+from monodock.core.interrupt import HeldSignals
 
 S = TypeVar("S")
 T = TypeVar("T")
@@ -35,7 +35,7 @@ SINGLE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_N
 
 def _start_worker(initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
     # The parent stops the workers (Pool.terminate) on Ctrl-C; a worker's own KeyboardInterrupt would only print
-    # a traceback. SIGINT is blocked from the worker's start already (sigint_blocked); this keeps it so.
+    # a traceback. SIGINT is ignored from the worker's start already (HeldSignals); this keeps it so.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     cv2.setNumThreads(1)
     if initializer is not None:
@@ -51,19 +51,24 @@ def worker_pool(
     """A pool of ``jobs`` spawned, single-threaded worker processes; ``initializer(*initargs)`` runs in each."""
     saved = {k: os.environ.get(k) for k in SINGLE_THREAD_ENV}
     os.environ.update(SINGLE_THREAD_ENV)
+    # The workers are started here, and take the environment (and the ignored SIGINT) as it is now; a Ctrl-C or
+    # SIGTERM meanwhile waits until every worker has been sent what it starts from (HeldSignals says why).
+    held = HeldSignals()
     try:
-        # The workers are started here, and take the environment (and the blocked SIGINT) as it is now.
-        with sigint_blocked():
+        try:
             pool = mp.get_context("spawn").Pool(jobs, initializer=_start_worker, initargs=(initializer, initargs))
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+        # Leaving the block, by an exception (Ctrl-C, SIGTERM, an error) or not, terminates the workers at once.
+        with pool:
+            held.release()  # a signal held while they started is raised here, and the pool terminates
+            yield pool
     finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-    # Leaving the block, by an exception (Ctrl-C, SIGTERM, an error) or not, terminates the workers at once.
-    with pool:
-        yield pool
+        held.release()
 
 
 _STATE: Any = None
