@@ -13,13 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from monodock.calibrate.survey import (
-    SurveyLimits,
-    SurveyView,
-    survey_layout,
-    survey_views,
-    surveyed_layout_text,
-)
+from monodock.calibrate.survey import SurveyLimits, survey_layout, surveyed_layout_text
+from monodock.calibrate.survey_views import SurveyView, survey_views
 from monodock.cli.main import main
 from monodock.core import transforms
 from monodock.core.frame import Frame

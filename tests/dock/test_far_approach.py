@@ -14,14 +14,8 @@ import pytest
 
 from monodock.core.pose import wrap_angle
 from monodock.dock import DockingConfig, DockingMission, Pose2D, State, run_mission
-from monodock.dock.controller import (
-    FailureReason,
-    beyond_manoeuvre,
-    blind_gap,
-    leg_end,
-    off_axis,
-    staging_point,
-)
+from monodock.dock.controller import FailureReason, blind_gap
+from monodock.dock.far_approach import beyond_manoeuvre, leg_end, off_axis, staging_point
 from monodock.dock.pose_filter import MeasurementNoise
 from monodock.errors import ConfigError
 from shared import TruthfulRobot, truthful_robot

@@ -19,14 +19,13 @@ from monodock.dock.controller import (
     DockingConfig,
     DockingMission,
     FailureReason,
-    MissionResult,
     Observation,
     State,
     blind_gap,
-    run_mission,
 )
 from monodock.dock.planner import PlannerConfig, plan_monodock
 from monodock.dock.pose_filter import MeasurementNoise
+from monodock.dock.run import MissionResult, run_mission
 from monodock.sim.faults import Obstacle
 from shared import TruthfulRobot, truthful_robot
 

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from charuco import CAMERA, DICTIONARY, HELD_OUT, PHOTOS, image, one_marker_dock, radial_errors, reference
-from monodock.calibrate.survey import SurveyLimits, survey_layout, survey_views
+from monodock.calibrate.survey import SurveyLimits, survey_layout
+from monodock.calibrate.survey_views import survey_views
 from monodock.core.camera import CameraModel
 from monodock.core.frame import Frame
 from monodock.core.layout import DockLayout, MarkerSpec

@@ -19,7 +19,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 from monodock.calibrate.mount import MountCalibration, calibrate_mount_of, frames_from_recording
-from monodock.calibrate.survey import LayoutSurvey, SurveyLimits, SurveyView, survey_layout, views_from_inputs
+from monodock.calibrate.survey import LayoutSurvey, SurveyLimits, survey_layout
+from monodock.calibrate.survey_views import SurveyView, views_from_inputs
 from monodock.calibrate.teach import TaughtPose, teach_from_recording
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout

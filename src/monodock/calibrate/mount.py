@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
-from monodock.calibrate.survey import survey_views
+from monodock.calibrate.survey_views import survey_views
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
 from monodock.core.frame import Frame

@@ -20,57 +20,42 @@ What images can and cannot tell:
 
 The standard deviations come from the fit's covariance (the robust residuals' scale times (JᵀJ)⁻¹), carried
 through the definition of the dock frame to every value written.
+
+The parts: the views and their corners (``calibrate.survey_views``) and the bundle adjustment
+(``calibrate.survey_fit``); this module checks the views, defines the dock frame, writes the layout and refuses
+what the views leave uncertain.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
+from monodock.calibrate.survey_fit import _covariance, _Problem, _solve, _view_rms
+from monodock.calibrate.survey_views import SurveyView, ViewNote
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
 from monodock.core.config import yaml_text
-from monodock.core.frame import Frame
 from monodock.core.layout import FACE_R_MARKER, ROLES, DockLayout, MarkerSpec
 from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
-from monodock.io.frames import open_frames
-from monodock.perception.detect import MarkerDetector, as_gray
-from monodock.perception.edge_offset import (
-    EdgeOffset,
-    clipped_roles,
-    detection_edge_offset,
-    estimate_edge_offset,
-    offset_corners,
-)
-from monodock.perception.marker_fit import fit_marker
-from monodock.perception.refine import refine_detection
-from monodock.recording.read import is_recording, open_recording
+from monodock.perception.edge_offset import EdgeOffset
 
 __all__ = [
     "LayoutSurvey",
     "MarkerSurvey",
     "SurveyLimits",
-    "SurveyView",
-    "ViewNote",
     "survey_layout",
-    "survey_views",
     "surveyed_layout_text",
-    "views_from_inputs",
 ]
 
 # The values written per marker, in this order (metres and radians).
 VALUES = ("x", "y", "z", "roll", "pitch", "yaw", "size")
-# The soft-L1 loss's scale, px: corners within it count as squares, beyond it as their distance.
-LOSS_SCALE_PX = 0.5
 # A view whose RMS reprojection error is this many times the median view's (and over 1 px) is dropped.
 OUTLIER_VIEW_FACTOR = 5.0
 # Fewest views the survey accepts (the standard deviations decide whether they were enough).
@@ -95,31 +80,6 @@ class SurveyLimits:
         if value in ("x", "y", "z"):
             return self.position_sd
         return self.size_sd if value == "size" else self.angle_sd
-
-
-@dataclass(frozen=True)
-class SurveyView:
-    """One view's usable markers: each role's corners (4, 2), px, ArUco order; its image; the roles with clipped
-    pixels (the refiner took their edges' shift out already: the edge offset is not theirs); and the roles whose
-    corners come from the photometric fit of the whole marker (``perception.marker_fit``: its own edge offset is
-    out already)."""
-
-    name: str
-    corners: Mapping[str, NDArray[np.float64]]
-    image: NDArray[np.uint8] | None = field(default=None, repr=False, compare=False)
-    clipped: tuple[str, ...] = ()
-    fitted: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class ViewNote:
-    """What became of one input view: used (with its RMS reprojection error) or skipped, and why."""
-
-    name: str
-    roles: tuple[str, ...]
-    used: bool
-    rms_px: float = math.nan
-    reason: str = ""
 
 
 @dataclass(frozen=True)
@@ -198,332 +158,6 @@ def surveyed_layout_text(survey: LayoutSurvey, layout: DockLayout | None = None)
     return head + body + yaml_text({"survey": survey.record()}, flow=None)
 
 
-# --- the views --------------------------------------------------------------------------------------------------
-
-
-def survey_views(
-    frames: Iterable[Frame], camera: CameraModel, layout: DockLayout, *, keep_images: bool = False
-) -> tuple[list[SurveyView], list[ViewNote], EdgeOffset | None]:
-    """Each frame's dock markers with bias-free corners, free of the print's edge offset.
-
-    A survey can afford what a robot's frame cannot: each unclipped marker's corners come from the photometric fit
-    of its whole printed pattern (``perception.marker_fit``, ~10 ms a marker), which measures the marker's edge
-    offset and takes it out. On real photographs of a printed board its corners are 0.17-0.30 px RMS from the
-    truth where the per-frame refiner's, with the pooled offset, are 0.19-0.58 px (``bench/real_photos.py``).
-    A marker the fit refuses, or one with clipped pixels (whose edges the fit's linear levels cannot model),
-    keeps the refiner's corners, corrected by the pooled offset.
-
-    Returns the views (a marker whose corners could not be refined is left out), a note per skipped frame, and
-    the edge offset pooled over every unclipped marker's code runs (``perception.edge_offset``; None when the
-    markers are too small to measure it, and then no correction): the layout's ``edge_offset``, which the
-    per-frame methods apply to the refiner's corners.
-    """
-    detector = MarkerDetector(layout)
-    views: list[SurveyView] = []
-    skipped: list[ViewNote] = []
-    runs: list[NDArray[np.float64]] = []
-    for frame in frames:
-        if frame.image is None:
-            skipped.append(ViewNote(frame.name, (), False, reason=frame.error or "unreadable"))
-            continue
-        gray = as_gray(frame.image)
-        if (gray.shape[1], gray.shape[0]) != camera.size:
-            raise InputError(
-                f"{frame.name} is {gray.shape[1]}x{gray.shape[0]} but the camera is {camera.width}x{camera.height}"
-            )
-        detection = refine_detection(gray, detector.detect(gray), camera, modules=layout.modules)
-        corners = {r: o.corners for r, o in detection.observations.items() if r not in detection.unrefined}
-        if not corners:
-            skipped.append(ViewNote(frame.name, (), False, reason="no dock marker found"))
-            continue
-        runs += detection_edge_offset(gray, detection, camera, layout)
-        clipped = clipped_roles(gray, detection, modules=layout.modules)
-        fitted = []
-        for role, refined in list(corners.items()):
-            if role in clipped:
-                continue
-            fit = fit_marker(gray, refined, camera, layout.marker_bits(layout.marker(role).id))
-            if fit is not None:
-                corners[role] = fit.corners
-                fitted.append(role)
-        views.append(SurveyView(frame.name, corners, gray if keep_images else None, clipped, tuple(fitted)))
-    offset = pooled_edge_offset(runs)
-    if offset is not None:
-        views = [corrected_view(v, offset.offset_px) for v in views]
-    return views, skipped, offset
-
-
-def pooled_edge_offset(runs: Sequence[NDArray[np.float64]]) -> EdgeOffset | None:
-    """The edge offset of many markers' runs, or None when they are too few to tell it."""
-    try:
-        return estimate_edge_offset(runs)
-    except InputError:
-        return None
-
-
-def corrected_view(view: SurveyView, offset_px: float) -> SurveyView:
-    """The view with its refiner's corners (neither clipped nor fitted) corrected by the edge offset."""
-    keep = (*view.clipped, *view.fitted)
-    corners = {r: c if r in keep else offset_corners(c, offset_px) for r, c in view.corners.items()}
-    return replace(view, corners=corners)
-
-
-def views_from_inputs(
-    images: Sequence[str],
-    camera: CameraModel | None,
-    nominal: DockLayout,
-    *,
-    max_views: int = 40,
-    keep_images: bool = False,
-) -> tuple[list[SurveyView], list[ViewNote], CameraModel, EdgeOffset | None]:
-    """The views of the inputs (every frame of a video or recording; the views thinned evenly to ``max_views``),
-    the skipped frames and the camera."""
-    if camera is None:
-        recordings = [i for i in images if is_recording(i)]
-        if not recordings:
-            raise InputError("give --camera (the calibration of the camera that took the views)")
-        with open_recording(recordings[0]) as rec:
-            camera = rec.camera()
-        if camera is None:
-            raise InputError(f"{recordings[0]} has no CameraInfo: give --camera")
-    with open_frames(images, skip_bad=True) as source:
-        views, skipped, offset = survey_views(source, camera, nominal, keep_images=keep_images)
-    if len(views) > max_views:
-        step = (len(views) - 1) / (max_views - 1)
-        views = [views[round(k * step)] for k in range(max_views)]
-    return views, skipped, camera, offset
-
-
-# --- the problem ------------------------------------------------------------------------------------------------
-
-
-def _rotation(w: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """exp(w) and its derivative: R (3, 3) and dR/dw (3, 3, 3), [i] = dR/dw_i."""
-    R, J = cv2.Rodrigues(np.ascontiguousarray(w, dtype=np.float64))
-    return np.asarray(R, dtype=np.float64), np.asarray(J, dtype=np.float64).reshape(3, 3, 3)
-
-
-def _rz_t(theta: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Rz(theta) transposed, and its derivative."""
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]), np.array([[-s, c, 0.0], [-c, -s, 0.0], [0, 0, 0]])
-
-
-@dataclass
-class _Problem:
-    """The bundle adjustment's unknowns, packed into one vector; its residuals and their analytic Jacobian.
-
-    The working frame W: without robot views the centre marker's own frame (fixed: the gauge); with them the dock
-    frame with z up the floor's normal, the centre marker's centre above its origin and its yaw fixed (the gauge
-    the robot views leave: where on the floor and which way round), its roll, pitch and height free. Each other
-    marker: a rotation vector about its start (left-multiplied), its centre in W, and the log of its side
-    against the nominal; the centre marker's log side is minus the sum of the others' (their mean is the
-    nominal's). Each view: the rotation vector about its start and the translation of cam_T_W, or for a robot
-    view base_link's (x, y, yaw) on the floor. Every derivative is chained through the optical-frame point and
-    OpenCV's projection Jacobian.
-    """
-
-    views: Sequence[SurveyView]
-    camera: CameraModel
-    nominal: DockLayout
-    robot: RobotConfig | None
-
-    def __post_init__(self) -> None:
-        nominal = self.nominal
-        if self.robot is None:
-            centre_T_dock = transforms.invert(nominal.dock_T_marker("center"))
-            self.W_T_marker0 = {r: centre_T_dock @ nominal.dock_T_marker(r) for r in ROLES}
-        else:
-            self.W_T_marker0 = {r: nominal.dock_T_marker(r) for r in ROLES}
-            self.optical_T_base = transforms.invert(self.robot.base_T_optical())
-        self.free = [r for r in ROLES if r != "center"]
-        self.n_marker = 7 * len(self.free) + (3 if self.robot is not None else 0)
-        self.n_view = 3 if self.robot is not None else 6
-        self.n = self.n_marker + self.n_view * len(self.views)
-        self.K, self.dist = self.camera.matrix, self.camera.dist
-        self.squares = {r: nominal.corners_in_marker(r) for r in ROLES}
-        self.cam_T_W0 = [transforms.invert(self._start_view(v)) for v in self.views]
-
-    # packing --------------------------------------------------------------------------------------------------
-
-    def start(self) -> NDArray[np.float64]:
-        p = np.zeros(self.n)
-        for i, r in enumerate(self.free):
-            p[7 * i + 3 : 7 * i + 6] = self.W_T_marker0[r][:3, 3]
-        if self.robot is not None:
-            c = self.nominal.marker("center")
-            p[7 * len(self.free) : self.n_marker] = (c.roll, c.pitch, c.z)
-        for k, cam_T_W in enumerate(self.cam_T_W0):
-            q = slice(self.n_marker + self.n_view * k, self.n_marker + self.n_view * (k + 1))
-            if self.robot is None:
-                p[q][3:] = cam_T_W[:3, 3]
-            else:
-                base = transforms.invert(cam_T_W) @ self.optical_T_base
-                p[q] = (base[0, 3], base[1, 3], transforms.yaw_of(base))
-        return p
-
-    def _marker(self, p: NDArray[np.float64], role: str) -> tuple[Any, ...]:
-        """Role's rotation R and centre t in W, its side's scale against the nominal, and dR/d(its rotation
-        parameters) (3, 3, 3) or, for the robot views' centre marker, d/d(roll, pitch)."""
-        if role == "center":
-            scale = math.exp(-sum(float(p[7 * i + 6]) for i in range(len(self.free))))
-            if self.robot is None:
-                return np.eye(3), np.zeros(3), scale, None
-            roll, pitch, z = p[7 * len(self.free) : self.n_marker]
-            yaw = self.nominal.marker("center").yaw
-            R = transforms.rotation_from_rpy(roll, pitch, yaw) @ FACE_R_MARKER
-            h = 1e-7
-            dR = np.stack(
-                [
-                    (transforms.rotation_from_rpy(roll + h, pitch, yaw) @ FACE_R_MARKER - R) / h,
-                    (transforms.rotation_from_rpy(roll, pitch + h, yaw) @ FACE_R_MARKER - R) / h,
-                ]
-            )
-            return R, np.array([0.0, 0.0, z]), scale, dR
-        i = self.free.index(role)
-        q = p[7 * i : 7 * i + 7]
-        E, dE = _rotation(q[:3])
-        R0 = self.W_T_marker0[role][:3, :3]
-        return E @ R0, q[3:6], math.exp(float(q[6])), dE @ R0
-
-    def markers(self, p: NDArray[np.float64]) -> tuple[dict[str, NDArray[np.float64]], dict[str, float]]:
-        """Each marker's pose in W (4x4) and its side, metres."""
-        poses, sides = {}, {}
-        for r in ROLES:
-            R, t, scale, _ = self._marker(p, r)
-            poses[r] = transforms.transform(R, t)
-            sides[r] = self.nominal.side(r) * scale
-        return poses, sides
-
-    def _view(self, p: NDArray[np.float64], k: int) -> tuple[Any, ...]:
-        q = p[self.n_marker + self.n_view * k : self.n_marker + self.n_view * (k + 1)]
-        if self.robot is None:
-            E, dE = _rotation(q[:3])
-            R0 = self.cam_T_W0[k][:3, :3]
-            return E @ R0, q[3:6], dE @ R0
-        Rt, dRt = _rz_t(float(q[2]))
-        R = self.optical_T_base[:3, :3] @ Rt
-        return R, self.optical_T_base[:3, 3] - R @ np.array([q[0], q[1], 0.0]), (Rt, dRt, q)
-
-    def view(self, p: NDArray[np.float64], k: int) -> NDArray[np.float64]:
-        """View k's camera (optical frame) in W, 4x4."""
-        R, t, _ = self._view(p, k)
-        return transforms.invert(transforms.transform(R, t))
-
-    # residuals and Jacobian --------------------------------------------------------------------------------------
-
-    def _evaluate(self, p: NDArray[np.float64], jacobian: bool) -> tuple[NDArray[np.float64], Any]:
-        rows = sum(8 * len(v.corners) for v in self.views)
-        res = np.empty(rows)
-        J = np.zeros((rows, self.n)) if jacobian else None
-        markers = {r: self._marker(p, r) for r in ROLES}
-        row = 0
-        for k, view in enumerate(self.views):
-            Rv, tv, dv = self._view(p, k)
-            vcol = self.n_marker + self.n_view * k
-            for r, observed in view.corners.items():
-                Rm, tm, scale, dRm = markers[r]
-                local = self.squares[r] * scale
-                P_W = local @ Rm.T + tm
-                P_cam = P_W @ Rv.T + tv
-                px, jac = cv2.projectPoints(P_cam, np.zeros(3), np.zeros(3), self.K, self.dist)
-                res[row : row + 8] = (np.asarray(px).reshape(-1, 2) - observed).ravel()
-                if J is not None:
-                    # d pixel / d P_cam per corner: (4, 2, 3); then per unknown d P_cam / d unknown (4, 3, m).
-                    D = np.asarray(jac, dtype=np.float64)[:, 3:6].reshape(4, 2, 3)
-                    self._fill(J[row : row + 8], D, P_W, local, Rm, Rv, dv, dRm, r, vcol)
-                row += 8
-        return res, J
-
-    def _fill(
-        self,
-        block: NDArray[np.float64],
-        D: NDArray[np.float64],
-        P_W: NDArray[np.float64],
-        local: NDArray[np.float64],
-        Rm: NDArray[np.float64],
-        Rv: NDArray[np.float64],
-        dv: Any,
-        dRm: NDArray[np.float64] | None,
-        role: str,
-        vcol: int,
-    ) -> None:
-        """One marker's 8 rows of the Jacobian in one view."""
-
-        def put(col: int, dP_cam: NDArray[np.float64]) -> None:  # dP_cam (4, 3)
-            block[:, col] = np.einsum("nij,nj->ni", D, dP_cam).ravel()
-
-        # The view's unknowns.
-        if self.robot is None:
-            for i in range(3):
-                put(vcol + i, P_W @ dv[i].T)  # d(E R0 P) / dw_i with E R0 = Rv
-                put(vcol + 3 + i, np.tile(np.eye(3)[i], (4, 1)))
-        else:
-            Rt, dRt, q = dv
-            Rob = self.optical_T_base[:3, :3]
-            for i in range(2):
-                put(vcol + i, np.tile(-Rob @ Rt[:, i], (4, 1)))
-            put(vcol + 2, (P_W - np.array([q[0], q[1], 0.0])) @ (Rob @ dRt).T)
-        # The marker's unknowns, through d P_cam / d P_W = Rv.
-        corner_W = local @ Rm.T  # the corners about the marker's centre, in W
-        if role != "center":
-            c = 7 * self.free.index(role)
-            assert dRm is not None
-            for i in range(3):
-                put(c + i, (local @ dRm[i].T) @ Rv.T)
-                put(c + 3 + i, np.tile(Rv[:, i], (4, 1)))
-            put(c + 6, corner_W @ Rv.T)
-        else:
-            for i in range(len(self.free)):
-                put(7 * i + 6, -corner_W @ Rv.T)
-            if self.robot is not None and dRm is not None:
-                c = 7 * len(self.free)
-                put(c, (local @ dRm[0].T) @ Rv.T)
-                put(c + 1, (local @ dRm[1].T) @ Rv.T)
-                put(c + 2, np.tile(Rv[:, 2], (4, 1)))
-
-    def residuals(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
-        return self._evaluate(p, False)[0]
-
-    def jacobian(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
-        J = self._evaluate(p, True)[1]
-        assert J is not None
-        return np.asarray(J)
-
-    def _project(self, cam_T_W: NDArray[np.float64], pts: NDArray[np.float64]) -> NDArray[np.float64]:
-        px, _ = cv2.projectPoints(transforms.apply(cam_T_W, pts), np.zeros(3), np.zeros(3), self.K, self.dist)
-        return np.asarray(px, dtype=np.float64).reshape(-1, 2)
-
-    # starts ----------------------------------------------------------------------------------------------------
-
-    def _start_view(self, view: SurveyView) -> NDArray[np.float64]:
-        """The view's camera in W from PnP on its markers at their nominal places (the best of IPPE's
-        solutions by reprojection)."""
-        roles = [r for r in ROLES if r in view.corners]
-        obj = np.concatenate([transforms.apply(self.W_T_marker0[r], self.nominal.corners_in_marker(r)) for r in roles])
-        img = np.concatenate([view.corners[r] for r in roles])
-        if len(roles) == 1:
-            ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(
-                self.nominal.corners_in_marker(roles[0]), img, self.K, self.dist, flags=cv2.SOLVEPNP_IPPE_SQUARE
-            )
-            inner = self.W_T_marker0[roles[0]]
-        else:
-            ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, self.K, self.dist, flags=cv2.SOLVEPNP_IPPE)
-            if not ok:  # a nominal layout whose markers are not in one plane (a surveyed one): IPPE needs one
-                ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, img, self.K, self.dist, flags=cv2.SOLVEPNP_SQPNP)
-            inner = np.eye(4)
-        best, best_rms = None, math.inf
-        for rvec, tvec in zip(rvecs, tvecs, strict=True) if ok else ():
-            T = transforms.transform(_rotation(np.asarray(rvec, dtype=np.float64).ravel())[0], np.asarray(tvec).ravel())
-            cam_T_W = T @ transforms.invert(inner)
-            rms = float(np.sqrt(np.mean((self._project(cam_T_W, obj) - img) ** 2)))
-            if rms < best_rms:
-                best, best_rms = cam_T_W, rms
-        if best is None:
-            raise InputError(f"view {view.name}: no camera pose fits its markers")
-        return transforms.invert(best)
-
-
 # --- the dock frame and the layout ------------------------------------------------------------------------------
 
 
@@ -577,15 +211,6 @@ def _layout_values(
         roll, pitch, yaw = transforms.rpy_from_rotation(T[:3, :3] @ FACE_R_MARKER.T)
         out[i] = (T[0, 3], T[1, 3], T[2, 3], roll, pitch, yaw, sides[r])
     return out, W_T_dock
-
-
-def _covariance(result: Any, m: int) -> NDArray[np.float64]:
-    """The unknowns' covariance: the robust residuals' variance times (JᵀJ)⁻¹ (a pseudo-inverse: a gauge left
-    free shows as a huge variance, not as a crash)."""
-    J = np.asarray(result.jac.toarray() if hasattr(result.jac, "toarray") else result.jac, dtype=np.float64)
-    n = J.shape[1]
-    s2 = 2.0 * float(result.cost) / max(m - n, 1)
-    return np.asarray(s2 * np.linalg.pinv(J.T @ J, rcond=1e-12), dtype=np.float64)
 
 
 def _value_sd(
@@ -751,33 +376,6 @@ def survey_layout(
         camera_poses={v.name: dock_T_W @ problem.view(p, k) for k, v in enumerate(usable)},
         notes=notes_text,
     )
-
-
-def _solve(
-    views: Sequence[SurveyView], camera: CameraModel, nominal: DockLayout, robot: RobotConfig | None
-) -> tuple[_Problem, Any]:
-    problem = _Problem(views, camera, nominal, robot)
-    result = least_squares(
-        problem.residuals,
-        problem.start(),
-        jac=problem.jacobian,
-        loss="soft_l1",
-        f_scale=LOSS_SCALE_PX,
-        method="trf",
-        x_scale="jac",
-        xtol=1e-12,
-        ftol=1e-12,
-        gtol=1e-12,
-        max_nfev=200,
-    )
-    return problem, result
-
-
-def _view_rms(problem: _Problem, p: NDArray[np.float64]) -> NDArray[np.float64]:
-    res = problem.residuals(p)
-    sizes = [8 * len(v.corners) for v in problem.views]
-    bounds = np.cumsum([0, *sizes])
-    return np.array([math.sqrt(2.0 * float(np.mean(res[a:b] ** 2))) for a, b in itertools.pairwise(bounds)])
 
 
 def _check_limits(sd: NDArray[np.float64], limits: SurveyLimits, robot: bool) -> None:

@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 from monodock.calibrate.mount import calibrate_mount_of, frames_from_recording
-from monodock.calibrate.survey import SurveyLimits, survey_layout, surveyed_layout_text, views_from_inputs
+from monodock.calibrate.survey import SurveyLimits, survey_layout, surveyed_layout_text
+from monodock.calibrate.survey_views import views_from_inputs
 from monodock.cli.options import SubParsers, float_in, int_in
 from monodock.core.atomic import check_writable, write_text_atomic
 from monodock.core.camera import CameraModel

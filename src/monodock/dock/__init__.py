@@ -6,10 +6,8 @@ from monodock.dock.controller import (
     DockingConfig,
     DockingMission,
     FailureReason,
-    MissionResult,
     Observation,
     State,
-    run_mission,
 )
 from monodock.dock.interface import CameraFrame, Odometry, RobotInterface
 from monodock.dock.planner import (
@@ -24,6 +22,7 @@ from monodock.dock.planner import (
     plan_papers,
     point_a,
 )
+from monodock.dock.run import MissionResult, run_mission
 
 __all__ = [
     "CASES",

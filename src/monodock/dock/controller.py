@@ -17,18 +17,18 @@ says why as a ``FailureReason`` (the kind of error code Nav2's docking server re
 
 The parts: the states and failure reasons (``dock.states``), the control law as pure functions
 (``dock.control_law``), what the mission knows of the dock (``dock.tracking.DockTrack``: frames placed by the
-odometry, the filter) and the gains (``dock.config.DockingConfig``). This module sequences them.
+odometry, the filter), the gains (``dock.config.DockingConfig``), the far approach's geometry (``dock.far_approach``)
+and each state's data (``dock.phases``). This module sequences them; ``dock.run.run_mission`` runs a mission on a
+robot.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import TypeVar
+from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
@@ -38,7 +38,19 @@ from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock import control_law as law
 from monodock.dock.config import DockingConfig
-from monodock.dock.interface import Odometry, RobotInterface
+from monodock.dock.far_approach import beyond_manoeuvre, leg_end, off_axis, staging_point
+from monodock.dock.interface import Odometry
+from monodock.dock.phases import (
+    _P,
+    _Acquiring,
+    _Approaching,
+    _Calculating,
+    _Centring,
+    _FarLeg,
+    _Phase,
+    _Reversing,
+    _Undocking,
+)
 from monodock.dock.planner import Manoeuvre, plan_for, point_a
 from monodock.dock.states import FailureReason, State
 from monodock.dock.tracking import DockTrack, Observation, Perceive, make_perceive
@@ -48,72 +60,12 @@ __all__ = [
     "DockingConfig",
     "DockingMission",
     "FailureReason",
-    "MissionResult",
     "Observation",
     "Perceive",
     "State",
-    "beyond_manoeuvre",
     "blind_gap",
-    "leg_end",
     "make_perceive",
-    "off_axis",
-    "run_mission",
-    "staging_point",
 ]
-
-
-@dataclass
-class MissionResult:
-    """How a mission ended, as the robot itself sees it (the simulator's truth is not in here)."""
-
-    state: State
-    failure: FailureReason | None  # why it failed; None when docked
-    reason: str  # the human detail, with the numbers (empty when docked)
-    case: int | None
-    retries: int
-    duration: float
-    estimated_final: Pose2D | None  # the robot's pose in the dock frame by its own estimate
-    impact_speed: float | None = None
-    log: list[tuple[float, str]] = field(default_factory=list)
-    reseats: int = 0
-    charging: bool | None = None  # whether the charger confirmed charging; None when the robot cannot tell
-    recoveries: int = 0  # of ``retries``: those after the markers were lost
-    obstacle_waits: int = 0  # reverse legs stopped for something behind (until it cleared or the mission gave up)
-
-    @property
-    def docked(self) -> bool:
-        return self.state is State.DOCKED
-
-    @property
-    def succeeded(self) -> bool:
-        """Docked, or undocked for an undocking mission."""
-        return self.state in (State.DOCKED, State.UNDOCKED)
-
-
-def off_axis(robot: Pose2D) -> float:
-    """How far the robot (base_link, dock frame) stands off the dock's axis, seen from the face centre (rad, ≥ 0)."""
-    return abs(math.atan2(robot.y, -robot.x))
-
-
-def beyond_manoeuvre(robot: Pose2D, c: DockingConfig) -> bool:
-    """Whether the robot (dock frame) stands beyond what the manoeuvre takes on: farther than ``far_distance`` from
-    the face centre or more than ``far_bearing_deg`` off the axis; the far approach brings it in first."""
-    return math.hypot(robot.x, robot.y) > c.far_distance or off_axis(robot) > math.radians(c.far_bearing_deg)
-
-
-def staging_point(dock: Pose2D, c: DockingConfig) -> Pose2D:
-    """Where the far approach makes for, in odometry: ``staging_distance`` before the face on the dock's axis
-    (``dock``: the dock's pose in odometry), facing the face."""
-    return dock.compose(Pose2D(-c.staging_distance, 0.0, 0.0))
-
-
-def leg_end(pose: Pose2D, stage: Pose2D, remaining: float) -> Pose2D:
-    """Where the current far leg ends: the staging point, or ``remaining`` metres towards it when it is farther."""
-    d = pose.distance(stage)
-    if d <= max(remaining, 0.0) or d == 0.0:
-        return stage
-    k = max(remaining, 0.0) / d
-    return Pose2D(pose.x + k * (stage.x - pose.x), pose.y + k * (stage.y - pose.y), stage.theta)
 
 
 def blind_gap(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> float:
@@ -147,68 +99,6 @@ class _Targets:
     drive_heading: float
     final_heading: float
     reverse: bool
-
-
-# --- what each state keeps while the mission is in it (``DockingMission.phase``) ------------------------------
-
-
-@dataclass
-class _Acquiring:
-    """``ACQUIRE``: how far the robot has turned looking for the dock (rad)."""
-
-    turned: float = 0.0
-
-
-@dataclass
-class _Calculating:
-    """``CALCULATE``: the frames taken so far (odometry at the frame, its estimate and covariance), their marker
-    counts, and the heading before a centring turn when the robot came from one (it is not centred again)."""
-
-    samples: list[tuple[Pose2D, DockPose, NDArray[np.float64]]] = field(default_factory=list)
-    markers: list[int] = field(default_factory=list)
-    heading_before_center: float | None = None
-
-
-@dataclass(frozen=True)
-class _Centring:
-    """``CENTER``: the heading that faces the dock, and the one the robot had when it began to turn."""
-
-    heading: float
-    heading_before: float
-
-
-@dataclass
-class _FarLeg:
-    """``FAR_APPROACH``: the leg's step (``turn`` to face its end, ``drive`` there, ``face`` the dock again) and
-    where its drive began (odometry; None before it began)."""
-
-    step: str = "turn"
-    origin: Pose2D | None = None
-
-
-@dataclass(frozen=True)
-class _Reversing:
-    """``MOVING1_BACK``, ``RECOVER``, ``RESEAT`` and ``BACK_OFF``: where the straight reverse leg ends (odometry)."""
-
-    target: Pose2D
-
-
-@dataclass
-class _Undocking:
-    """``UNDOCK``: where the back-out ends, set at the first tick from the pose on the contacts."""
-
-    target: Pose2D | None = None
-
-
-@dataclass
-class _Approaching:
-    """``MOVING3``: whether the checkpoint (``checkpoint_gap``) has been passed and judged."""
-
-    checked: bool
-
-
-_Phase = _Acquiring | _Calculating | _Centring | _FarLeg | _Reversing | _Undocking | _Approaching | None
-_P = TypeVar("_P", _Acquiring, _Calculating, _Centring, _FarLeg, _Reversing, _Undocking, _Approaching)
 
 
 @dataclass
@@ -778,47 +668,3 @@ class DockingMission:
         if self.track.mean is None or self.track.last_pose is None:
             return None
         return self.track.robot_in_dock(self.track.last_pose)
-
-
-def run_mission(
-    robot: RobotInterface,
-    perceive: Perceive,
-    mission: DockingMission,
-    *,
-    on_tick: Callable[[DockingMission, Odometry], None] | None = None,
-) -> MissionResult:
-    """Drive the mission to its end on ``robot``: read, decide, command, wait one control period."""
-    last_stamp = -math.inf
-    start = robot.now()
-    while not mission.finished:
-        odom = robot.odometry()
-        observation = None
-        if mission.wants_frames:
-            frame = robot.latest_frame()
-            if frame is not None and frame.stamp > last_stamp:
-                last_stamp = frame.stamp
-                observation = perceive(frame.stamp, frame.image)
-        v, w = mission.step(
-            robot.now(), odom, observation, robot.contact(), charging=robot.charging(), rear_range=robot.rear_range()
-        )
-        robot.send_velocity(v, w)
-        if on_tick is not None:
-            on_tick(mission, odom)
-        if not mission.finished:
-            robot.sleep(mission.config.control_period)
-    robot.send_velocity(0.0, 0.0)
-    return MissionResult(
-        state=mission.state,
-        failure=mission.failure,
-        reason=mission.reason,
-        case=mission.case,
-        retries=mission.retries,
-        duration=robot.now() - start,
-        estimated_final=mission.estimated_final(),
-        impact_speed=mission.impact_speed,
-        log=list(mission.log),
-        reseats=mission.reseats,
-        charging=mission.charging,
-        recoveries=mission.recoveries,
-        obstacle_waits=mission.obstacle_waits,
-    )

@@ -36,7 +36,8 @@ from numpy.typing import NDArray
 from scipy.stats import binomtest
 
 from monodock.calibrate.mount import calibrate_mount_of, frames_from_recording
-from monodock.calibrate.survey import survey_layout, survey_views
+from monodock.calibrate.survey import survey_layout
+from monodock.calibrate.survey_views import survey_views
 from monodock.calibrate.teach import teach_from_recording
 from monodock.core import transforms
 from monodock.core.frame import Frame

@@ -35,11 +35,11 @@ from monodock.dock.controller import (
     State,
     blind_gap,
     make_perceive,
-    run_mission,
 )
 from monodock.dock.interface import Odometry
 from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise, OdometryNoise
+from monodock.dock.run import run_mission
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.consistency import camera_disagreement

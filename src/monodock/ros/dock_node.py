@@ -48,15 +48,14 @@ from monodock.dock.controller import (
     DockingConfig,
     DockingMission,
     FailureReason,
-    MissionResult,
     State,
     blind_gap,
     make_perceive,
-    run_mission,
 )
 from monodock.dock.database import DockDatabase, DockType
 from monodock.dock.interface import Odometry
 from monodock.dock.pose_filter import MeasurementNoise
+from monodock.dock.run import MissionResult, run_mission
 from monodock.errors import ConfigError, InputError, MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.recording import messages as m
