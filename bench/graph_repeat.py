@@ -23,7 +23,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
-from _common import emit, environment, fmt, markdown_table
+from _common import _positive, emit, environment, fmt, markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_TESTS = ["tests/ros/test_dock_graph.py::test_docking_over_dds_from_starts_in_several_cases"]
@@ -82,7 +82,7 @@ def one_run(index: int, tests: list[str], hogs: bool, folder: Path) -> dict[str,
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n", maxsplit=1)[0])
-    p.add_argument("--runs", type=int, default=5, help="pytest runs (5)")
+    p.add_argument("--runs", type=_positive, default=5, help="pytest runs (5)")
     p.add_argument("--hogs", action="store_true", help="one CPU-bound process per core beside each run")
     p.add_argument(
         "--tests", nargs="+", default=DEFAULT_TESTS, help="the tests (node ids); default: " + DEFAULT_TESTS[0]
