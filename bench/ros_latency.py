@@ -38,6 +38,9 @@ import numpy as np
 
 from _common import emit, environment, fmt, markdown_table
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from private_graph import claim_domain_id
+
 # Each node's process gets SIGTERM when its parent ends, however it ends (PR_SET_PDEATHSIG): none outlives its run.
 _ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
 DETECTOR = (
@@ -49,17 +52,18 @@ WARM_UP = 3.0  # s of the graph's first frames left out: discovery, the estimato
 
 def in_private_network(argv: list[str]) -> int:
     """Run this script again, with ``argv``, in a fresh network namespace with only loopback (tests/private_graph)."""
-    env = dict(os.environ)
-    env |= {
-        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-        "ROS_DOMAIN_ID": str(40 + os.getpid() % 50),  # clear of the tests' 101-232
-        "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
-        "PYTHONUNBUFFERED": "1",
-    }
     unshare = ["unshare", "--net"] if os.geteuid() == 0 else ["unshare", "--net", "--map-root-user"]
     inner = 'ip link set lo up && exec "$@"'
     command = [*unshare, "sh", "-c", inner, "sh", sys.executable, __file__, "--inside", *argv]
-    return subprocess.run(command, env=env, check=False).returncode
+    with claim_domain_id() as domain:  # no other graph on this machine on it, the tests' included
+        env = dict(os.environ)
+        env |= {
+            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+            "ROS_DOMAIN_ID": str(domain),
+            "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
+            "PYTHONUNBUFFERED": "1",
+        }
+        return subprocess.run(command, env=env, check=False).returncode
 
 
 def listen(args: argparse.Namespace) -> dict[str, Any]:

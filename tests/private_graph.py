@@ -4,23 +4,52 @@ DDS discovers peers by multicast on every interface. Each graph runs inside ``un
 namespace whose only interface is ``lo``, brought up first), with ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and
 a ``ROS_DOMAIN_ID`` of its own; every process the graph starts inherits the namespace. The test process itself
 stays outside: it starts one driver script in the namespace and reads what the script prints (JSON lines).
+
+The domain ID must be unique on the machine, not only in the namespace: Fast DDS's shared-memory transport names
+its ports in /dev/shm by domain and participant (``fastdds_port<N>``), and /dev/shm is not namespaced. Two graphs
+on one domain at once (the two pytest-xdist workers, a benchmark beside the tests) would share those ports. So
+each graph holds a lock on its domain ID (``claim_domain_id``) for as long as it runs.
 """
 
 from __future__ import annotations
 
-import itertools
+import contextlib
+import fcntl
 import json
 import os
 import shutil
 import signal
 import subprocess
 import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-__all__ = ["GraphRun", "can_isolate", "run_private_graph"]
+__all__ = ["GraphRun", "can_isolate", "claim_domain_id", "run_private_graph"]
 
-_DOMAIN_IDS = itertools.count(101 + os.getpid() % 60)  # 101-232: clear of the default 0 and of other runs
+# ROS 2's safe domain IDs on Linux (0-101, 215-232: their ports stay clear of the ephemeral range), without the
+# default 0 and its neighbours a user's own graph may be on.
+_DOMAIN_IDS = [*range(10, 102), *range(215, 233)]
+
+
+@contextlib.contextmanager
+def claim_domain_id() -> Iterator[int]:
+    """A ROS_DOMAIN_ID no other graph on this machine holds (an exclusive lock on a file in the temp folder, let go
+    when the block ends, or when the process dies); where to start looking is spread by the process ID."""
+    folder = Path(tempfile.gettempdir()) / "monodock-ros-domains"
+    folder.mkdir(exist_ok=True)
+    start = os.getpid() % len(_DOMAIN_IDS)
+    for i in range(len(_DOMAIN_IDS)):
+        domain = _DOMAIN_IDS[(start + i) % len(_DOMAIN_IDS)]
+        with open(folder / f"{domain}.lock", "w") as lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue
+            yield domain
+            return
+    raise RuntimeError(f"every ROS domain ID is held by another graph ({folder})")
 
 
 def can_isolate() -> bool:
@@ -56,11 +85,18 @@ def run_private_graph(
     script: Path | str, *args: str, timeout: float = 240.0, env: dict[str, str] | None = None
 ) -> GraphRun:
     """Run ``python script args...`` in a private network namespace with loopback only; its own ROS_DOMAIN_ID."""
+    with claim_domain_id() as domain:
+        return _run(script, args, timeout, env, domain)
+
+
+def _run(
+    script: Path | str, args: tuple[str, ...], timeout: float, env: dict[str, str] | None, domain: int
+) -> GraphRun:
     environment = dict(os.environ)
     environment.update(
         {
             "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-            "ROS_DOMAIN_ID": str(next(_DOMAIN_IDS)),
+            "ROS_DOMAIN_ID": str(domain),
             "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
             "PYTHONUNBUFFERED": "1",
             # A node that hangs is ended with SIGABRT (graph_processes.stop_nodes): its threads' stacks go to its log.

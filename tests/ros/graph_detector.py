@@ -16,6 +16,7 @@ from typing import Any
 
 import graph_detector_common as g
 import rclpy
+from graph_processes import end_nodes
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters
 
 from monodock.core.layout import DockLayout
@@ -68,8 +69,7 @@ while sim.poll() is None and time.monotonic() < end:
 sim_end = time.time()
 _, sim_err = sim.communicate(timeout=20)
 g.spin_for(node, 2.0)  # the poses of the last frames, then /diagnostics without images
-detector.terminate()
-_, err = detector.communicate(timeout=20)
+err = end_nodes({"detector": detector}, timeout=20)["detector"]
 rclpy.shutdown()
 pairs, unpaired = listen.pairs(tolerance=100_000_000)  # standing still: the truth of the last 0.1 s
 stamps = sorted(listen.truth)

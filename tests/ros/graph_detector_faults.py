@@ -26,6 +26,7 @@ from typing import Any
 import graph_detector_common as g
 import numpy as np
 import rclpy
+from graph_processes import end_nodes
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
 from rclpy.qos import qos_profile_sensor_data
@@ -148,8 +149,7 @@ relay_end = time.time()
 sim.send_signal(signal.SIGINT)  # stopped here: its exit code is not the detector's business
 _, sim_err = sim.communicate(timeout=20)
 g.spin_for(node, 1.0)
-detector.terminate()
-_, err = detector.communicate(timeout=20)
+err = end_nodes({"detector": detector}, timeout=20)["detector"]
 rclpy.shutdown()
 driver_poses = [p for p in listen.poses if p["stamp"] in set(good)]
 pairs, unpaired = listen.pairs(skip=set(good), tolerance=100_000_000)  # standing still

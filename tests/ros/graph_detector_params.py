@@ -23,6 +23,7 @@ import graph_detector_common as g
 import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from graph_processes import end_nodes
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.qos import qos_profile_sensor_data
@@ -157,11 +158,8 @@ after = answer(2.0, images, listen.poses)  # 2 s old: skipped under the 1 s defa
 covariance = answer(0.0, fused_images, with_covariance["fused"], 60.0, png) if fused else None  # after its warm-up
 g.spin_for(node, 0.5)
 plain = [m for m in fused_poses if covariance is not None and g.key(m) == g.key(covariance)]
-for process in (detector, fused):
-    if process is not None:
-        process.terminate()
-_, err = detector.communicate(timeout=20)
-_, fused_err = fused.communicate(timeout=20) if fused else ("", "")
+logs = end_nodes({"detector": detector, **({"fused": fused} if fused else {})}, timeout=20)
+err, fused_err = logs["detector"], logs.get("fused", "")
 rclpy.shutdown()
 truth = [rendered.x, rendered.y, rendered.yaw]
 print(json.dumps({"kind": "set", "results": results, "values": now}))

@@ -31,6 +31,7 @@ import graph_detector_common as g
 import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped
+from graph_processes import end_nodes
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from rclpy.qos import qos_profile_sensor_data
@@ -195,9 +196,7 @@ managed_stopped_with = len(poses["managed"])
 phase("stopped again", 4.0)
 phases[-1]["since_stop"] = len(poses["on_demand"]) - stopped_with
 phases[-1]["managed_since_stop"] = len(poses["managed"]) - managed_stopped_with
-for process in [*detectors.values(), sim]:
-    process.terminate()
-ends = {name: process.communicate(timeout=30) for name, process in {**detectors, "sim": sim}.items()}
+logs = end_nodes({**detectors, "sim": sim}, timeout=30)
 rclpy.shutdown()
 
 still = sorted(truth.items())
@@ -223,6 +222,6 @@ print(
     )
 )
 print(json.dumps({"kind": "phases", "phases": phases, "toggles": said, "transitions": managed}))
-for name, (_, err) in ends.items():
+for name, err in logs.items():
     code = (detectors.get(name) or sim).returncode
     print(json.dumps({"kind": "process", "name": name, "returncode": code, "stderr": err[-6000:]}))

@@ -7,11 +7,13 @@ Each node gets SIGTERM when its driver ends, however the driver ends (PR_SET_PDE
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import subprocess
+import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
@@ -20,9 +22,10 @@ DOCK = ORPHANS_END + "from monodock.cli.ros_nodes import dock_main; import sys; 
 
 
 def stop_nodes(*processes: subprocess.Popen[bytes]) -> None:
-    """SIGINT to each node still running, then wait for all. A node that will not end gets SIGABRT (exit code -6),
-    which with PYTHONFAULTHANDLER (tests/private_graph.py) writes every thread's stack to its log, where it hung;
-    then, if even that does not end it, SIGKILL (-9)."""
+    """SIGINT to each node still running, then wait for all. A node that will not end has its native stacks written
+    to this driver's stderr (``native_stacks``), then gets SIGABRT (exit code -6), which with PYTHONFAULTHANDLER
+    (tests/private_graph.py) writes every thread's Python stack to its log, where it hung; then, if even that does
+    not end it, SIGKILL (-9)."""
     for process in processes:
         if process.poll() is None:
             process.send_signal(signal.SIGINT)
@@ -31,12 +34,62 @@ def stop_nodes(*processes: subprocess.Popen[bytes]) -> None:
             # Generous: on a starved CI host a node's DDS teardown after SIGINT took over 20 s once (stop 33's CI).
             process.wait(timeout=60)
         except subprocess.TimeoutExpired:
-            process.send_signal(signal.SIGABRT)
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+            print(native_stacks(process.pid), file=sys.stderr, flush=True)
+            abort(process)
+
+
+def end_nodes(processes: Mapping[str, subprocess.Popen[str]], timeout: float) -> dict[str, str]:
+    """SIGTERM to every node at once, each one's piped stderr read to its end meanwhile (one reader per node: a
+    node blocked on a full pipe while another is waited for would look hung), and their logs by name. A node still
+    running ``timeout`` seconds after the signal is a failure the test reports with where it hung: its native stacks
+    (gdb) and, after SIGABRT, its Python stacks (PYTHONFAULTHANDLER) are added to its log, then it is ended."""
+    logs: dict[str, str] = {}
+
+    def read(name: str, process: subprocess.Popen[str]) -> None:
+        logs[name] = process.stderr.read() if process.stderr is not None else ""
+
+    readers = [threading.Thread(target=read, args=item) for item in processes.items()]
+    for process in processes.values():
+        if process.poll() is None:
+            process.terminate()
+    for reader in readers:
+        reader.start()
+    end = time.monotonic() + timeout
+    hung: dict[str, str] = {}
+    for name, process in processes.items():
+        try:
+            process.wait(timeout=max(end - time.monotonic(), 0.1))
+        except subprocess.TimeoutExpired:
+            hung[name] = native_stacks(process.pid)
+            abort(process)
+    for reader in readers:
+        reader.join(timeout=10)
+    for name, stacks in hung.items():
+        logs[name] = f"{logs.get(name, '')}\nstill running {timeout:g} s after SIGTERM; its native stacks:\n{stacks}"
+    return logs
+
+
+def abort(process: subprocess.Popen[Any]) -> None:
+    """SIGABRT (its Python stacks to its log, with PYTHONFAULTHANDLER), then SIGKILL if even that does not end it."""
+    process.send_signal(signal.SIGABRT)
+    try:
+        process.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+
+
+def native_stacks(pid: int) -> str:
+    """Every thread's C/C++ stack of a live process (gdb, where installed): where a node hangs below Python."""
+    gdb = shutil.which("gdb")
+    if gdb is None:
+        return "(no gdb on this machine: no native stacks)"
+    try:
+        command = [gdb, "-p", str(pid), "-batch", "-ex", "thread apply all bt"]
+        done = subprocess.run(command, capture_output=True, text=True, timeout=60, check=False)
+    except subprocess.TimeoutExpired:
+        return "(gdb took over 60 s: no native stacks)"
+    return "\n".join(line for line in done.stdout.splitlines() if line.startswith(("Thread", "#")))
 
 
 def emit(kind: str, /, **values: Any) -> None:
