@@ -36,16 +36,27 @@ def warm_estimation() -> None:
     from monodock.core.robot import RobotConfig
     from monodock.estimation.estimator import Estimator
     from monodock.estimation.fused import FusionTables
+    from monodock.estimation.fused import _gain as regression_gain
     from monodock.estimation.methods import MethodSetup, build_methods
+    from monodock.perception.detect import as_gray
+    from monodock.perception.marker_fit import fit_marker
+    from monodock.perception.predicted import predict_corners
     from monodock.perception.synthetic import synthetic_view
 
     camera, layout, robot = CameraModel.default(), DockLayout.default(), RobotConfig.default()
     setup = MethodSetup(camera, layout, robot, tables=FusionTables(0.22))
     estimator = Estimator(camera, layout, robot, build_methods(("fused", "board", "pnp"), setup))
     estimator.warm_up()  # a normal and a clipped view
-    image = synthetic_view(camera, layout, robot, DockPose(robot.camera_mount.x + 0.8, 0.05, 0.1))
+    pose = DockPose(robot.camera_mount.x + 0.8, 0.05, 0.1)
+    image = synthetic_view(camera, layout, robot, pose)
     image.flags.writeable = False  # as decoded from a recording: numba compiles read-only arrays separately
     estimator.estimate("read-only", 0.0, image)
+    # The photometric marker fit (predicted markers, the dock survey), from the corners the pose predicts; and the
+    # fused method's test of whether the regression is worth running (only with a regression model).
+    gray = as_gray(image)
+    for role, corners in predict_corners(camera, layout, robot, pose).items():
+        fit_marker(gray, corners, camera, layout.marker_bits(layout.marker(role).id))
+    regression_gain(np.eye(3), np.eye(3))
 
 
 PARTS = {"sim": warm_simulator, "estimation": warm_estimation}
