@@ -7,7 +7,8 @@ ROS 2 graphs (docs/development.md). The kernels run here on the code paths the t
 the argument types they pass. Two parts, one process each (they share no kernel that takes long to compile):
 
     python tests/warm_kernels.py sim          # a simulated frame with its LiDAR scan, a docking run with motion blur
-    python tests/warm_kernels.py estimation   # the fused method on a normal, a clipped and a read-only view
+    python tests/warm_kernels.py estimation   # the fused method on a normal, a clipped and a read-only view, and
+                                              # the photometric marker fit
 """
 
 from __future__ import annotations
