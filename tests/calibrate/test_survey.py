@@ -75,7 +75,7 @@ def test_survey_finds_each_marker_relative_to_the_centre_one(
         assert m.sd["y"] < limits.position_sd
         assert m.sd["yaw"] < limits.angle_sd
     assert survey.rms_px < 0.2
-    assert DockLayout.from_dict(__import__("yaml").safe_load(surveyed_layout_text(survey))) == got
+    assert DockLayout.from_dict(__import__("yaml").safe_load(surveyed_layout_text(survey)), "layout") == got
 
 
 def test_robot_views_measure_the_heights_and_the_dock_s_up() -> None:

@@ -244,7 +244,7 @@ def test_layout_errors_name_the_problem(tmp_path: Path, old: str, new: str, patt
 
 
 def test_layout_dict_round_trip() -> None:
-    """to_dict -> from_dict gives the same layout, optional keys included."""
+    """to_mapping -> from_mapping gives the same layout, optional keys included."""
     layout = DockLayout.from_dict(
         {
             "dictionary": "DICT_5X5_100",
@@ -255,10 +255,11 @@ def test_layout_dict_round_trip() -> None:
                 "right": {"id": 99, "y": -0.18, "z": 0.22},
             },
             "note": "spare charger",
-        }
+        },
+        "layout",
     )
 
-    back = DockLayout.from_dict(layout.to_dict())
+    back = DockLayout.from_dict(layout.to_dict(), "layout")
 
     assert back == layout
     assert back.to_dict() == layout.to_dict()
@@ -295,7 +296,7 @@ def test_surveyed_layout_keys_place_tilt_and_size_each_marker(tmp_path: Path) ->
     assert layout.edge_offset == pytest.approx(-0.15)
     assert not layout.flat
     np.testing.assert_allclose(np.ptp(layout.corners_in_dock("right")[:, 1]), 0.102, atol=1e-12)
-    assert DockLayout.from_dict(layout.to_dict()) == layout
+    assert DockLayout.from_dict(layout.to_dict(), "layout") == layout
     assert "survey" not in layout.to_dict()
 
 

@@ -24,6 +24,7 @@ from monodock.core.config import load_json, load_yaml
 from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import to_mapping
 from monodock.errors import ConfigError
 from monodock.sim.nuisance import Nuisances
 from monodock.sim.simulator import Simulator
@@ -106,7 +107,7 @@ def test_an_implausible_camera_is_refused_not_estimated(
 
 
 def _robot_with(**mount: float) -> dict[str, object]:
-    data = RobotConfig.default().to_dict()
+    data = to_mapping(RobotConfig.default())
     data["camera_mount"].update(mount)  # type: ignore[attr-defined]
     return data
 
@@ -116,8 +117,8 @@ def _robot_with(**mount: float) -> dict[str, object]:
     [
         (_robot_with(x=1e308), r"camera_mount.x: must be within -5 to 5 m, got 1e\+308"),
         (_robot_with(pitch=1e300), r"camera_mount.pitch: must be within -3.14159 to 3.14159 rad"),
-        ({**RobotConfig.default().to_dict(), "front_offset": 7.0}, r"front_offset: must be within 0 to 5 m"),
-        ({**RobotConfig.default().to_dict(), "max_linear_speed": 50.0}, r"max_linear_speed: must be within 0 to 5"),
+        ({**to_mapping(RobotConfig.default()), "front_offset": 7.0}, r"front_offset: must be within 0 to 5 m"),
+        ({**to_mapping(RobotConfig.default()), "max_linear_speed": 50.0}, r"max_linear_speed: must be within 0 to 5"),
     ],
 )
 def test_an_implausible_robot_is_refused(tmp_path: Path, data: dict[str, object], message: str) -> None:

@@ -185,7 +185,7 @@ def test_adjacent_black_cells_have_no_hairline_between_them(kits: dict[str, byte
 
 
 def test_a_sheet_holds_small_markers_on_one_page_with_one_scale_bar() -> None:
-    small = DockLayout.from_dict({**DockLayout.default().to_dict(), "marker_size": 0.04})
+    small = DockLayout.from_dict({**DockLayout.default().to_dict(), "marker_size": 0.04}, "layout")
     pdf = dock_kit_pdf(small, PAPERS["a4"], sheet=True)
     doc = pdfium.PdfDocument(pdf)
     try:

@@ -42,6 +42,7 @@ from monodock.core.layout import DockLayout
 from monodock.core.parallel import map_stream
 from monodock.core.records import to_record
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import from_mapping, to_mapping
 from monodock.errors import ConfigError, InputError
 from monodock.learning.label import LABEL_COLUMNS, LidarLabel, label_frame
 from monodock.perception.detect import MarkerDetector, as_gray
@@ -128,7 +129,7 @@ class Dataset:
 
     def robot(self) -> RobotConfig:
         """The robot's mounts the labels were made with."""
-        return RobotConfig.from_dict(self._meta("robot"), f"{self.source}: metadata robot")
+        return from_mapping(RobotConfig, self._meta("robot"), f"{self.source}: metadata robot")
 
     def layout(self) -> DockLayout:
         """The dock layout the features were measured on."""
@@ -501,7 +502,7 @@ def label_recording(
     metadata = {
         "monodock_version": __version__,
         "camera": cam.to_ros_dict(),
-        "robot": robot.to_dict(),
+        "robot": to_mapping(robot),
         "layout": layout.to_dict(),
         "source": source,
         "pairing_tolerance_s": tolerance_s,
