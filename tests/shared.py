@@ -14,6 +14,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
+from monodock.core.settings import to_mapping
 from monodock.dock.controller import Observation
 from monodock.learning.train import TrainingSet
 from monodock.perception.detect import Detection, MarkerObservation
@@ -35,7 +36,7 @@ STRONG_LENS = CameraModel.from_intrinsics(640, 480, 615.0, 613.0, 322.4, 237.1, 
 SET = "m1m2m3"
 FEATURES = ("size", "ratio", "noise_a", "noise_b")
 SPARSE_SEGMENT = 3  # 40-45 cm: only 10 rows of its own
-META = {"feature_schema": "test-features/1", "layout": DockLayout.default().to_dict()}
+META = {"feature_schema": "test-features/1", "layout": to_mapping(DockLayout.default())}
 
 
 def pose_at(depth: float, y: float, yaw_deg: float) -> DockPose:

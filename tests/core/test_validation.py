@@ -138,7 +138,7 @@ def test_an_implausible_robot_is_refused(tmp_path: Path, data: dict[str, object]
     ],
 )
 def test_an_implausible_layout_is_refused(tmp_path: Path, change: dict[str, object], message: str) -> None:
-    data = DockLayout.default().to_dict()
+    data = to_mapping(DockLayout.default())
     for key, value in change.items():
         if key == "markers":
             data["markers"].update(value)  # type: ignore[union-attr]
@@ -155,7 +155,7 @@ def test_an_alias_bomb_is_refused_quickly_and_never_expanded(tmp_path: Path) -> 
     of counting, so that nothing downstream ever copies it into a dataset's metadata."""
     lines = ['a0: &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
     lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 9)]
-    layout = yaml.safe_dump(DockLayout.default().to_dict())
+    layout = yaml.safe_dump(to_mapping(DockLayout.default()))
     path = tmp_path / "layout.yaml"
     path.write_text(layout + "\n".join(lines) + "\n", encoding="utf-8")
     start = time.perf_counter()
@@ -188,7 +188,7 @@ def test_unknown_keys_are_warned_about_and_never_reach_a_bundle(
 ) -> None:
     """A layout with a key the schema does not know: labelling warns once and the dataset (and so every bundle
     trained from it) carries only the schema's keys."""
-    layout = DockLayout.load(work / "layout.yaml").to_dict()
+    layout = to_mapping(DockLayout.load(work / "layout.yaml"))
     layout["secret"] = {"nested": list(range(5))}
     path = tmp_path / "layout.yaml"
     path.write_text(yaml.safe_dump(layout), encoding="utf-8")

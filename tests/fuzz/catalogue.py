@@ -448,7 +448,7 @@ add(
 
 # --- layout ------------------------------------------------------------------------------------------------
 
-LAYOUT = DockLayout.default().to_dict()
+LAYOUT = to_mapping(DockLayout.default())
 LAYOUT_FIELDS: dict[str, tuple[Any, ...]] = {
     "marker_size": ("marker_size",),
     "left.y": ("markers", "left", "y"),

@@ -201,7 +201,7 @@ def plausible_layout(data: dict[str, Any]) -> bool:
     if any(v is None or abs(v) > 5.0 for c in coords for v in c):
         return False
     try:
-        DockLayout.from_dict(data, "layout")
+        from_mapping(DockLayout, data, "layout")
     except Exception:
         return False
     return True

@@ -176,7 +176,7 @@ def _train_bundle(out: Path) -> Path:
     metadata = {
         "feature_schema": MODEL_FEATURE_SCHEMA,
         "camera": CameraModel.default().to_ros_dict(),
-        "layout": DockLayout.default().to_dict(),
+        "layout": to_mapping(DockLayout.default()),
         "robot": to_mapping(RobotConfig.default()),
     }
     return save_bundle(out, result, metadata=metadata)

@@ -285,7 +285,7 @@ class Bundle:
 
     def layout(self) -> DockLayout:
         """The dock layout the models were trained for."""
-        return DockLayout.from_dict(self._meta("layout"), f"{self.path}: layout")
+        return from_mapping(DockLayout, self._meta("layout"), f"{self.path}: layout")
 
     def robot(self) -> RobotConfig:
         """The robot (camera and LiDAR mounts) the training drive was recorded with."""

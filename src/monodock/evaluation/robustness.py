@@ -347,7 +347,7 @@ def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, FusionTables, int]
         run,
         refined=[f.refined[ck] for f in setup.frames],
     )
-    meta = {"camera": cal.camera.to_ros_dict(), "robot": to_mapping(cal.robot), "layout": cal.layout.to_dict()}
+    meta = {"camera": cal.camera.to_ros_dict(), "robot": to_mapping(cal.robot), "layout": to_mapping(cal.layout)}
     ds = Dataset({k: np.asarray(v) for k, v in cols.items()}, meta)
     regression = MethodSetup(cal.camera, cal.layout, cal.robot, load_bundle(Path(setup.bundle_path))).regression
     tables = learn_fusion_from(ds, regression, cal.camera, cal.layout, cal.robot, np.arange(n, dtype=np.int64))

@@ -89,7 +89,7 @@ def cached_bundle(sim: Simulator, config: SelfTrainConfig, *, jobs: int, cache: 
     monodock's version. A bundle that no longer loads (e.g. a broken cache) is trained again.
     """
     key_data = {
-        "layout": sim.layout.to_dict(),
+        "layout": to_mapping(sim.layout),
         "camera": sim.camera.to_ros_dict(),
         "robot": to_mapping(sim.robot),
         "nuisances": repr(sim.nuisances.updated(supersample=config.supersample)),  # the drive's own sampling

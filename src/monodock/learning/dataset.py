@@ -133,7 +133,7 @@ class Dataset:
 
     def layout(self) -> DockLayout:
         """The dock layout the features were measured on."""
-        return DockLayout.from_dict(self._meta("layout"), f"{self.source}: metadata layout")
+        return from_mapping(DockLayout, self._meta("layout"), f"{self.source}: metadata layout")
 
     def _meta(self, key: str) -> Any:
         if key not in self.metadata:
@@ -390,7 +390,7 @@ _DETECTORS: dict[tuple[str, str], MarkerDetector] = {}  # per process: built onc
 
 
 def _detector(setup: _LabelSetup) -> MarkerDetector:
-    key = (json.dumps(setup.layout.to_dict(), sort_keys=True), setup.refinement)
+    key = (json.dumps(to_mapping(setup.layout), sort_keys=True), setup.refinement)
     if key not in _DETECTORS:
         _DETECTORS.clear()
         _DETECTORS[key] = MarkerDetector(setup.layout, refinement=setup.refinement)
@@ -503,7 +503,7 @@ def label_recording(
         "monodock_version": __version__,
         "camera": cam.to_ros_dict(),
         "robot": to_mapping(robot),
-        "layout": layout.to_dict(),
+        "layout": to_mapping(layout),
         "source": source,
         "pairing_tolerance_s": tolerance_s,
         "corner_refinement": refinement,

@@ -155,7 +155,7 @@ def bundle_metadata(dataset: Dataset, *, depth_label: str, angle_label: str, sou
         "feature_schema": MODEL_FEATURE_SCHEMA,
         "raw_features": list(FEATURE_NAMES),
         # Written from the validated objects, never copied from the file: nothing unknown travels on.
-        "layout": dataset.layout().to_dict(),
+        "layout": to_mapping(dataset.layout()),
         "camera": dataset.camera().to_ros_dict(),
         "robot": to_mapping(dataset.robot()),
         "depth_label": DEPTH_LABELS[depth_label],
