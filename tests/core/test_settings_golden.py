@@ -15,6 +15,7 @@ import logging
 import math
 import sys
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.config import json_text, parse_yaml, yaml_text
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import setting
 from monodock.dock.database import load_dock_file
 from monodock.errors import ConfigError, InputError
 from monodock.learning.dataset import Dataset
@@ -652,3 +654,50 @@ if __name__ == "__main__":  # rewrite the golden files: only for a deliberate, r
         for name, text in _written_files(Path(tmp)).items():
             (DATA / name).write_text(text, encoding="utf-8")
             print(f"wrote {DATA / name}", file=sys.stderr)
+
+
+# --- a new layout key is one declaration ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class QuietLayout(DockLayout):
+    """The layout with one key more, declared once, as a new optional key of DockLayout would be."""
+
+    quiet_zone: float = setting(
+        0.0, range=(0.0, 0.05), unit="m", omit_default=True, help="white margin printed around each marker"
+    )
+
+
+def test_a_new_layout_key_is_read_checked_written_and_old_files_stay_as_they_were(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    for name in ("layout_default.yaml", "layout_rich.yaml"):  # written before the key: read and written as before
+        old = QuietLayout.load(DATA / name)
+        assert old.quiet_zone == 0.0
+        old.save(name)
+        assert Path(name).read_text(encoding="utf-8") == (DATA / name).read_text(encoding="utf-8")
+    Path("layout.yaml").write_text(LAYOUT + "quiet_zone: 0.012\n", encoding="utf-8")
+    quiet = QuietLayout.load("layout.yaml")
+    assert quiet.quiet_zone == 0.012
+    quiet.save("again.yaml")
+    assert (
+        Path("again.yaml").read_text(encoding="utf-8")
+        == (DATA / "layout_rich.yaml").read_text(encoding="utf-8") + "quiet_zone: 0.012\n"
+    )
+    assert QuietLayout.load("again.yaml") == quiet
+    for bad, line in [
+        (0.2, "layout.yaml: quiet_zone: must be within 0 to 0.05 m, got 0.2"),
+        ("wide", "layout.yaml: quiet_zone: expected a number, got 'wide'"),
+    ]:
+        Path("layout.yaml").write_text(LAYOUT + f"quiet_zone: {bad}\n", encoding="utf-8")
+        with pytest.raises(ConfigError) as exc:
+            QuietLayout.load("layout.yaml")
+        assert str(exc.value) == line
+    Path("layout.yaml").write_text(LAYOUT + "quiet: 0.01\n", encoding="utf-8")
+    with caplog.at_level(logging.WARNING, logger="monodock.config"):
+        QuietLayout.load("layout.yaml")
+    assert [r.getMessage() for r in caplog.records] == [
+        "layout.yaml: unknown key 'quiet' is ignored (known: dictionary, marker_size, markers, edge_offset_px, "
+        "quiet_zone, survey)"
+    ]
