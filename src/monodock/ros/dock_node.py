@@ -40,10 +40,11 @@ from typing import Any
 
 import numpy as np
 
+from monodock.core import settings
 from monodock.core.camera import CameraModel
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
-from monodock.dock.config import docking_config_from_dict, docking_config_to_dict, load_docking_config
+from monodock.dock.config import load_docking_config
 from monodock.dock.controller import (
     DockingConfig,
     DockingMission,
@@ -66,11 +67,10 @@ from monodock.ros.lifecycle import LIFECYCLE_PARAMETERS, ManagerBond, autostart
 from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
 from monodock.ros.parameters import (
     Parameter,
-    declare,
+    config_from_parameters,
+    declare_config,
     declare_options,
-    flatten,
     refuse_unknown_overrides,
-    unflatten,
 )
 from monodock.ros.ros2_robot import ChargingSignal, RobotTopics, Ros2Robot
 from monodock.ros.shutdown import ShutdownFlag
@@ -157,7 +157,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
 
         self.options = declare_options(self, options, PARAMETERS)
         base = load_docking_config(self.options.config) if self.options.config else DockingConfig()
-        self._config_names = list(flatten(docking_config_to_dict(base)))
+        self._config_names = list(settings.flat(base))
         self._config_base = base
         self._estimators: dict[str, Estimator] = {}  # by layout file ("": the node's own)
         self.estimator: Estimator | None = None
@@ -323,22 +323,18 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         base = self._config_base
         if not self.options.config and self.method:
             base = dataclasses.replace(base, measurement=MeasurementNoise.for_method(self.method))
-        for name, default in flatten(docking_config_to_dict(base)).items():
-            declare(self, name, Parameter(f"docking config: {name} (docs/docking.md)", read_only=False), default)
+        declare_config(self, base)
 
     def docking_config(self) -> DockingConfig:
         """The docking config of the parameters as they are now (checked like a config file)."""
-        values = {name: self.get_parameter(name).value for name in self._config_names}
-        return docking_config_from_dict(unflatten(values), "ROS parameters")
+        return config_from_parameters(self, DockingConfig, self._config_names)
 
     def _check_new_parameters(self, parameters: list[Any]) -> Any:
         """Refuse a live change that would make the docking config invalid (it would only fail at the next ~/dock)."""
         from rcl_interfaces.msg import SetParametersResult  # type: ignore[import-not-found, unused-ignore]
 
-        values = {name: self.get_parameter(name).value for name in self._config_names}
-        values.update({p.name: p.value for p in parameters if p.name in values})
         try:
-            docking_config_from_dict(unflatten(values), "ROS parameters")
+            config_from_parameters(self, DockingConfig, self._config_names, {p.name: p.value for p in parameters})
         except MonodockError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
