@@ -38,6 +38,7 @@ __all__ = [
     "Policy",
     "Setting",
     "check_fields",
+    "flag_of",
     "flat",
     "from_flat",
     "from_mapping",
@@ -47,6 +48,7 @@ __all__ = [
     "section",
     "setting",
     "settings_of",
+    "to_argv",
     "to_mapping",
 ]
 
@@ -83,8 +85,10 @@ class Meta:
         live: it may change while a node runs; None: the Policy's.
         required: the file must hold it although the dataclass has a default.
         omit_default: written only when it differs from the default.
-        flag: the command-line flag; None: ``--field-name``; "": none.
-        cli_help: the flag's help when it must differ from ``help``.
+        flag: the command-line flag; None: ``--field-name``; "": none; a name without dashes: a positional.
+        cli_help: the flag's help when it must differ from ``help`` ("": none).
+        parse: a flag's word as the value (its error's text is the usage error), where the type's own will not do.
+        show: the value as a flag's word (``to_argv``), where ``str`` (``repr`` for a real) will not do.
         ros: declared as a ROS parameter (False: a flag alone).
         check: a rule of its own, a message for a bad value or None (told as ``source: key: message``).
         codec: reads and writes a value of a structural kind.
@@ -105,6 +109,8 @@ class Meta:
     omit_default: bool = False
     flag: str | None = None
     cli_help: str | None = None
+    parse: Callable[[str], Any] | None = None
+    show: Callable[[Any], str] | None = None
     ros: bool = True
     check: Callable[[Any], str | None] | None = None
     codec: Codec | None = None
@@ -548,6 +554,46 @@ def flat(obj: Any) -> dict[str, Any]:
             value = getattr(value, name)
         out[s.key] = value
     return out
+
+
+def flag_of(setting: Setting) -> str | None:
+    """A setting's command-line flag: the one it declares (a word without dashes is a positional), else
+    ``--kebab-name``; None when it has none (``flag=""``)."""
+    if setting.meta.flag == "":
+        return None
+    return setting.meta.flag or "--" + setting.key.replace("_", "-").replace(".", "-")
+
+
+def to_argv(obj: Any) -> list[str]:
+    """The command line that gives these options (what ``cli.options.add_flags``' parser reads back as them):
+    the positionals in order, then a flag per value that is not its default.
+
+    Raises:
+        ValueError: a value that differs from its default but has no flag to say so.
+    """
+    values = flat(obj)
+    positionals: list[str] = []
+    words: list[str] = []
+    for s in settings_of(type(obj)):
+        value, flag = values[s.key], flag_of(s)
+        if flag is not None and not flag.startswith("-"):
+            positionals.append(_word(s, value))
+            continue
+        if s.default is not MISSING and value == s.default:
+            continue
+        if flag is None:
+            raise ValueError(f"{type(obj).__name__}.{s.key} has no flag to give it {value!r}")
+        if s.type is bool:
+            words.append(flag if value else "--no-" + flag.removeprefix("--"))
+        else:
+            words += [flag, _word(s, value)]
+    return [*positionals, *words]
+
+
+def _word(setting: Setting, value: Any) -> str:
+    if setting.meta.show is not None:
+        return setting.meta.show(value)
+    return repr(value) if isinstance(value, float) else str(value)
 
 
 def nested(values: Mapping[str, Any]) -> dict[str, Any]:
