@@ -3,8 +3,14 @@ the command line as a library, synthetic training rows with a known answer."""
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -14,6 +20,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
+from monodock.core.settings import to_mapping
 from monodock.dock.controller import Observation
 from monodock.learning.train import TrainingSet
 from monodock.perception.detect import Detection, MarkerObservation
@@ -35,7 +42,7 @@ STRONG_LENS = CameraModel.from_intrinsics(640, 480, 615.0, 613.0, 322.4, 237.1, 
 SET = "m1m2m3"
 FEATURES = ("size", "ratio", "noise_a", "noise_b")
 SPARSE_SEGMENT = 3  # 40-45 cm: only 10 rows of its own
-META = {"feature_schema": "test-features/1", "layout": DockLayout.default().to_dict()}
+META = {"feature_schema": "test-features/1", "layout": to_mapping(DockLayout.default())}
 
 
 def pose_at(depth: float, y: float, yaw_deg: float) -> DockPose:
@@ -138,3 +145,34 @@ def worker_pid(_: object, __: object) -> int:
     import os
 
     return os.getpid()
+
+
+# Stand-ins for rclpy, so that the nodes' modules import in full without ROS 2 (and without a DDS participant): the
+# first lines of a script that a test runs in a child process.
+RCLPY_STAND_INS = """
+import sys, types
+
+class Node:
+    def __init__(self, *args, **kwargs):
+        pass
+for name in ("rclpy", "rclpy.node", "rclpy.lifecycle", "rclpy.utilities"):
+    sys.modules[name] = types.ModuleType(name)
+sys.modules["rclpy.node"].Node = Node
+sys.modules["rclpy.lifecycle"].LifecycleNode = Node
+sys.modules["rclpy.utilities"].remove_ros_args = lambda args: args
+"""
+
+
+def json_with_stand_ins(script: str) -> Any:
+    """What ``script`` prints as JSON, run in a child process after ``RCLPY_STAND_INS`` (argparse at 100 columns)."""
+    env = {**os.environ, "COLUMNS": "100"}
+    done = subprocess.run(
+        [sys.executable, "-c", RCLPY_STAND_INS + textwrap.dedent(script)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+        env=env,
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout)

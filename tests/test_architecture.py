@@ -12,6 +12,8 @@ import subprocess
 import sys
 import textwrap
 
+from shared import RCLPY_STAND_INS
+
 # What the robot must never load: the simulator, training, evaluation, reports, the command line, and the
 # heavy libraries only they need.
 FORBIDDEN_MONODOCK = ("monodock.sim", "monodock.learning", "monodock.evaluation", "monodock.report")
@@ -26,19 +28,9 @@ ROBOT_SIDE = (
     "monodock.ros",
 )
 
-_SCRIPT = textwrap.dedent(
+_SCRIPT = RCLPY_STAND_INS + textwrap.dedent(
     """
-    import json, sys, types
-
-    # Stand-ins for rclpy and the message packages, so that the nodes' modules import in full without ROS 2.
-    class Node:
-        def __init__(self, *args, **kwargs):
-            pass
-    for name in ("rclpy", "rclpy.node", "rclpy.lifecycle", "rclpy.utilities"):
-        sys.modules[name] = types.ModuleType(name)
-    sys.modules["rclpy.node"].Node = Node
-    sys.modules["rclpy.lifecycle"].LifecycleNode = Node
-    sys.modules["rclpy.utilities"].remove_ros_args = lambda args: args
+    import json
 
     import monodock.dock
     import monodock.estimation

@@ -20,6 +20,7 @@ from monodock.core import transforms
 from monodock.core.frame import Frame
 from monodock.core.images import encode_png
 from monodock.core.layout import ROLES, DockLayout
+from monodock.core.settings import from_mapping
 from monodock.errors import InputError
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.survey_views import handheld_poses, render_shot, robot_poses
@@ -75,7 +76,7 @@ def test_survey_finds_each_marker_relative_to_the_centre_one(
         assert m.sd["y"] < limits.position_sd
         assert m.sd["yaw"] < limits.angle_sd
     assert survey.rms_px < 0.2
-    assert DockLayout.from_dict(__import__("yaml").safe_load(surveyed_layout_text(survey))) == got
+    assert from_mapping(DockLayout, __import__("yaml").safe_load(surveyed_layout_text(survey)), "layout") == got
 
 
 def test_robot_views_measure_the_heights_and_the_dock_s_up() -> None:

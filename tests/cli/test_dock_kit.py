@@ -9,6 +9,7 @@ import yaml
 
 from monodock.cli.main import main
 from monodock.core.layout import DockLayout
+from monodock.core.settings import to_mapping
 
 
 def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -30,7 +31,7 @@ def assert_one_line_error(code: int, err: str, *needles: str) -> None:
 
 def layout_file(folder: Path, **changes: object) -> Path:
     """The default layout as a file, with top-level keys changed or per-marker keys set (``center_size=...``)."""
-    data = DockLayout.default().to_dict()
+    data = to_mapping(DockLayout.default())
     for key, value in changes.items():
         role, _, field = key.partition("_")
         if role in data["markers"]:

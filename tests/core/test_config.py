@@ -12,6 +12,7 @@ import yaml
 from monodock.core.camera import CameraModel
 from monodock.core.config import load_yaml, parse_json, parse_yaml, yaml_text
 from monodock.core.layout import DockLayout
+from monodock.core.settings import to_mapping
 from monodock.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -83,7 +84,7 @@ def test_a_json_key_named_twice_is_refused() -> None:
 @pytest.mark.parametrize("name", ["6e-4", "yes", "on", "012", "0o17", "1:30", "null", "True"])
 def test_what_monodock_writes_reads_back_the_same_by_both_yaml_versions(name: str) -> None:
     layout = DockLayout.default()
-    data = {**CameraModel.default().to_ros_dict(), "camera_name": name, "layout": layout.to_dict()}
+    data = {**CameraModel.default().to_ros_dict(), "camera_name": name, "layout": to_mapping(layout)}
     text = yaml_text(data, flow=None)
     assert parse_yaml(text, "t.yaml") == data
     assert yaml.safe_load(text) == data

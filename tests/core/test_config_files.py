@@ -19,6 +19,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
+from monodock.core.settings import from_mapping, to_mapping
 from monodock.errors import ConfigError
 
 # --- camera -------------------------------------------------------------------------------------
@@ -244,8 +245,9 @@ def test_layout_errors_name_the_problem(tmp_path: Path, old: str, new: str, patt
 
 
 def test_layout_dict_round_trip() -> None:
-    """to_dict -> from_dict gives the same layout, optional keys included."""
-    layout = DockLayout.from_dict(
+    """to_mapping -> from_mapping gives the same layout, optional keys included."""
+    layout = from_mapping(
+        DockLayout,
         {
             "dictionary": "DICT_5X5_100",
             "marker_size": 0.08,
@@ -255,14 +257,15 @@ def test_layout_dict_round_trip() -> None:
                 "right": {"id": 99, "y": -0.18, "z": 0.22},
             },
             "note": "spare charger",
-        }
+        },
+        "layout",
     )
 
-    back = DockLayout.from_dict(layout.to_dict())
+    back = from_mapping(DockLayout, to_mapping(layout), "layout")
 
     assert back == layout
-    assert back.to_dict() == layout.to_dict()
-    assert "note" not in back.to_dict(), "a key the schema does not know is dropped, never copied on"
+    assert to_mapping(back) == to_mapping(layout)
+    assert "note" not in to_mapping(back), "a key the schema does not know is dropped, never copied on"
     assert [m.id for m in back.markers] == [11, 42, 99]
 
 
@@ -295,8 +298,8 @@ def test_surveyed_layout_keys_place_tilt_and_size_each_marker(tmp_path: Path) ->
     assert layout.edge_offset == pytest.approx(-0.15)
     assert not layout.flat
     np.testing.assert_allclose(np.ptp(layout.corners_in_dock("right")[:, 1]), 0.102, atol=1e-12)
-    assert DockLayout.from_dict(layout.to_dict()) == layout
-    assert "survey" not in layout.to_dict()
+    assert from_mapping(DockLayout, to_mapping(layout), "layout") == layout
+    assert "survey" not in to_mapping(layout)
 
 
 @pytest.mark.parametrize(

@@ -11,6 +11,7 @@ import pytest
 from monodock.core.layout import MAX_MARKERS, DockLayout, MarkerSpec
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import from_mapping, to_mapping
 from monodock.errors import ConfigError
 from monodock.estimation.factory import make_estimator
 from monodock.sim import Nuisances, Simulator
@@ -27,21 +28,21 @@ def far_layout() -> DockLayout:
 def test_a_layout_of_the_papers_three_reads_and_writes_as_it_always_did() -> None:
     base = DockLayout.default()
     assert base.roles == ("left", "center", "right")
-    assert DockLayout.from_dict(base.to_dict()) == base
-    assert list(base.to_dict()["markers"]) == ["left", "center", "right"]
+    assert from_mapping(DockLayout, to_mapping(base), "layout") == base
+    assert list(to_mapping(base)["markers"]) == ["left", "center", "right"]
     assert [m.label for m in base.markers] == ["m1", "m2", "m3"]
 
 
 def test_other_markers_follow_the_papers_three_in_the_file_s_order() -> None:
-    data = far_layout().to_dict()
+    data = to_mapping(far_layout())
     data["markers"] = {"side_b": {"id": 9, "y": -0.45, "z": 0.3}, **data["markers"]}  # listed first in the file
-    layout = DockLayout.from_dict(data)
+    layout = from_mapping(DockLayout, data, "layout")
     assert layout.roles == ("left", "center", "right", "side_b", "far")
     assert layout.side("far") == pytest.approx(0.30)
     assert layout.side("side_b") == layout.marker_size
     assert layout.marker("far").label == "far"
     assert layout.marker("far").number is None
-    assert DockLayout.from_dict(layout.to_dict()) == layout
+    assert from_mapping(DockLayout, to_mapping(layout), "layout") == layout
 
 
 @pytest.mark.parametrize(
@@ -54,17 +55,17 @@ def test_other_markers_follow_the_papers_three_in_the_file_s_order() -> None:
     ],
 )
 def test_a_bad_extra_marker_is_refused_naming_it(change: dict[str, object], says: str) -> None:
-    data = DockLayout.default().to_dict()
+    data = to_mapping(DockLayout.default())
     data["markers"] = {**data["markers"], **change}
     with pytest.raises(ConfigError, match=says):
-        DockLayout.from_dict(data)
+        from_mapping(DockLayout, data, "layout")
 
 
 def test_the_papers_three_are_still_required() -> None:
-    data = far_layout().to_dict()
+    data = to_mapping(far_layout())
     del data["markers"]["right"]
     with pytest.raises(ConfigError, match="right: missing"):
-        DockLayout.from_dict(data)
+        from_mapping(DockLayout, data, "layout")
 
 
 def _estimate(layout: DockLayout, truth: DockPose, method: str, seed: int) -> tuple[object, object]:

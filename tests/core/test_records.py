@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import pytest
 
 from monodock.core.records import file_key, from_record, to_record
+from monodock.core.settings import setting
 from monodock.errors import InputError
 
 
@@ -32,7 +33,7 @@ class Outer:
     inner: Inner
     by_case: Mapping[int, Inner]
     spread: Inner = field(metadata=file_key(""))
-    total: int = field(default=0, metadata=file_key("counts.total"))
+    total: int = setting(0, key="counts.total")  # the settings' key model, as file_key's
     most: int = field(default=0, metadata=file_key("counts.most"))
     tags: tuple[str, ...] = ()
     flag: bool = False

@@ -24,6 +24,7 @@ from monodock.core.config import load_json, load_yaml
 from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import to_mapping
 from monodock.errors import ConfigError
 from monodock.sim.nuisance import Nuisances
 from monodock.sim.simulator import Simulator
@@ -106,7 +107,7 @@ def test_an_implausible_camera_is_refused_not_estimated(
 
 
 def _robot_with(**mount: float) -> dict[str, object]:
-    data = RobotConfig.default().to_dict()
+    data = to_mapping(RobotConfig.default())
     data["camera_mount"].update(mount)  # type: ignore[attr-defined]
     return data
 
@@ -116,8 +117,8 @@ def _robot_with(**mount: float) -> dict[str, object]:
     [
         (_robot_with(x=1e308), r"camera_mount.x: must be within -5 to 5 m, got 1e\+308"),
         (_robot_with(pitch=1e300), r"camera_mount.pitch: must be within -3.14159 to 3.14159 rad"),
-        ({**RobotConfig.default().to_dict(), "front_offset": 7.0}, r"front_offset: must be within 0 to 5 m"),
-        ({**RobotConfig.default().to_dict(), "max_linear_speed": 50.0}, r"max_linear_speed: must be within 0 to 5"),
+        ({**to_mapping(RobotConfig.default()), "front_offset": 7.0}, r"front_offset: must be within 0 to 5 m"),
+        ({**to_mapping(RobotConfig.default()), "max_linear_speed": 50.0}, r"max_linear_speed: must be within 0 to 5"),
     ],
 )
 def test_an_implausible_robot_is_refused(tmp_path: Path, data: dict[str, object], message: str) -> None:
@@ -137,7 +138,7 @@ def test_an_implausible_robot_is_refused(tmp_path: Path, data: dict[str, object]
     ],
 )
 def test_an_implausible_layout_is_refused(tmp_path: Path, change: dict[str, object], message: str) -> None:
-    data = DockLayout.default().to_dict()
+    data = to_mapping(DockLayout.default())
     for key, value in change.items():
         if key == "markers":
             data["markers"].update(value)  # type: ignore[union-attr]
@@ -154,7 +155,7 @@ def test_an_alias_bomb_is_refused_quickly_and_never_expanded(tmp_path: Path) -> 
     of counting, so that nothing downstream ever copies it into a dataset's metadata."""
     lines = ['a0: &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
     lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]" for i in range(1, 9)]
-    layout = yaml.safe_dump(DockLayout.default().to_dict())
+    layout = yaml.safe_dump(to_mapping(DockLayout.default()))
     path = tmp_path / "layout.yaml"
     path.write_text(layout + "\n".join(lines) + "\n", encoding="utf-8")
     start = time.perf_counter()
@@ -187,7 +188,7 @@ def test_unknown_keys_are_warned_about_and_never_reach_a_bundle(
 ) -> None:
     """A layout with a key the schema does not know: labelling warns once and the dataset (and so every bundle
     trained from it) carries only the schema's keys."""
-    layout = DockLayout.load(work / "layout.yaml").to_dict()
+    layout = to_mapping(DockLayout.load(work / "layout.yaml"))
     layout["secret"] = {"nested": list(range(5))}
     path = tmp_path / "layout.yaml"
     path.write_text(yaml.safe_dump(layout), encoding="utf-8")

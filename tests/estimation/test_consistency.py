@@ -16,6 +16,7 @@ import pytest
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
+from monodock.core.settings import from_mapping, to_mapping
 from monodock.estimation.bundle import Bundle, load_bundle
 from monodock.estimation.consistency import ScaleCheck
 from monodock.estimation.factory import make_estimator
@@ -29,7 +30,7 @@ FRAMES = 300
 
 
 def _scaled_layout(layout: DockLayout, factor: float) -> DockLayout:
-    return DockLayout.from_dict({**layout.to_dict(), "marker_size": layout.marker_size * factor}, "scaled")
+    return from_mapping(DockLayout, {**to_mapping(layout), "marker_size": layout.marker_size * factor}, "scaled")
 
 
 def _frames(sim: Simulator, count: int, seed: int) -> list[Detection]:

@@ -46,6 +46,7 @@ from fuzz.world import TRUTH, World, frames_of, opencv_camera_text, write_record
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import to_mapping
 from monodock.dock.config import docking_config_to_dict
 from monodock.dock.controller import DockingConfig
 from monodock.estimation.bundle import seal_manifest
@@ -447,7 +448,7 @@ add(
 
 # --- layout ------------------------------------------------------------------------------------------------
 
-LAYOUT = DockLayout.default().to_dict()
+LAYOUT = to_mapping(DockLayout.default())
 LAYOUT_FIELDS: dict[str, tuple[Any, ...]] = {
     "marker_size": ("marker_size",),
     "left.y": ("markers", "left", "y"),
@@ -535,7 +536,7 @@ for _label, _text, _refuse, _label_cmd in [
 
 # --- robot ---------------------------------------------------------------------------------------------
 
-ROBOT = RobotConfig.default().to_dict()
+ROBOT = to_mapping(RobotConfig.default())
 ROBOT_FIELDS: dict[str, tuple[Any, ...]] = {
     "camera_mount.x": ("camera_mount", "x"),
     "camera_mount.pitch": ("camera_mount", "pitch"),

@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import from_mapping
 
 __all__ = [
     "HOSTILE_VALUES",
@@ -200,7 +201,7 @@ def plausible_layout(data: dict[str, Any]) -> bool:
     if any(v is None or abs(v) > 5.0 for c in coords for v in c):
         return False
     try:
-        DockLayout.from_dict(data)
+        from_mapping(DockLayout, data, "layout")
     except Exception:
         return False
     return True
@@ -226,7 +227,7 @@ def plausible_robot(data: dict[str, Any]) -> bool:
                 v = _num(data[k])
                 if v is None or not 0 < v <= 100:
                     return False
-        RobotConfig.from_dict(data)
+        from_mapping(RobotConfig, data, "robot")
     except Exception:
         return False
     return True

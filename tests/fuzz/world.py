@@ -23,6 +23,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import to_mapping
 from monodock.dock.config import save_docking_config
 from monodock.dock.controller import DockingConfig
 from monodock.recording import messages as m
@@ -175,8 +176,8 @@ def _train_bundle(out: Path) -> Path:
     metadata = {
         "feature_schema": MODEL_FEATURE_SCHEMA,
         "camera": CameraModel.default().to_ros_dict(),
-        "layout": DockLayout.default().to_dict(),
-        "robot": RobotConfig.default().to_dict(),
+        "layout": to_mapping(DockLayout.default()),
+        "robot": to_mapping(RobotConfig.default()),
     }
     return save_bundle(out, result, metadata=metadata)
 

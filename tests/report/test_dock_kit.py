@@ -15,6 +15,7 @@ import yaml
 from numpy.typing import NDArray
 
 from monodock.core.layout import DockLayout, MarkerSpec
+from monodock.core.settings import from_mapping, to_mapping
 from monodock.errors import InputError
 from monodock.report.dock_kit import PAPERS, SCALE_BAR_MM, check_fits, dock_kit_pdf, misfit
 
@@ -32,7 +33,7 @@ def wide_layout(**sizes: float) -> DockLayout:
     data = yaml.safe_load((ROOT / "bench" / "setups" / "wide" / "layout.yaml").read_text())
     for role, size in sizes.items():
         data["markers"][role]["size"] = size
-    return DockLayout.from_dict(data, "wide")
+    return from_mapping(DockLayout, data, "wide")
 
 
 WIDE = wide_layout(left=0.118, right=0.125)
@@ -185,7 +186,7 @@ def test_adjacent_black_cells_have_no_hairline_between_them(kits: dict[str, byte
 
 
 def test_a_sheet_holds_small_markers_on_one_page_with_one_scale_bar() -> None:
-    small = DockLayout.from_dict({**DockLayout.default().to_dict(), "marker_size": 0.04})
+    small = from_mapping(DockLayout, {**to_mapping(DockLayout.default()), "marker_size": 0.04}, "layout")
     pdf = dock_kit_pdf(small, PAPERS["a4"], sheet=True)
     doc = pdfium.PdfDocument(pdf)
     try:

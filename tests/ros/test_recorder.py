@@ -19,6 +19,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from monodock.cli.ros_record import main, record_options
 from monodock.core.camera import CameraModel
+from monodock.core.settings import to_argv
 from monodock.errors import InputError
 from monodock.recording import messages as m
 from monodock.recording.write import RELIABLE, SENSOR
@@ -84,7 +85,7 @@ def test_options_survive_the_command_line(tmp_path: Path) -> None:
         duration=2.5,
         poll_period=0.1,
     )
-    assert record_options(options.argv()) == options
+    assert record_options(to_argv(options)) == options
     assert record_options([str(tmp_path / "b"), "--ros-args", "-r", "__ns:=/robot", "--", "--force"]).force
 
 

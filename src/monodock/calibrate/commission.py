@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from monodock.calibrate.mount import MountCalibration, calibrate_mount_of, frames_from_recording
 from monodock.calibrate.survey import LayoutSurvey, SurveyLimits, survey_layout
@@ -25,6 +25,7 @@ from monodock.calibrate.teach import TaughtPose, teach_from_recording
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import to_mapping
 from monodock.dock.config import ChargingOffset
 from monodock.errors import InputError
 
@@ -182,7 +183,7 @@ def summary_values(c: Commissioning) -> dict[str, object]:
             "sd": {k: (sd[k] * 1e3 if k in ("x", "y", "z") else math.degrees(sd[k])) for k in ("x", "y", "z", "roll",
                                                                                                   "pitch", "yaw")},
         }  # fmt: skip
-        out["odometry"] = replace(c.robot.odometry).to_dict()
+        out["odometry"] = to_mapping(c.robot.odometry)
         out["dock_lean_deg"] = [math.degrees(c.mount.dock_roll), math.degrees(c.mount.dock_pitch)]
         out["odometry_scale"] = c.mount.odometry_scale
         out["mount_rms_px"] = c.mount.rms_px

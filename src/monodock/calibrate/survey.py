@@ -43,6 +43,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.config import yaml_text
 from monodock.core.layout import FACE_R_MARKER, ROLES, DockLayout, MarkerSpec
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import to_mapping
 from monodock.errors import InputError
 from monodock.perception.edge_offset import EdgeOffset
 
@@ -154,7 +155,7 @@ def surveyed_layout_text(survey: LayoutSurvey, layout: DockLayout | None = None)
         "# Surveyed by monodock calibrate layout: every marker's pose and printed side from photographs.\n"
         "# The 'survey' mapping records how well the views determined them; no method reads it.\n"
     )
-    body = yaml_text((layout or survey.layout).to_dict(), flow=None)
+    body = yaml_text(to_mapping(layout or survey.layout), flow=None)
     return head + body + yaml_text({"survey": survey.record()}, flow=None)
 
 

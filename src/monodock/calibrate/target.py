@@ -15,7 +15,7 @@ import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
@@ -24,44 +24,98 @@ from numpy.typing import NDArray
 from monodock.core.config import Fields, load_yaml
 from monodock.core.images import encode_png
 from monodock.core.scan import LaserScan
+from monodock.core.settings import Policy, from_mapping, setting
 from monodock.errors import ConfigError, InputError
 from monodock.io.frames import read_image
 
 # The most a scans.npz may unpack to.
 MAX_NPZ_BYTES = 2_000_000_000
 
-__all__ = ["S_AXIS", "T_AXIS", "DiamondTarget", "TargetView", "read_target_views", "write_target_views"]
+__all__ = ["S_AXIS", "T_AXIS", "DiamondTarget", "TargetMarker", "TargetView", "read_target_views", "write_target_views"]
 
 S_AXIS = np.array([1.0, 1.0, 0.0]) / math.sqrt(2.0)  # board's s axis in the target frame: right and up
 T_AXIS = np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)  # board's t axis: right and down
+
+
+# The board's side unless its file says otherwise, metres.
+_SIDE = 0.5
+
+
+@dataclass(frozen=True)
+class TargetMarker:
+    """One marker of the board: its ArUco id and its centre in the board's (s, t) coordinates, metres."""
+
+    id: int
+    s: float
+    t: float
+
+
+class _MarkerList:
+    """The target file's ``markers``: one list of ``{id, s, t}``, each centre on the board (within its side, which
+    is read before the markers)."""
+
+    def read(self, fields: Fields, key: str) -> tuple[TargetMarker, ...]:
+        markers = fields.raw(key)
+        if not isinstance(markers, list) or not markers:
+            raise fields.error(key, "expected a list of {id, s, t}")
+        items = [Fields(m, fields.source, f"{fields.prefix}{key}[{k}].") for k, m in enumerate(markers)]
+        ids = [m.integer("id", minimum=0) for m in items]
+        within = (0.0, float(fields.data.get("side", _SIDE)))
+        centres = [(m.number("s", within=within, unit="m"), m.number("t", within=within, unit="m")) for m in items]
+        return tuple(TargetMarker(i, s, t) for i, (s, t) in zip(ids, centres, strict=True))
+
+    def write(self, value: tuple[TargetMarker, ...]) -> list[dict[str, Any]]:
+        return [{"id": m.id, "s": m.s, "t": m.t} for m in value]
 
 
 @dataclass(frozen=True)
 class DiamondTarget:
     """The diamond board: its side, its markers (ids, size, centres in board (s, t) coordinates) and dictionary.
 
+    A target file (``--target``) holds ``{side, marker_size, dictionary, markers: [{id, s, t}, ...]}``, each
+    optional; it is read by ``core.settings.from_mapping`` (``load``).
+
     Attributes:
         side: the square's side, metres.
         marker_size: each marker's side, metres (black border included).
-        marker_ids: the ArUco ids (must not be ids of the dock layout).
-        marker_centres: each marker's centre in the board's (s, t) coordinates, metres: s from the left vertex
-            towards the top vertex, t from the left vertex towards the bottom vertex.
         dictionary: the OpenCV predefined dictionary name.
+        markers: the ArUco ids (must not be ids of the dock layout) and each marker's centre in the board's (s, t)
+            coordinates, metres: s from the left vertex towards the top vertex, t from the left vertex towards the
+            bottom vertex.
     """
 
-    side: float = 0.5
+    SETTINGS: ClassVar[Policy] = Policy(what="target", error=InputError)
+
+    side: float = setting(_SIDE, range=(0.05, 5.0), unit="m")
     # Big markers: the board's pose from the camera is what locates the edges, and 10 cm markers left the
     # laser's z and pitch 3-4 cm / 2-3 deg off; 16 cm ones (views within 1.3 m) bring them under 0.5 cm / 0.4 deg.
-    marker_size: float = 0.16
-    marker_ids: tuple[int, ...] = (20, 21, 22, 23)
-    marker_centres: tuple[tuple[float, float], ...] = ((0.13, 0.13), (0.37, 0.13), (0.37, 0.37), (0.13, 0.37))
+    marker_size: float = setting(0.16, range=(0.005, 2.0), unit="m")
     dictionary: str = "DICT_4X4_50"
+    markers: tuple[TargetMarker, ...] = setting(
+        (
+            TargetMarker(20, 0.13, 0.13),
+            TargetMarker(21, 0.37, 0.13),
+            TargetMarker(22, 0.37, 0.37),
+            TargetMarker(23, 0.13, 0.37),
+        ),
+        codec=_MarkerList(),
+    )
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.side) and self.side > 0):
             raise InputError(f"target side must be a positive number of metres, got {self.side}")
-        if len(self.marker_ids) != len(self.marker_centres) or not self.marker_ids:
-            raise InputError("the target needs one centre per marker id, and at least one marker")
+        if not self.markers:
+            raise InputError("the target needs at least one marker")
+
+    @property
+    def marker_ids(self) -> tuple[int, ...]:
+        """The markers' ArUco ids."""
+        return tuple(m.id for m in self.markers)
+
+    @property
+    def marker_centres(self) -> tuple[tuple[float, float], ...]:
+        """The markers' centres in board (s, t) coordinates, metres."""
+        return tuple((m.s, m.t) for m in self.markers)
 
     @property
     def half_diagonal(self) -> float:
@@ -69,38 +123,8 @@ class DiamondTarget:
         return self.side / math.sqrt(2.0)
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = "target") -> DiamondTarget:
-        """Build from ``{side, marker_size, dictionary, markers: [{id, s, t}, ...]}`` (all optional)."""
-        try:
-            f = Fields(data, source)
-            d = cls()
-            markers = f.raw("markers") if f.has("markers") else None
-            if markers is not None and (not isinstance(markers, list) or not markers):
-                raise f.error("markers", "expected a list of {id, s, t}")
-            items = [Fields(m, source, f"markers[{k}].") for k, m in enumerate(markers or [])]
-            side = f.number("side", d.side, within=(0.05, 5.0), unit="m")
-            ids = tuple(m.integer("id", minimum=0) for m in items) or d.marker_ids
-            centres = (
-                tuple(
-                    (m.number("s", within=(0.0, side), unit="m"), m.number("t", within=(0.0, side), unit="m"))
-                    for m in items
-                )
-                or d.marker_centres
-            )
-            f.warn_unknown(("side", "marker_size", "dictionary", "markers"))
-            return cls(
-                side=side,
-                marker_size=f.number("marker_size", d.marker_size, within=(0.005, 2.0), unit="m"),
-                marker_ids=ids,
-                marker_centres=centres,
-                dictionary=f.string("dictionary", d.dictionary),
-            )
-        except ConfigError as exc:
-            raise InputError(str(exc)) from None
-
-    @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DiamondTarget:
-        """Read a target YAML (see from_dict); an empty file is the default target."""
+        """Read a target YAML (the class's docstring); an empty file is the default target."""
         p = Path(path)
         if p.is_file() and not p.read_bytes().strip():
             return cls()
@@ -108,7 +132,7 @@ class DiamondTarget:
             data = load_yaml(p, "target")
         except ConfigError as exc:
             raise InputError(str(exc)) from None
-        return cls.from_dict(data, str(p))
+        return from_mapping(cls, data, str(p))
 
     def aruco_dictionary(self) -> Any:
         """The OpenCV dictionary object."""

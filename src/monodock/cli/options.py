@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.errors import InputError
+from monodock.core.settings import Setting, flag_of, settings_of
+from monodock.errors import InputError, MonodockError
 from monodock.estimation.bundle import Bundle
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
@@ -30,6 +32,7 @@ __all__ = [
     "add_calibration",
     "add_cluster",
     "add_estimator_options",
+    "add_flags",
     "add_jobs",
     "add_seed",
     "add_topics",
@@ -201,6 +204,69 @@ def add_topics(p: argparse.ArgumentParser) -> None:
         default=0.05,
         help="pair an image with a scan at most this far in stamp, s, in (0, 10] (0.05)",
     )
+
+
+def _flag_help(setting: Setting, helps: Mapping[str, str]) -> str | None:
+    if setting.key in helps:
+        text = helps[setting.key]
+    else:
+        text = setting.meta.help if setting.meta.cli_help is None else setting.meta.cli_help
+    return text or None
+
+
+def _flag_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """``parse`` as argparse's type: its error's text is the usage error, word for word."""
+
+    def flag_type(word: str) -> Any:
+        try:
+            return parse(word)
+        except (ValueError, MonodockError) as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    flag_type.__name__ = parse.__name__
+    return flag_type
+
+
+def add_flags(
+    p: argparse.ArgumentParser,
+    cls: type[Any],
+    *,
+    first: Sequence[str] = (),
+    skip: Sequence[str] = (),
+    helps: Mapping[str, str] | None = None,
+) -> None:
+    """A flag per setting of an options class (``settings.flag_of``: ``--kebab-name``, or the one it declares, a
+    positional for a name without dashes), its default the class's: ``first`` in that order (the flags' order in
+    ``--help`` since before the declarations), then the others in declaration order; ``skip`` has flags added
+    elsewhere. ``settings.to_argv`` is the inverse.
+
+    A real is ``type=float`` unless the setting parses its words itself (a node checks its parameters in their own
+    words), a choice of strings its choices, a boolean ``store_true`` when it defaults to false, else
+    ``--x``/``--no-x``. ``helps`` gives a flag words of its own for this command, where ``cli_help`` (else
+    ``help``) will not do.
+    """
+    declared = {s.key: s for s in settings_of(cls) if flag_of(s) is not None and s.key not in skip}
+    for key in [*(k for k in first if k in declared), *(k for k in declared if k not in first)]:
+        s = declared[key]
+        flag = flag_of(s)
+        assert flag is not None
+        kw: dict[str, Any] = {"help": _flag_help(s, helps or {})}
+        if flag.startswith("-") and flag.lstrip("-").replace("-", "_") != key:
+            kw["dest"] = key
+        if s.type is bool and s.default:
+            kw.update(action=argparse.BooleanOptionalAction, default=True)
+        elif s.type is bool:
+            kw["action"] = "store_true"
+        else:
+            if s.default is not dataclasses.MISSING:
+                kw["default"] = s.default
+            if s.meta.parse is not None:
+                kw["type"] = _flag_type(s.meta.parse)
+            elif s.type in (float, int):
+                kw["type"] = s.type
+            if s.meta.choices:
+                kw["choices"] = s.meta.choices
+        p.add_argument(flag, **kw)
 
 
 def add_estimator_options(

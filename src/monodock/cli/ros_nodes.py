@@ -1,7 +1,8 @@
 """The command lines of the ROS 2 nodes (``monodock-ros``, ``monodock-dock-ros``): flags in, typed options out.
 
-The nodes themselves live in ``monodock.ros`` and take typed options; ROS arguments (``--ros-args ...``) pass
-through to rclpy. This module needs rclpy, as the node modules do.
+The nodes themselves live in ``monodock.ros`` and take typed options; the flags are derived from the options'
+settings declarations (``cli.options.add_flags``): a new setting is a new flag. ROS arguments (``--ros-args ...``)
+pass through to rclpy. This module needs rclpy, as the node modules do.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import NoReturn
 
 from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]  # noqa: TID253
 
-from monodock.cli.options import add_estimator_options
+from monodock.cli.options import add_estimator_options, add_flags
 from monodock.errors import MonodockError
 from monodock.ros.detector import DetectorOptions, non_ros_arguments, run_detector
 from monodock.ros.dock_node import DockOptions, run_dock
@@ -29,9 +30,52 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+# The flags of add_estimator_options (shared with the other commands that estimate).
+_ESTIMATOR_FLAGS = ("model", "method", "camera", "layout", "robot", "refinement")
+# The flags' order in --help since before the settings were declared; a new setting's flag follows these.
+_DETECTOR_ORDER = (
+    "image_topic",
+    "compressed",
+    "camera_info_topic",
+    "pose_topic",
+    "pose_covariance_topic",
+    "frame_id",
+    "max_stamp_age",
+    "diagnostics_period",
+    "image_is_rectified",
+    "camera_mount_source",
+    "mount_tolerance_m",
+    "mount_tolerance_deg",
+    "dock_frame",
+    "active",
+    "debug_image_topic",
+    "lifecycle",
+)
+_DOCK_ORDER = (
+    "image_topic",
+    "compressed",
+    "camera_info_topic",
+    "odom_topic",
+    "cmd_vel_topic",
+    "battery_topic",
+    "contact_topic",
+    "rear_range_topic",
+    "pose_topic",
+    "pose_covariance_topic",
+    "frame_id",
+    "config",
+    "odom_timeout",
+    "sensor_timeout",
+    "dock_id",
+    "autostart_node",
+    "enable_stamped_cmd_vel",
+)
+# The docking node's own words for two flags it shares with the detector.
+_DOCK_HELPS = {"image_topic": "", "compressed": "the image topic is sensor_msgs/CompressedImage"}
+
+
 def detector_parser() -> argparse.ArgumentParser:
     """``monodock-ros``'s flags: each sets the default of the node's ROS parameter of the same name."""
-    d = DetectorOptions()
     p = _Parser(
         prog="monodock-ros",
         description="node monodock_detector: camera images in, detected_dock_pose and /diagnostics out",
@@ -43,61 +87,12 @@ def detector_parser() -> argparse.ArgumentParser:
         camera_help="camera file (default: the model's, else from camera_info)",
         robot_help="robot YAML (camera mount)",
     )
-    p.add_argument("--image-topic", default=d.image_topic, help="sensor_msgs/Image (default: %(default)s)")
-    p.add_argument("--compressed", action="store_true", help="subscribe to IMAGE_TOPIC/compressed (CompressedImage)")
-    p.add_argument("--camera-info-topic", default=d.camera_info_topic, help="default: %(default)s")
-    p.add_argument("--pose-topic", default=d.pose_topic, help="default: %(default)s")
-    p.add_argument(
-        "--pose-covariance-topic",
-        default=d.pose_covariance_topic,
-        help="PoseWithCovarianceStamped of the estimates that have a covariance (default: %(default)s)",
-    )
-    p.add_argument("--frame-id", default=d.frame_id, help="default: %(default)s")
-    p.add_argument(
-        "--max-stamp-age",
-        type=float,
-        default=d.max_stamp_age,
-        help="skip images older than this by the node's clock, s; 0: no limit (default: %(default)s)",
-    )
-    p.add_argument(
-        "--diagnostics-period", type=float, default=d.diagnostics_period, help="/diagnostics period, s (%(default)s)"
-    )
-    _add_camera_source(p, d)
-    p.add_argument("--dock-frame", default=d.dock_frame, help="broadcast each pose on /tf as FRAME_ID -> this frame")
-    p.add_argument(
-        "--active",
-        action=argparse.BooleanOptionalAction,
-        default=d.active,
-        help="estimate from the start; --no-active: only after ~/start or ~/toggle (Nav2's detector_service_name)",
-    )
-    p.add_argument("--debug-image-topic", default=d.debug_image_topic, help="default: %(default)s")
-    p.add_argument(
-        "--lifecycle",
-        action="store_true",
-        help="a managed (lifecycle) node: unconfigured at start, estimating only while active",
-    )
+    add_flags(p, DetectorOptions, first=_DETECTOR_ORDER, skip=_ESTIMATOR_FLAGS)
     return p
-
-
-def _add_camera_source(p: argparse.ArgumentParser, d: DetectorOptions | DockOptions) -> None:
-    """The flags of where the camera model and its mount come from, the same in both nodes."""
-    p.add_argument(
-        "--image-is-rectified", action="store_true", help="rectified images: the camera is camera_info's P, undistorted"
-    )
-    p.add_argument(
-        "--camera-mount-source",
-        choices=("tf", "robot"),
-        default=d.camera_mount_source,
-        help="tf: base_link -> the images' frame from /tf_static when there, else the robot file's (default: "
-        "%(default)s)",
-    )
-    p.add_argument("--mount-tolerance-m", type=float, default=d.mount_tolerance_m, help="default: %(default)s")
-    p.add_argument("--mount-tolerance-deg", type=float, default=d.mount_tolerance_deg, help="default: %(default)s")
 
 
 def dock_parser() -> argparse.ArgumentParser:
     """``monodock-dock-ros``'s flags: each sets the default of the node's parameter of the same name."""
-    d = DockOptions()
     p = _Parser(
         prog="monodock-dock-ros",
         description="dock and undock on request (Nav2's dock_robot and undock_robot actions; ~/dock, ~/undock, "
@@ -110,36 +105,7 @@ def dock_parser() -> argparse.ArgumentParser:
         camera_help="camera file (default: the bundle's, else from camera_info)",
         robot_help="robot YAML (mounts, front_offset, limits)",
     )
-    p.add_argument("--image-topic", default=d.image_topic)
-    p.add_argument("--compressed", action="store_true", help="the image topic is sensor_msgs/CompressedImage")
-    p.add_argument("--camera-info-topic", default=d.camera_info_topic)
-    p.add_argument("--odom-topic", default=d.odom_topic)
-    p.add_argument("--cmd-vel-topic", default=d.cmd_vel_topic)
-    p.add_argument("--battery-topic", default=d.battery_topic, help="BatteryState; empty: no charging signal")
-    p.add_argument("--contact-topic", default=d.contact_topic, help="std_msgs/Bool contact switch; empty: none")
-    p.add_argument("--rear-range-topic", default=d.rear_range_topic, help="sensor_msgs/Range behind; empty: none")
-    p.add_argument("--pose-topic", default=d.pose_topic)
-    p.add_argument("--pose-covariance-topic", default=d.pose_covariance_topic)
-    p.add_argument("--frame-id", default=d.frame_id)
-    p.add_argument("--config", default=d.config, help="docking config YAML (docs/docking.md), read before parameters")
-    p.add_argument("--odom-timeout", type=float, default=d.odom_timeout, help="odometry older than this: stop, s")
-    p.add_argument("--sensor-timeout", type=float, default=d.sensor_timeout, help="other sensors' age limit, s")
-    p.add_argument("--dock-id", default=d.dock_id, help="the one dock's name without a dock database (%(default)s)")
-    p.add_argument(
-        "--autostart",
-        dest="autostart_node",
-        action=argparse.BooleanOptionalAction,
-        default=d.autostart_node,
-        help="configure and activate at start (default); --no-autostart: wait for nav2_lifecycle_manager",
-    )
-    p.add_argument(
-        "--stamped-cmd-vel",
-        dest="enable_stamped_cmd_vel",
-        action=argparse.BooleanOptionalAction,
-        default=d.enable_stamped_cmd_vel,
-        help="cmd_vel as TwistStamped (default, as Kilted); --no-stamped-cmd-vel: Twist",
-    )
-    _add_camera_source(p, d)
+    add_flags(p, DockOptions, first=_DOCK_ORDER, skip=_ESTIMATOR_FLAGS, helps=_DOCK_HELPS)
     return p
 
 

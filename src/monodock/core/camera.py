@@ -228,7 +228,11 @@ class CameraModel:
 
     @classmethod
     def from_ros_dict(cls, data: dict[str, Any], source: str = "camera") -> CameraModel:
-        """Build from a camera_info YAML mapping; also accepts ROS 1 / ROS 2 message spellings (K, D, k, d)."""
+        """Build from a camera_info YAML mapping; also accepts ROS 1 / ROS 2 message spellings (K, D, k, d).
+
+        Read with ``Fields``, not ``core.settings``: ROS's format, with its matrices, its aliases and coefficients
+        whose count follows ``distortion_model`` (docs/architecture.md, "Where a change goes").
+        """
         f = Fields(data, source)
         width = f.integer("image_width" if f.has("image_width") else "width", minimum=1, maximum=MAX_IMAGE_SIDE)
         height = f.integer("image_height" if f.has("image_height") else "height", minimum=1, maximum=MAX_IMAGE_SIDE)

@@ -22,7 +22,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
@@ -30,6 +30,8 @@ from numpy.typing import NDArray
 
 from monodock.core import transforms
 from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
+from monodock.core.settings import Policy, from_mapping, setting, to_mapping
+from monodock.core.settings_fields import from_fields
 from monodock.errors import ConfigError
 
 __all__ = ["FACE_R_MARKER", "MAX_MARKERS", "ROLES", "DockLayout", "MarkerSpec"]
@@ -59,9 +61,21 @@ def _dictionary_size(name: str) -> int:
 FACE_R_MARKER = np.array([[0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 # A marker's tilt against the face: beyond this it is not taped onto the face but mounted some other way.
 MAX_TILT = math.radians(45.0)
-# The optional per-marker keys, and the keys every marker has.
+# The optional per-marker keys of its pose.
 _POSE_KEYS = ("x", "roll", "pitch", "yaw")
-_MARKER_KEYS = ("id", "y", "z", *_POSE_KEYS, "size")
+_PLACE = (-MAX_OFFSET, MAX_OFFSET)
+_TILT = (-MAX_TILT, MAX_TILT)
+
+
+def _id_problem(marker_id: int) -> str | None:
+    # The dictionary's own range is checked with its name, by DockLayout.
+    return f"must be at least 0, got {marker_id!r}" if marker_id < 0 else None
+
+
+def _dictionary_problem(name: str) -> str | None:
+    if name.startswith("DICT_") and hasattr(cv2.aruco, name):
+        return None
+    return f"unknown ArUco dictionary '{name}' (e.g. DICT_4X4_50)"
 
 
 @dataclass(frozen=True)
@@ -75,17 +89,20 @@ class MarkerSpec:
         x: its centre along the dock's x (0: on the face), metres.
         roll, pitch, yaw: its tilt against the face, radians (URDF order, the dock's axes; the module's docstring).
         size: its own printed side (outer black border), metres; None: the layout's ``marker_size``.
+
+    In the layout file a marker is a mapping under its role (``markers: {left: {id: 1, y: 0.2, z: 0.3}}``) that
+    holds its other keys, each optional one only where it is not its default.
     """
 
     role: str
-    id: int
-    y: float
-    z: float
-    x: float = 0.0
-    roll: float = 0.0
-    pitch: float = 0.0
-    yaw: float = 0.0
-    size: float | None = None
+    id: int = setting(check=_id_problem)
+    y: float = setting(range=_PLACE, unit="m")
+    z: float = setting(range=_PLACE, unit="m")
+    x: float = setting(0.0, range=_PLACE, unit="m", omit_default=True)
+    roll: float = setting(0.0, range=_TILT, unit="rad", omit_default=True)
+    pitch: float = setting(0.0, range=_TILT, unit="rad", omit_default=True)
+    yaw: float = setting(0.0, range=_TILT, unit="rad", omit_default=True)
+    size: float | None = setting(None, range=MARKER_SIZE_RANGE, unit="m", omit_default=True)
 
     @property
     def number(self) -> int | None:
@@ -107,18 +124,49 @@ class MarkerSpec:
         return np.array([self.x, self.y, self.z])
 
 
+class _ByRole:
+    """The layout file's ``markers``: a mapping of role to the marker's keys, the papers' three required and first."""
+
+    def read(self, fields: Fields, key: str) -> tuple[MarkerSpec, ...]:
+        mf = fields.child(key)
+        missing = [role for role in ROLES if role not in mf.data]
+        if missing:
+            raise mf.error(missing[0], f"missing: every dock carries the papers' {', '.join(ROLES)}")
+        others = [str(k) for k in mf.data if k not in ROLES]
+        for name in others:
+            if not EXTRA_NAME.match(name):
+                raise mf.error(
+                    name,
+                    f"unknown marker role (expected {', '.join(ROLES)}, or another marker's name: lower-case letters, "
+                    "digits and _)",
+                )
+        return tuple(from_fields(MarkerSpec, mf.child(role), role=role) for role in (*ROLES, *others))
+
+    def write(self, value: tuple[MarkerSpec, ...]) -> dict[str, Any]:
+        return {m.role: {k: v for k, v in to_mapping(m).items() if k != "role"} for m in value}
+
+
 @dataclass(frozen=True)
 class DockLayout:
     """Dictionary, marker side (outer black border, metres) and the markers of the charger: the papers' three (left,
-    center, right) first, then any others in their file's order."""
+    center, right) first, then any others in their file's order.
 
-    dictionary: str
-    marker_size: float
-    markers: tuple[MarkerSpec, ...]
+    The layout file (docs/user-guide.md) is read by ``core.settings.from_mapping`` and written by ``to_mapping``.
+    Unknown keys are reported and dropped: nothing a file holds beyond the schema travels into outputs. A survey's
+    record (``calibrate layout``) is for people: read past, without a warning.
+    """
+
+    SETTINGS: ClassVar[Policy] = Policy(what="layout", ignore=("survey",))
+
+    dictionary: str = setting(check=_dictionary_problem)
+    marker_size: float = setting(range=MARKER_SIZE_RANGE, unit="m")
+    markers: tuple[MarkerSpec, ...] = setting(codec=_ByRole())
     # How far this print's black/white edges look moved towards the white in this camera's images, px (< 0: black
     # thinner; ink, sharpening, processing). Measured by ``calibrate layout``; the geometric methods' corners are
     # corrected by it (``perception.edge_offset``). 0: none.
-    edge_offset: float = 0.0
+    edge_offset: float = setting(
+        0.0, key="edge_offset_px", range=(-MAX_EDGE_OFFSET_PX, MAX_EDGE_OFFSET_PX), unit="px", omit_default=True
+    )
 
     def __post_init__(self) -> None:
         if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
@@ -175,68 +223,13 @@ class DockLayout:
         )
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = "layout") -> DockLayout:
-        """Build from the layout YAML mapping (docs/user-guide.md); errors name the field."""
-        f = Fields(data, source)
-        dictionary = f.string("dictionary")
-        if not dictionary.startswith("DICT_") or not hasattr(cv2.aruco, dictionary):
-            raise f.error("dictionary", f"unknown ArUco dictionary '{dictionary}' (e.g. DICT_4X4_50)")
-        marker_size = f.number("marker_size", within=MARKER_SIZE_RANGE, unit="m")
-        mf = f.child("markers")
-        missing = [role for role in ROLES if role not in mf.data]
-        if missing:
-            raise mf.error(missing[0], f"missing: every dock carries the papers' {', '.join(ROLES)}")
-        others = [str(k) for k in mf.data if k not in ROLES]
-        for name in others:
-            if not EXTRA_NAME.match(name):
-                raise mf.error(
-                    name,
-                    f"unknown marker role (expected {', '.join(ROLES)}, or another marker's name: lower-case letters, "
-                    "digits and _)",
-                )
-        specs = []
-        for role in (*ROLES, *others):
-            m = mf.child(role)
-            marker_id = m.integer("id", minimum=0)  # the dictionary's range is checked with its name below
-            y = m.number("y", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
-            z = m.number("z", within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
-            x = m.number("x", 0.0, within=(-MAX_OFFSET, MAX_OFFSET), unit="m")
-            roll, pitch, yaw = (m.number(k, 0.0, within=(-MAX_TILT, MAX_TILT), unit="rad") for k in _POSE_KEYS[1:])
-            size = m.number("size", within=MARKER_SIZE_RANGE, unit="m") if m.has("size") else None
-            m.warn_unknown(_MARKER_KEYS)
-            specs.append(MarkerSpec(role, marker_id, y, z, x, roll, pitch, yaw, size))
-        edge_offset = f.number("edge_offset_px", 0.0, within=(-MAX_EDGE_OFFSET_PX, MAX_EDGE_OFFSET_PX), unit="px")
-        # Unknown keys are reported and dropped: nothing a file holds beyond the schema travels into outputs. A
-        # survey's record (``calibrate layout``) is for people: read past, without a warning.
-        f.warn_unknown(("dictionary", "marker_size", "markers", "edge_offset_px", "survey"))
-        try:
-            return cls(dictionary, marker_size, tuple(specs), edge_offset)
-        except ConfigError as exc:
-            raise ConfigError(f"{source}: {exc}") from None
-
-    @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DockLayout:
         """Read a dock layout YAML file."""
-        return cls.from_dict(load_yaml(path, "layout"), str(path))
-
-    def to_dict(self) -> dict[str, Any]:
-        """The layout YAML mapping (docs/user-guide.md): the optional keys only where a marker has them."""
-        out: dict[str, Any] = {"dictionary": self.dictionary, "marker_size": self.marker_size}
-        markers: dict[str, Any] = {}
-        for m in self.markers:
-            entry: dict[str, Any] = {"id": m.id, "y": m.y, "z": m.z}
-            entry.update({k: getattr(m, k) for k in _POSE_KEYS if getattr(m, k) != 0.0})
-            if m.size is not None:
-                entry["size"] = m.size
-            markers[m.role] = entry
-        out["markers"] = markers
-        if self.edge_offset != 0.0:
-            out["edge_offset_px"] = self.edge_offset
-        return out
+        return from_mapping(cls, load_yaml(path, "layout"), str(path))
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
         """Write the layout YAML atomically."""
-        write_text_atomic(Path(path), yaml_text(self.to_dict()), force=force)
+        write_text_atomic(Path(path), yaml_text(to_mapping(self)), force=force)
 
     # --- lookups --------------------------------------------------------------------------------
 

@@ -4,11 +4,13 @@ The result types (dock-sim's summary, the robustness sweep's) are dataclasses; t
 hand-written ``to_dict``/``from_dict`` per type, ``to_record`` and ``from_record`` walk the fields by their type
 hints: numbers, strings, booleans, None, enums (by value), tuples, lists, mappings (str, int or enum keys; JSON
 keys are strings) and nested dataclasses. A ``float`` written as NaN or ±inf is null in the file (``json_text``)
-and reads back as NaN; a ``float | None`` reads null as None. A field's file key is its name, or
-``field(metadata=file_key("a.b"))``: a dotted key nests it (``retries.total``; a key cannot hold a dot), an empty
-key spreads a nested dataclass's keys into its parent's (a spread mapping, e.g. one entry per method, can be
-written but not read back: its keys cannot be told from the parent's). A key absent from a file takes the field's
-default (files written before the field existed stay readable); one without a default is an error naming the key.
+and reads back as NaN; a ``float | None`` reads null as None. A field's file key is its name, or the key it
+declares, ``core.settings.setting(0, key="a.b")`` or ``field(metadata=file_key("a.b"))`` (one key model for
+settings and records; ``file_key`` is for a field without a default, which mypy cannot tell in a ``setting``): a
+dotted key nests it (``retries.total``; a key part cannot hold a dot), an empty key spreads a nested dataclass's
+keys into its parent's (a spread mapping, e.g. one entry per method, can be written but not read back: its keys
+cannot be told from the parent's). A key absent from a file takes the field's default (files written before the
+field existed stay readable); one without a default is an error naming the key.
 A type the converter does not know is a TypeError (a programming error), never a user's one-line error.
 """
 
@@ -22,22 +24,26 @@ import typing
 from collections.abc import Mapping, Sequence
 from typing import Any, TypeVar
 
+from monodock.core.settings import Meta, setting
 from monodock.errors import InputError
 
 __all__ = ["file_key", "from_record", "to_record"]
 
 T = TypeVar("T")
 
-_KEY = "record_key"
 
-
-def file_key(name: str) -> dict[str, str]:
-    """A field's metadata giving its key in the file: ``field(metadata=file_key("retries.total"))``; "" spreads it."""
-    return {_KEY: name}
+def file_key(name: str) -> Mapping[str, Any]:
+    """A field's metadata giving its key in the file, as ``setting(key=name)`` declares it:
+    ``field(metadata=file_key("retries.total"))``; "" spreads it."""
+    field: dataclasses.Field[Any] = setting(key=name)
+    return field.metadata
 
 
 def _key_of(f: dataclasses.Field[Any]) -> str:
-    return str(f.metadata.get(_KEY, f.name))
+    """The field's key in the file: ``setting(key=...)``'s, else its name. Unlike a settings file's, a record's key
+    may be dotted (``retries.total``: nested) and "" may spread a mapping (written, never read back)."""
+    meta = next((m for m in f.metadata.values() if isinstance(m, Meta)), None)
+    return f.name if meta is None or meta.key is None else meta.key
 
 
 def to_record(value: Any) -> Any:

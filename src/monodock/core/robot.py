@@ -6,28 +6,40 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core import transforms
-from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
+from monodock.core.config import load_yaml, write_text_atomic, yaml_text
+from monodock.core.settings import Policy, from_mapping, setting, to_mapping
 from monodock.errors import ConfigError
 
 __all__ = ["Mount", "OdometryCalibration", "RobotConfig"]
 
+# What a robot file may hold (docs/user-guide.md, "What every file may hold"): sensors within 5 m of base_link,
+# angles within ±π, speeds a wheeled base can have.
+MAX_MOUNT_OFFSET = 5.0
+MAX_LINEAR_SPEED = 5.0  # m/s
+MAX_ANGULAR_SPEED = 10.0  # rad/s
+_OFFSET = (-MAX_MOUNT_OFFSET, MAX_MOUNT_OFFSET)
+_ANGLE = (-math.pi, math.pi)
+
 
 @dataclass(frozen=True)
 class Mount:
-    """A sensor body's pose in base_link: metres and URDF roll/pitch/yaw radians (pitch > 0 looks down)."""
+    """A sensor body's pose in base_link: metres and URDF roll/pitch/yaw radians (pitch > 0 looks down).
 
-    x: float = 0.0
-    y: float = 0.0
-    z: float = 0.0
-    roll: float = 0.0
-    pitch: float = 0.0
-    yaw: float = 0.0
+    In a robot file x, y and z must be given; the angles default to 0.
+    """
+
+    x: float = setting(0.0, required=True, range=_OFFSET, unit="m")
+    y: float = setting(0.0, required=True, range=_OFFSET, unit="m")
+    z: float = setting(0.0, required=True, range=_OFFSET, unit="m")
+    roll: float = setting(0.0, range=_ANGLE, unit="rad")
+    pitch: float = setting(0.0, range=_ANGLE, unit="rad")
+    yaw: float = setting(0.0, range=_ANGLE, unit="rad")
 
     def matrix(self) -> NDArray[np.float64]:
         """base_T_sensor as a 4x4 transform."""
@@ -41,30 +53,6 @@ class Mount:
         r, p, y = transforms.rpy_from_rotation(T[:3, :3])
         return cls(float(T[0, 3]), float(T[1, 3]), float(T[2, 3]), r, p, y)
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> Mount:
-        """A mount from its mapping: x, y, z within MAX_MOUNT_OFFSET metres, angles within ±π (default 0)."""
-        position = [f.number(k, within=(-MAX_MOUNT_OFFSET, MAX_MOUNT_OFFSET), unit="m") for k in ("x", "y", "z")]
-        angles = [f.number(k, 0.0, within=(-math.pi, math.pi), unit="rad") for k in ("roll", "pitch", "yaw")]
-        f.warn_unknown(_MOUNT_KEYS)
-        return cls(*position, *angles)
-
-    def to_dict(self) -> dict[str, float]:
-        return {k: float(getattr(self, k)) for k in _MOUNT_KEYS}
-
-
-_MOUNT_KEYS = ("x", "y", "z", "roll", "pitch", "yaw")
-
-# What a robot file may hold (docs/user-guide.md, "What every file may hold"): sensors within 5 m of base_link,
-# angles within ±π, speeds a wheeled base can have.
-MAX_MOUNT_OFFSET = 5.0
-MAX_LINEAR_SPEED = 5.0  # m/s
-MAX_ANGULAR_SPEED = 10.0  # rad/s
-
-
-_ROBOT_KEYS = ("camera_mount", "laser_mount", "front_offset", "max_linear_speed", "max_angular_speed", "odometry")
-_ODOMETRY_KEYS = ("distance_scale", "rotation_scale", "drift_per_m")
-
 
 @dataclass(frozen=True)
 class OdometryCalibration:
@@ -76,9 +64,9 @@ class OdometryCalibration:
         drift_per_m: heading error per metre driven, radians (unequal wheels).
     """
 
-    distance_scale: float = 1.0
-    rotation_scale: float = 0.0
-    drift_per_m: float = 0.0
+    distance_scale: float = setting(1.0, range=(0.8, 1.25))
+    rotation_scale: float = setting(0.0, range=(-0.2, 0.2))
+    drift_per_m: float = setting(0.0, range=(-0.5, 0.5), unit="rad/m")
 
     @property
     def identity(self) -> bool:
@@ -103,18 +91,11 @@ class OdometryCalibration:
         y = p[0, 1] + np.concatenate([[0.0], np.cumsum(ds * np.sin(m) + dl * np.cos(m))])
         return np.column_stack([x, y, new_yaw])
 
-    @classmethod
-    def from_fields(cls, f: Fields) -> OdometryCalibration:
-        out = cls(
-            f.number("distance_scale", 1.0, within=(0.8, 1.25)),
-            f.number("rotation_scale", 0.0, within=(-0.2, 0.2)),
-            f.number("drift_per_m", 0.0, within=(-0.5, 0.5), unit="rad/m"),
-        )
-        f.warn_unknown(_ODOMETRY_KEYS)
-        return out
 
-    def to_dict(self) -> dict[str, float]:
-        return {k: float(getattr(self, k)) for k in _ODOMETRY_KEYS}
+# The papers' robot: camera 17 cm behind the front edge (the robot file's example, docs/user-guide.md).
+_CAMERA_MOUNT = Mount(0.17, 0.0, 0.25)
+_LASER_MOUNT = Mount(0.17, 0.0, 0.20)
+_NO_ODOMETRY_ERROR = OdometryCalibration()
 
 
 @dataclass(frozen=True)
@@ -128,15 +109,20 @@ class RobotConfig:
         front_offset: base_link to the robot's front edge, metres; docked means DockPose (front_offset, 0, 0).
         max_linear_speed: m/s.
         max_angular_speed: rad/s.
-        odometry: how the wheel odometry is off (``calibrate mount``); none by default.
+        odometry: how the wheel odometry is off (``calibrate mount``); none by default, and then not written.
+
+    The robot file (docs/user-guide.md) is read by ``core.settings.from_mapping`` and written by ``to_mapping``: the
+    mounts and front_offset must be given, the rest may be.
     """
 
-    camera_mount: Mount = Mount(0.17, 0.0, 0.25)
-    laser_mount: Mount = Mount(0.17, 0.0, 0.20)
-    front_offset: float = 0.34
-    max_linear_speed: float = 0.3
-    max_angular_speed: float = 1.0
-    odometry: OdometryCalibration = OdometryCalibration()
+    SETTINGS: ClassVar[Policy] = Policy(what="robot")
+
+    camera_mount: Mount = setting(_CAMERA_MOUNT, required=True)
+    laser_mount: Mount = setting(_LASER_MOUNT, required=True)
+    front_offset: float = setting(0.34, required=True, range=(0.0, MAX_MOUNT_OFFSET), unit="m")
+    max_linear_speed: float = setting(0.3, positive=True, range=(0.0, MAX_LINEAR_SPEED), unit="m/s")
+    max_angular_speed: float = setting(1.0, positive=True, range=(0.0, MAX_ANGULAR_SPEED), unit="rad/s")
+    odometry: OdometryCalibration = setting(_NO_ODOMETRY_ERROR, omit_default=True)
 
     def __post_init__(self) -> None:
         if self.front_offset < 0:
@@ -162,53 +148,11 @@ class RobotConfig:
         return self.laser_mount.matrix()
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any], source: str = "robot") -> RobotConfig:
-        """Build from the robot YAML mapping (docs/user-guide.md); errors name the field."""
-        f = Fields(data, source)
-        d = cls()
-        try:
-            robot = cls(
-                camera_mount=Mount.from_fields(f.child("camera_mount")),
-                laser_mount=Mount.from_fields(f.child("laser_mount")),
-                front_offset=f.number("front_offset", within=(0.0, MAX_MOUNT_OFFSET), unit="m"),
-                max_linear_speed=f.number(
-                    "max_linear_speed", d.max_linear_speed, positive=True, within=(0.0, MAX_LINEAR_SPEED), unit="m/s"
-                ),
-                max_angular_speed=f.number(
-                    "max_angular_speed",
-                    d.max_angular_speed,
-                    positive=True,
-                    within=(0.0, MAX_ANGULAR_SPEED),
-                    unit="rad/s",
-                ),
-                odometry=OdometryCalibration.from_fields(f.child("odometry"))
-                if f.has("odometry")
-                else OdometryCalibration(),
-            )
-            f.warn_unknown(_ROBOT_KEYS)
-            return robot
-        except ConfigError as exc:
-            if str(exc).startswith(source):
-                raise
-            raise ConfigError(f"{source}: {exc}") from None
-
-    @classmethod
     def load(cls, path: str | os.PathLike[str]) -> RobotConfig:
         """Read a robot YAML file."""
-        return cls.from_dict(load_yaml(path, "robot"), str(path))
-
-    def to_dict(self) -> dict[str, Any]:
-        """The robot YAML mapping (docs/user-guide.md)."""
-        return {
-            "camera_mount": self.camera_mount.to_dict(),
-            "laser_mount": self.laser_mount.to_dict(),
-            "front_offset": self.front_offset,
-            "max_linear_speed": self.max_linear_speed,
-            "max_angular_speed": self.max_angular_speed,
-            **({} if self.odometry.identity else {"odometry": self.odometry.to_dict()}),
-        }
+        return from_mapping(cls, load_yaml(path, "robot"), str(path))
 
     def save(self, path: str | os.PathLike[str], *, force: bool = False) -> None:
         """Write the robot YAML atomically."""
-        text = yaml_text(self.to_dict(), flow=None)
+        text = yaml_text(to_mapping(self), flow=None)
         write_text_atomic(Path(path), text, force=force)

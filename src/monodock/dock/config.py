@@ -1,25 +1,27 @@
 """The docking config: the mission's gains, speeds, tolerances, time-outs and retries (``DockingConfig``), and
 its file, one YAML mapping.
 
-The file mirrors ``DockingConfig`` field by field, its nested sections (``planner``, ``track`` with its
-``odometry``, ``measurement``) as nested mappings. Every key is optional (a missing one keeps its default) and
-every key must be known: a misspelt gain is refused, not ignored. Values are checked for type, finiteness and
-a broad range (0 to MAX_NUMBER, counts to MAX_COUNT) here and for their own rules by the dataclasses; any error
-is one line naming the file and the key.
+Each value is declared once, as a ``core.settings`` setting (unit, rule, what it is for); the file, the docking
+node's ROS parameters (the flat names: ``cruise_speed``, ``planner.standoff``) and docs/docking.md's table follow
+from that declaration. The file mirrors ``DockingConfig`` field by field, its nested sections (``planner``,
+``track`` with its ``odometry``, ``measurement``, ``charging_offset``) as nested mappings. Every key is optional (a
+missing one keeps its default) and every key must be known: a misspelt gain is refused, not ignored. Values are
+checked for type, finiteness and a broad range (0 to MAX_NUMBER, counts to MAX_COUNT) when read and for their own
+rules whenever a config is built; any error is one line naming the file and the key.
 ``monodock dock-sim --config`` and the docking node's parameters read the same schema.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar
 
-from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
+from monodock.core.config import load_yaml, write_text_atomic, yaml_text
 from monodock.core.pose2d import Pose2D
+from monodock.core.settings import Policy, check_fields, from_mapping, section, setting, to_mapping
 from monodock.dock.planner import PlannerConfig
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise
 from monodock.errors import ConfigError
@@ -34,6 +36,12 @@ __all__ = [
 ]
 
 
+# Every number of the config is a non-negative distance (m), speed, rate, time (s), gain, angle (°) or noise
+# (a signed one for an offset): none is plausibly beyond these. The declarations hold the finer rules.
+MAX_NUMBER = 10_000.0
+MAX_COUNT = 1_000
+
+
 @dataclass(frozen=True)
 class ChargingOffset:
     """Where base_link charges, against the nominal docked pose (front_offset before the face, on the dock's axis,
@@ -42,11 +50,22 @@ class ChargingOffset:
     cancels there. All zero: dock at the nominal pose.
     """
 
-    SIGNED: ClassVar[tuple[str, ...]] = ("x", "y", "yaw_deg")
-
-    x: float = 0.0
-    y: float = 0.0
-    yaw_deg: float = 0.0
+    x: float = setting(
+        0.0,
+        unit="m",
+        signed=True,
+        help=(
+            "the taught charging pose (`monodock teach`): base_link this much further towards the charger than the "
+            "nominal docked pose"
+        ),
+    )
+    y: float = setting(0.0, unit="m", signed=True, help="… this much to the dock's left")
+    yaw_deg: float = setting(
+        0.0,
+        unit="°",
+        signed=True,
+        help="… turned this much counter-clockwise; every frame is read in the frame this docks in",
+    )
 
     def __post_init__(self) -> None:
         if abs(self.x) > 0.2 or abs(self.y) > 0.2 or abs(self.yaw_deg) > 20.0:
@@ -69,109 +88,149 @@ class DockingConfig:
     these by name; docs/docking.md lists every field with its unit, default and what it does.
     """
 
-    planner: PlannerConfig = field(default_factory=PlannerConfig)
-    control_period: float = 0.02
+    SETTINGS: ClassVar[Policy] = Policy(
+        what="docking config",
+        unknown="refuse",
+        checks="construct",
+        culprit=True,
+        numbers=(0.0, MAX_NUMBER),
+        counts=(0, MAX_COUNT),
+        units_in_errors=False,
+        live=True,  # each mission reads the config afresh: the node's parameters may change between missions
+    )
+
+    planner: PlannerConfig = section(PlannerConfig, help="where Point A is")
+    control_period: float = setting(0.02, unit="s", positive=True, help="the control loop's period")
     # Speed and acceleration limits; the robot's own maxima cap these.
-    cruise_speed: float = 0.20
-    approach_speed: float = 0.12
-    turn_rate: float = 0.6
-    linear_accel: float = 0.4
-    angular_accel: float = 1.5
-    min_speed: float = 0.02  # below this a real base's wheels stall; a non-zero command is never smaller
-    min_turn_rate: float = 0.08
-    creep_distance: float = 0.03  # the last metres at min_speed
-    stop_lead: float = 0.1  # seconds: stop this early for the command latency and the motors' lag
+    cruise_speed: float = setting(0.20, unit="m/s", positive=True, help="speed on the legs to Point A")
+    approach_speed: float = setting(0.12, unit="m/s", positive=True, help="Moving₃'s speed")
+    turn_rate: float = setting(0.6, unit="rad/s", positive=True, help="largest turn rate")
+    linear_accel: float = setting(0.4, unit="m/s²", positive=True, help="acceleration and braking limit")
+    angular_accel: float = setting(1.5, unit="rad/s²", positive=True, help="angular acceleration limit")
+    min_speed: float = setting(0.02, unit="m/s", help="smallest non-zero speed command (a real base stalls below)")
+    min_turn_rate: float = setting(0.08, unit="rad/s", help="smallest non-zero turn command on the spot")
+    creep_distance: float = setting(0.03, unit="m", help="the last distance before the face, at `min_speed`")
+    stop_lead: float = setting(0.1, unit="s", help="stop this early for the command latency and the motors' lag")
     # Moving₃'s P-control: heading reference -atan(k_lateral * lateral error), turn rate k_heading * heading error.
-    k_lateral: float = 4.0
-    k_heading: float = 2.5
-    max_correction_deg: float = 20.0
-    heading_only_gap: float = 0.12  # closer than this the lateral term fades out: arrive square
+    k_lateral: float = setting(4.0, unit="1/m", help="Moving₃: heading reference −atan(k_lateral · lateral error)")
+    k_heading: float = setting(2.5, unit="1/s", help="Moving₃: turn rate per radian of heading error")
+    max_correction_deg: float = setting(20.0, unit="°", help="Moving₃: largest heading reference")
+    heading_only_gap: float = setting(0.12, unit="m", help="Moving₃: the lateral term fades out this close to the face")
     # Turning and driving on odometry.
-    k_turn: float = 3.0
-    turn_tolerance_deg: float = 0.3
-    k_bearing: float = 2.0
-    arrive_tolerance: float = 0.005
-    refine_while_moving: bool = True  # frames during Moving₁ and Moving₂ refine Point A and the turns
+    k_turn: float = setting(3.0, unit="1/s", help="turns on odometry: turn rate per radian left")
+    turn_tolerance_deg: float = setting(0.3, unit="°", help="a turn is done within this")
+    k_bearing: float = setting(2.0, unit="1/s", help="legs on odometry: turn rate per radian of bearing to the target")
+    arrive_tolerance: float = setting(0.005, unit="m", help="a leg is done within this of its end")
+    refine_while_moving: bool = setting(True, help="frames during Moving₁ and Moving₂ refine Point A and the turns")
     # Once the dock is tracked, look for the markers the detector missed where the track puts them
     # (perception.predicted: fitted in the image, code bits verified).
-    predicted_markers: bool = True
+    predicted_markers: bool = setting(
+        True,
+        help=(
+            "once the dock is tracked, fit the markers the detector missed where the track predicts them "
+            '(code bits verified; "Markers the detector misses")'
+        ),
+    )
     # Acquire and calculate.
-    acquire: bool = True
-    acquire_turn_rate: float = 0.3
-    first_frame_wait: float = 0.5
-    reacquire_wait: float = 3.0  # after losing the markers: stand and look this long before turning to search
-    acquire_max_turn_deg: float = 370.0
-    calculate_frames: int = 9
-    center_tolerance_deg: float = 5.0
+    acquire: bool = setting(True, help="turn on the spot to find the dock when it is not in view")
+    acquire_turn_rate: float = setting(0.3, unit="rad/s", help="that turn's rate")
+    first_frame_wait: float = setting(0.5, unit="s", help="stand this long at the start for the first frames")
+    reacquire_wait: float = setting(
+        3.0, unit="s", non_negative=True, help="after a recovery, stand this long before turning to search"
+    )
+    acquire_max_turn_deg: float = setting(
+        370.0,
+        unit="°",
+        help="give up searching after turning this far (`not-found`; `dock-lost` when it had seen the dock)",
+    )
+    calculate_frames: int = setting(9, unit="frames", help="Calculate's median is over this many frames")
+    center_tolerance_deg: float = setting(
+        5.0, unit="°", help="fewer than three markers and the dock this far off the heading: face it first"
+    )
     # The far approach: beyond far_distance from the face centre, or far_bearing_deg off the dock's axis, make for
     # the staging point on the axis (staging_distance from the face) in legs of at most far_leg, then plan.
-    far_approach: bool = True
-    far_distance: float = 2.8
-    far_bearing_deg: float = 50.0
-    staging_distance: float = 1.5
-    far_leg: float = 1.2
-    far_max_legs: int = 8
-    calculate_timeout: float = 3.0
-    settle_speed: float = 0.005
-    settle_timeout: float = 1.5
+    far_approach: bool = setting(
+        True, help="beyond `far_distance` or `far_bearing_deg`, make for the staging point first (the far approach)"
+    )
+    far_distance: float = setting(
+        2.8, unit="m", positive=True, help="base_link farther than this from the face centre: the far approach"
+    )
+    far_bearing_deg: float = setting(
+        50.0,
+        unit="°",
+        positive=True,
+        help="base_link more than this off the dock's axis (seen from the face centre): the far approach",
+    )
+    staging_distance: float = setting(
+        1.5,
+        unit="m",
+        positive=True,
+        help="the far approach's goal: base_link this far before the face, on the axis (less than `far_distance`)",
+    )
+    far_leg: float = setting(
+        1.2,
+        unit="m",
+        positive=True,
+        help="the longest far-approach drive before the robot faces the dock and calculates again",
+    )
+    far_max_legs: int = setting(8, help="after this many legs still beyond the manoeuvre's range: `approach-stalled`")
+    calculate_timeout: float = setting(
+        3.0, unit="s", help="Calculate takes what came in this long; nothing: re-acquire"
+    )
+    settle_speed: float = setting(0.005, unit="m/s", help="the odometry reads still below this (rad/s: 5 ×)")
+    settle_timeout: float = setting(1.5, unit="s", help="a base that never reads still is taken as still after this")
     # Retry, recovery and tolerances.
-    checkpoint_gap: float = 0.25  # end of Moving₃'s early part: front edge this far from the face
-    retry_lateral: float = 0.02
-    retry_heading_deg: float = 4.0  # off the P-controller's heading reference
-    max_retries: int = 2  # retries and recoveries together
-    recover_distance: float = 0.30  # markers lost mid-approach: back off this far before looking again
-    tolerance_lateral: float = 0.02
-    tolerance_longitudinal: float = 0.02
-    tolerance_heading_deg: float = 3.0
+    checkpoint_gap: float = setting(0.25, unit="m", positive=True, help="the approach's checkpoint, front edge to face")
+    retry_lateral: float = setting(0.02, unit="m", help="at the checkpoint, a larger lateral error retries")
+    retry_heading_deg: float = setting(
+        4.0, unit="°", help="at the checkpoint, a heading this far off the reference retries"
+    )
+    max_retries: int = setting(2, help="retries and recoveries together")
+    recover_distance: float = setting(
+        0.30, unit="m", positive=True, help="markers lost mid-approach: back off this far"
+    )
+    tolerance_lateral: float = setting(0.02, unit="m", help="docked: lateral error within this")
+    tolerance_longitudinal: float = setting(0.02, unit="m", help="docked: gap (or overshoot) within this")
+    tolerance_heading_deg: float = setting(
+        3.0, unit="°", help="docked: heading within this (the papers report 3.07°: set 3.1 to accept it)"
+    )
     # Charging.
-    charge_timeout: float = 2.0  # at the face: the charger must report charging within this
-    reseat_distance: float = 0.05  # not charging: back off this far and drive in again
-    reseat_push: float = 0.005  # each re-seat drives this much farther in than the last (the contacts' springs)
-    max_reseats: int = 2
+    charge_timeout: float = setting(
+        2.0, unit="s", non_negative=True, help="at the face, charging must be reported within this"
+    )
+    reseat_distance: float = setting(
+        0.05, unit="m", positive=True, help="not charging: back off this far and drive in again"
+    )
+    reseat_push: float = setting(
+        0.005, unit="m", non_negative=True, help="each re-seat drives this much farther in than the last"
+    )
+    max_reseats: int = setting(2, help="re-seats before `not-charging`")
     # Safety.
-    max_reverse_speed: float = 0.10
-    max_reverse_distance: float = 1.5  # no reverse leg is longer
-    rear_safety_distance: float = 0.25  # stop reversing short of anything this close behind the back edge
-    blocked_timeout: float = 5.0  # wait this long for the space behind to clear, then fail
-    lost_timeout: float = 1.0
-    mission_timeout: float = 120.0
-    blind_margin: float = 0.04
-    track: FilterConfig = field(default_factory=FilterConfig)  # the dock filter: odometry noise, gate, reset
-    measurement: MeasurementNoise = field(default_factory=MeasurementNoise)  # frames without a covariance
-    charging_offset: ChargingOffset = field(default_factory=ChargingOffset)  # the taught pose (monodock teach)
+    max_reverse_speed: float = setting(0.10, unit="m/s", positive=True, help="fastest reverse")
+    max_reverse_distance: float = setting(1.5, unit="m", positive=True, help="longest reverse leg")
+    rear_safety_distance: float = setting(
+        0.25, unit="m", non_negative=True, help="stop reversing short of anything this close behind the back edge"
+    )
+    blocked_timeout: float = setting(
+        5.0, unit="s", non_negative=True, help="wait this long for the space behind to clear, then fail"
+    )
+    lost_timeout: float = setting(
+        1.0, unit="s", non_negative=True, help="markers unseen this long mid-approach: recover"
+    )
+    mission_timeout: float = setting(120.0, unit="s", help="the whole mission's time limit")
+    blind_margin: float = setting(0.04, unit="m", help="added to the computed blind zone")
+    track: FilterConfig = section(
+        FilterConfig, help="the dock filter: odometry noise, gate, reset"
+    )  # the dock filter: odometry noise, gate, reset
+    measurement: MeasurementNoise = section(
+        MeasurementNoise, help="a frame's error when it has no covariance of its own"
+    )  # frames without a covariance
+    charging_offset: ChargingOffset = section(
+        ChargingOffset, help="the taught charging pose (monodock teach)"
+    )  # the taught pose (monodock teach)
 
     def __post_init__(self) -> None:
-        positive = (
-            "control_period",
-            "cruise_speed",
-            "approach_speed",
-            "turn_rate",
-            "linear_accel",
-            "angular_accel",
-            "max_reverse_speed",
-            "max_reverse_distance",
-            "recover_distance",
-            "reseat_distance",
-            "far_distance",
-            "far_bearing_deg",
-            "staging_distance",
-            "far_leg",
-            "checkpoint_gap",  # at or behind the face it is never passed before contact: no retry would ever start
-        )
-        for name in positive:
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"docking config: {name} must be positive, got {getattr(self, name)}")
-        not_negative = (
-            "rear_safety_distance",
-            "blocked_timeout",
-            "charge_timeout",
-            "reacquire_wait",
-            "lost_timeout",
-            "reseat_push",
-        )
-        for name in not_negative:
-            if not getattr(self, name) >= 0:
-                raise ConfigError(f"docking config: {name} must not be negative, got {getattr(self, name)}")
+        check_fields(self)  # positive, not negative: as declared
         if self.staging_distance >= self.far_distance:
             raise ConfigError(
                 f"docking config: staging_distance ({self.staging_distance:g} m) must be less than far_distance "
@@ -191,64 +250,9 @@ class DockingConfig:
             )
 
 
-D = TypeVar("D")
-
-# Every number of the config is a non-negative distance (m), speed, rate, time (s), gain, angle (°) or noise:
-# none is plausibly beyond these. The dataclasses check the finer rules.
-MAX_NUMBER = 10_000.0
-MAX_COUNT = 1_000
-
-
-def _from_fields(cls: type[D], f: Fields) -> D:
-    """An instance of the dataclass ``cls`` from a mapping: known keys typed like their defaults, others refused."""
-    defaults = cls()
-    known = {x.name: x for x in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    unknown = sorted(str(k) for k in f.data if k not in known)
-    if unknown:
-        raise f.error(unknown[0], f"unknown key (known: {', '.join(known)})")
-    values: dict[str, Any] = {}
-    signed = getattr(cls, "SIGNED", ())
-    for name in known:
-        if not f.has(name):
-            continue
-        default = getattr(defaults, name)
-        if dataclasses.is_dataclass(default):
-            values[name] = _from_fields(type(default), f.child(name))
-        elif isinstance(default, bool):
-            value = f.raw(name)
-            if not isinstance(value, bool):
-                raise f.error(name, f"expected true or false, got {value!r}")
-            values[name] = value
-        elif isinstance(default, int):
-            values[name] = f.integer(name, minimum=0, maximum=MAX_COUNT)
-        elif isinstance(default, float):
-            values[name] = f.number(name, within=(-MAX_NUMBER if name in signed else 0.0, MAX_NUMBER))
-        elif isinstance(default, str):
-            values[name] = f.string(name)
-        else:  # pragma: no cover - every DockingConfig field is one of the above
-            raise f.error(name, f"cannot be set from a file ({type(default).__name__})")
-    try:
-        return dataclasses.replace(defaults, **values)  # type: ignore[type-var]
-    except ConfigError as exc:
-        raise ConfigError(
-            f"{f.source}: {_culprit(defaults, values, f)}{str(exc).removeprefix('docking config: ')}"
-        ) from None
-
-
-def _culprit(defaults: Any, values: dict[str, Any], f: Fields) -> str:
-    """``key: `` of the one value that the dataclass's own check refuses on its own, else nothing: the checks
-    in ``__post_init__`` know the rule but not the file's key."""
-    for name, value in values.items():
-        try:
-            dataclasses.replace(defaults, **{name: value})
-        except ConfigError:
-            return f"{f.prefix}{name}: "
-    return ""
-
-
 def docking_config_from_dict(data: dict[str, Any], source: str = "docking config") -> DockingConfig:
     """A DockingConfig from a mapping (defaults for the keys it leaves out)."""
-    return _from_fields(DockingConfig, Fields(data, source))
+    return from_mapping(DockingConfig, data, source)
 
 
 def load_docking_config(path: str | os.PathLike[str]) -> DockingConfig:
@@ -256,19 +260,9 @@ def load_docking_config(path: str | os.PathLike[str]) -> DockingConfig:
     return docking_config_from_dict(load_yaml(path, "docking config"), str(path))
 
 
-def _plain(value: Any) -> Any:
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, float) and not math.isfinite(value):
-        raise ConfigError(f"docking config: cannot write a non-finite value ({value})")
-    return value
-
-
 def docking_config_to_dict(config: DockingConfig) -> dict[str, Any]:
     """Every field of the config as a nested mapping (what a config file may hold)."""
-    out = _plain(config)
-    assert isinstance(out, dict)
-    return out
+    return to_mapping(config)
 
 
 def save_docking_config(config: DockingConfig, path: str | os.PathLike[str], *, force: bool = False) -> None:

@@ -26,6 +26,8 @@ from pathlib import Path
 from monodock.core.config import Fields, load_yaml
 from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
+from monodock.core.settings import setting
+from monodock.core.settings_fields import from_fields
 from monodock.dock.nav2 import DockNotInDB, DockNotValid
 from monodock.errors import ConfigError
 
@@ -49,16 +51,42 @@ class DockType:
     use_battery_status: bool = True  # charging from battery_state; False: charging is not known (docked is)
 
 
+class _PoseList:
+    """A dock file's ``pose``: ``[x, y, theta]``, three finite numbers."""
+
+    def read(self, fields: Fields, key: str) -> Pose2D:
+        x, y, theta = fields.numbers(key, 3)
+        return Pose2D(x, y, theta)
+
+    def write(self, value: Pose2D | None) -> list[float] | None:
+        return None if value is None else [value.x, value.y, value.theta]
+
+
+class _Text:
+    """A dock file's ``id`` as upstream reads it (``as<std::string>()``): a string, or a number written as one."""
+
+    def read(self, fields: Fields, key: str) -> str:
+        value = fields.raw(key)
+        if isinstance(value, bool) or not isinstance(value, str | int):
+            raise fields.error(key, f"expected a string, got {value!r}"[:80])
+        return str(value)
+
+    def write(self, value: str) -> str:
+        return value
+
+
 @dataclass(frozen=True)
 class DockInstance:
-    """One charger in the world."""
+    """One charger in the world; in a dock file, the mapping under its name (``docks: {name: {type, pose, ...}}``),
+    where ``pose`` must be given."""
 
     name: str
-    type: str
-    frame: str = "map"
-    pose: Pose2D | None = None  # the docked robot's base_link in ``frame``; None: found by the camera alone
-    id: str = ""
-    layout: str = ""  # its own dock layout YAML; empty: its type's
+    type: str = setting()
+    frame: str = setting("map")
+    # the docked robot's base_link in ``frame``; None: found by the camera alone
+    pose: Pose2D | None = setting(None, required=True, codec=_PoseList())
+    id: str = setting("", codec=_Text())
+    layout: str = setting("")  # its own dock layout YAML; empty: its type's
 
 
 def staging_pose(pose: Pose2D, dock_type: DockType) -> Pose2D:
@@ -87,30 +115,7 @@ def load_dock_file(path: str | os.PathLike[str]) -> dict[str, DockInstance]:
     if not top.has("docks"):
         raise ConfigError(f"{source}: does not contain 'docks'")
     docks = top.child("docks")
-    out: dict[str, DockInstance] = {}
-    for name in docks.data:
-        entry = docks.child(str(name))
-        entry.warn_unknown(("type", "frame", "pose", "id", "layout"))
-        x, y, theta = entry.numbers("pose", 3)
-        out[str(name)] = DockInstance(
-            name=str(name),
-            type=entry.string("type"),
-            frame=entry.string("frame", "map"),
-            pose=Pose2D(x, y, theta),
-            id=_as_text(entry, "id"),
-            layout=entry.string("layout", ""),
-        )
-    return out
-
-
-def _as_text(entry: Fields, key: str) -> str:
-    """An ``id`` as upstream reads it (``as<std::string>()``): a string, or a number written as one."""
-    if not entry.has(key):
-        return ""
-    value = entry.raw(key)
-    if isinstance(value, bool) or not isinstance(value, str | int):
-        raise entry.error(key, f"expected a string, got {value!r}"[:80])
-    return str(value)
+    return {str(name): from_fields(DockInstance, docks.child(str(name)), name=str(name)) for name in docks.data}
 
 
 @dataclass

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
+from monodock.core.settings import setting
 from monodock.errors import ConfigError
 
 __all__ = [
@@ -121,14 +122,20 @@ class PlannerConfig:
         max_back_out: monodock backs out at most this far, metres.
     """
 
-    standoff: float = 1.0
-    arrive_tolerance: float = 0.10
-    papers_min_standoff: float = 0.5
-    papers_max_standoff: float = 2.0
-    kind: str = "monodock"
-    max_leg_angle_deg: float = 60.0
-    min_leg: float = 0.30
-    max_back_out: float = 1.0
+    standoff: float = setting(1.0, unit="m", help="floor between front edge and face at the stand-off Point A")
+    arrive_tolerance: float = setting(
+        0.10, unit="m", help="turn-first plan: a start this close to A skips the drive to A"
+    )
+    papers_min_standoff: float = setting(
+        0.5, unit="m", help="papers' planner: least floor before the face at a heading-line Point A"
+    )
+    papers_max_standoff: float = setting(
+        2.0, unit="m", help="papers' planner: most floor before the face at a heading-line Point A"
+    )
+    kind: str = setting("monodock", help="`monodock` or `papers` ([the manoeuvre](#the-manoeuvre))")
+    max_leg_angle_deg: float = setting(60.0, unit="°", help="monodock: steepest leg to A against the axis")
+    min_leg: float = setting(0.30, unit="m", help="monodock: shortest leg to A along the axis")
+    max_back_out: float = setting(1.0, unit="m", help="monodock: longest back-out before the turn to A")
 
     def __post_init__(self) -> None:
         if self.kind not in PLANNERS:

@@ -39,13 +39,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
+from monodock.core.settings import section, setting
 
 __all__ = [
     "GATE_CHI2_3DOF",
@@ -72,15 +73,15 @@ class MeasurementNoise:
     grow about as d² to d³). Fewer than three markers seen: the yaw's base is the one-marker one.
     """
 
-    depth_base: float = 0.005
-    depth_per_metre: float = 0.004
-    lateral_base: float = 0.0012
-    lateral_per_metre: float = 0.0006
-    yaw_three_markers_deg: float = 2.5
-    yaw_one_marker_deg: float = 8.0
-    depth_per_metre3: float = 0.0
-    lateral_per_metre3: float = 0.0
-    yaw_per_metre3_deg: float = 0.0
+    depth_base: float = setting(0.005, unit="m", help="a frame without its own covariance: depth sd at 0 m")
+    depth_per_metre: float = setting(0.004, unit="m/m", help="… growing per metre of distance")
+    lateral_base: float = setting(0.0012, unit="m", help="lateral sd at 0 m")
+    lateral_per_metre: float = setting(0.0006, unit="m/m", help="… growing per metre")
+    yaw_three_markers_deg: float = setting(2.5, unit="°", help="yaw sd with three markers seen")
+    yaw_one_marker_deg: float = setting(8.0, unit="°", help="yaw sd with fewer")
+    depth_per_metre3: float = setting(0.0, unit="m/m³", help="… and per cubic metre")
+    lateral_per_metre3: float = setting(0.0, unit="m/m³", help="… and per cubic metre")
+    yaw_per_metre3_deg: float = setting(0.0, unit="°/m³", help="yaw sd growing per cubic metre")
 
     @classmethod
     def for_method(cls, method: str) -> MeasurementNoise:
@@ -149,12 +150,12 @@ class OdometryNoise:
             standard deviation of each wheel's distance after one metre of random walk.
     """
 
-    track_width: float = 0.40
-    wheel_scale_sd: float = 0.005
-    scale_correlation: float = 1.0
-    wheel_noise_sd: float = 0.05
-    noise_period: float = 0.005
-    floor_per_metre: float = 0.001
+    track_width: float = setting(0.40, unit="m", help="the base's wheel track, for the odometry noise")
+    wheel_scale_sd: float = setting(0.005, help="per-run relative error of a wheel's distance")
+    scale_correlation: float = setting(1.0, unit="m", help="distance over which that error is one random-walk step")
+    wheel_noise_sd: float = setting(0.05, help="per-step relative noise of a wheel's speed")
+    noise_period: float = setting(0.005, unit="s", help="seconds between those noise draws")
+    floor_per_metre: float = setting(0.001, unit="m", help="unmodelled drift per metre driven, per wheel")
 
     def wheel_variance(self, distance: float, dt: float) -> float:
         """Variance (m²) of one wheel's ground distance after it rolled ``distance`` metres in ``dt`` seconds.
@@ -192,9 +193,9 @@ class OdometryNoise:
 class FilterConfig:
     """The dock filter's odometry noise, outlier gate and reset rule."""
 
-    odometry: OdometryNoise = field(default_factory=OdometryNoise)
-    gate_chi2: float = GATE_CHI2_3DOF
-    reset_after_rejections: int = 8
+    odometry: OdometryNoise = section(OdometryNoise, help="the odometry noise of the dock filter")
+    gate_chi2: float = setting(GATE_CHI2_3DOF, help="the dock track's outlier gate (χ², 3 dof)")
+    reset_after_rejections: int = setting(8, unit="frames", help="that many gated frames in a row reset the track")
 
 
 def _frame_rotation(theta: float) -> Matrix:

@@ -26,6 +26,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.config import load_json
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import from_mapping
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.bundle_format import BundleMetadata, Manifest, ModelEntry, SetEntry
 from monodock.estimation.fused import FusionTables
@@ -284,11 +285,11 @@ class Bundle:
 
     def layout(self) -> DockLayout:
         """The dock layout the models were trained for."""
-        return DockLayout.from_dict(self._meta("layout"), f"{self.path}: layout")
+        return from_mapping(DockLayout, self._meta("layout"), f"{self.path}: layout")
 
     def robot(self) -> RobotConfig:
         """The robot (camera and LiDAR mounts) the training drive was recorded with."""
-        return RobotConfig.from_dict(self._meta("robot"), f"{self.path}: robot")
+        return from_mapping(RobotConfig, self._meta("robot"), f"{self.path}: robot")
 
     @property
     def has_fusion_tables(self) -> bool:

@@ -38,6 +38,7 @@ from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
 from monodock.core.scan import LaserScan
+from monodock.core.settings import to_mapping
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.fused import FusionTables
@@ -346,7 +347,7 @@ def _learn_tables(setup: _TableSetup, key: str) -> tuple[str, FusionTables, int]
         run,
         refined=[f.refined[ck] for f in setup.frames],
     )
-    meta = {"camera": cal.camera.to_ros_dict(), "robot": cal.robot.to_dict(), "layout": cal.layout.to_dict()}
+    meta = {"camera": cal.camera.to_ros_dict(), "robot": to_mapping(cal.robot), "layout": to_mapping(cal.layout)}
     ds = Dataset({k: np.asarray(v) for k, v in cols.items()}, meta)
     regression = MethodSetup(cal.camera, cal.layout, cal.robot, load_bundle(Path(setup.bundle_path))).regression
     tables = learn_fusion_from(ds, regression, cal.camera, cal.layout, cal.robot, np.arange(n, dtype=np.int64))

@@ -21,6 +21,7 @@ import numpy as np
 
 from monodock import __version__
 from monodock.core.atomic import atomic_directory
+from monodock.core.settings import to_mapping
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.fused import FUSION_SCHEMA
 from monodock.learning.dataset import Dataset, label_recording
@@ -88,9 +89,9 @@ def cached_bundle(sim: Simulator, config: SelfTrainConfig, *, jobs: int, cache: 
     monodock's version. A bundle that no longer loads (e.g. a broken cache) is trained again.
     """
     key_data = {
-        "layout": sim.layout.to_dict(),
+        "layout": to_mapping(sim.layout),
         "camera": sim.camera.to_ros_dict(),
-        "robot": sim.robot.to_dict(),
+        "robot": to_mapping(sim.robot),
         "nuisances": repr(sim.nuisances.updated(supersample=config.supersample)),  # the drive's own sampling
         "train": repr(config),
         "version": __version__,

@@ -42,6 +42,7 @@ from monodock.core.layout import DockLayout
 from monodock.core.parallel import map_stream
 from monodock.core.records import to_record
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import from_mapping, to_mapping
 from monodock.errors import ConfigError, InputError
 from monodock.learning.label import LABEL_COLUMNS, LidarLabel, label_frame
 from monodock.perception.detect import MarkerDetector, as_gray
@@ -128,11 +129,11 @@ class Dataset:
 
     def robot(self) -> RobotConfig:
         """The robot's mounts the labels were made with."""
-        return RobotConfig.from_dict(self._meta("robot"), f"{self.source}: metadata robot")
+        return from_mapping(RobotConfig, self._meta("robot"), f"{self.source}: metadata robot")
 
     def layout(self) -> DockLayout:
         """The dock layout the features were measured on."""
-        return DockLayout.from_dict(self._meta("layout"), f"{self.source}: metadata layout")
+        return from_mapping(DockLayout, self._meta("layout"), f"{self.source}: metadata layout")
 
     def _meta(self, key: str) -> Any:
         if key not in self.metadata:
@@ -389,7 +390,7 @@ _DETECTORS: dict[tuple[str, str], MarkerDetector] = {}  # per process: built onc
 
 
 def _detector(setup: _LabelSetup) -> MarkerDetector:
-    key = (json.dumps(setup.layout.to_dict(), sort_keys=True), setup.refinement)
+    key = (json.dumps(to_mapping(setup.layout), sort_keys=True), setup.refinement)
     if key not in _DETECTORS:
         _DETECTORS.clear()
         _DETECTORS[key] = MarkerDetector(setup.layout, refinement=setup.refinement)
@@ -501,8 +502,8 @@ def label_recording(
     metadata = {
         "monodock_version": __version__,
         "camera": cam.to_ros_dict(),
-        "robot": robot.to_dict(),
-        "layout": layout.to_dict(),
+        "robot": to_mapping(robot),
+        "layout": to_mapping(layout),
         "source": source,
         "pairing_tolerance_s": tolerance_s,
         "corner_refinement": refinement,

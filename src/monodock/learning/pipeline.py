@@ -24,6 +24,7 @@ import numpy as np
 
 from monodock.core.atomic import atomic_directory
 from monodock.core.camera import CameraModel
+from monodock.core.settings import to_mapping
 from monodock.errors import InputError
 from monodock.estimation.bundle_format import BundleMetadata
 from monodock.estimation.fused import FusionTables
@@ -154,9 +155,9 @@ def bundle_metadata(dataset: Dataset, *, depth_label: str, angle_label: str, sou
         "feature_schema": MODEL_FEATURE_SCHEMA,
         "raw_features": list(FEATURE_NAMES),
         # Written from the validated objects, never copied from the file: nothing unknown travels on.
-        "layout": dataset.layout().to_dict(),
+        "layout": to_mapping(dataset.layout()),
         "camera": dataset.camera().to_ros_dict(),
-        "robot": dataset.robot().to_dict(),
+        "robot": to_mapping(dataset.robot()),
         "depth_label": DEPTH_LABELS[depth_label],
         "angle_label": ANGLE_LABELS[angle_label],
         "depth_definition": "targets: DockPose x (m) and yaw (deg) in base_link; segments: x minus camera_mount.x",

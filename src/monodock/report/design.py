@@ -12,6 +12,7 @@ from matplotlib.colors import BoundaryNorm, ListedColormap
 from matplotlib.patches import Patch
 
 from monodock.core.config import json_text
+from monodock.core.settings import to_mapping
 from monodock.evaluation.design import Design, SimCheck
 from monodock.evaluation.detection_model import DETECTION_SOURCE
 from monodock.report.dock_kit import Paper
@@ -156,7 +157,7 @@ def design_json(design: Design, checks: Sequence[SimCheck], kit_paper: str) -> s
             "blur": design.blur,
         },
         "detection_model": {"px_per_cell": design.px_per_cell, "source": DETECTION_SOURCE},
-        "layout": design.layout.to_dict(),
+        "layout": to_mapping(design.layout),
         "face_m": list(design.face),
         "candidates_tried": design.tried,
         "kit_paper": kit_paper,

@@ -43,15 +43,16 @@ import numpy as np
 
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
+from monodock.core.settings import setting
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.overlay import draw_overlay
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC, pose_covariance_6x6
 from monodock.recording import messages as m
 from monodock.ros._rclpy import Node, rclpy
-from monodock.ros.lifecycle import LIFECYCLE_PARAMETERS, ManagerBond, autostart
-from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
-from monodock.ros.parameters import Parameter, declare_options
+from monodock.ros.lifecycle import ManagerBond, autostart, autostart_setting, bond_heartbeat_setting
+from monodock.ros.options import EstimatorOptions
+from monodock.ros.parameters import Parameter, declare_settings, parameters_of
 from monodock.ros.tf import CameraMountFromTF, set_transform
 
 __all__ = [
@@ -98,40 +99,63 @@ class DetectorOptions(EstimatorOptions):
             at start; the bond to nav2_lifecycle_manager while active.
     """
 
-    image_topic: str = "image"
-    camera_info_topic: str = "camera_info"
-    pose_topic: str = DOCK_POSE_TOPIC
-    pose_covariance_topic: str = DOCK_POSE_COVARIANCE_TOPIC
-    frame_id: str = "base_link"
-    max_stamp_age: float = 1.0
-    diagnostics_period: float = 1.0
-    dock_frame: str = ""
-    active: bool = True
-    debug_image_topic: str = "~/debug_image"
-    lifecycle: bool = False  # the command line's alone (the node's class depends on it): not a ROS parameter
-    autostart_node: bool = False
-    bond_heartbeat_period: float = 0.1
-
-
-# One per DetectorOptions field, of the same name; read-only ones are read once, at start-up.
-PARAMETERS: dict[str, Parameter] = {
-    **ESTIMATOR_PARAMETERS,
-    "camera_info_topic": Parameter("sensor_msgs/CameraInfo: the camera when no file gives it, else checked"),
-    "pose_topic": Parameter("geometry_msgs/PoseStamped of each valid estimate, stamped with its image's stamp"),
-    "pose_covariance_topic": Parameter("PoseWithCovarianceStamped of each estimate that has a covariance (fused)"),
-    "frame_id": Parameter("frame of the published poses: the robot's base", read_only=False),
-    "max_stamp_age": Parameter(
-        "images older than this by the node's clock are skipped, s (0: no limit)", read_only=False, bounds=(0.0, 3600.0)
-    ),
-    "diagnostics_period": Parameter("seconds between two /diagnostics messages", bounds=(0.1, 60.0)),
-    "dock_frame": Parameter("broadcast each pose on /tf as frame_id -> this frame (for RViz); empty: none"),
-    "active": Parameter(
-        "estimate from the start; false: only after ~/start or ~/toggle (Nav2's detector_service_name)"
-    ),
-    "debug_image_topic": Parameter("the image with markers, corners, dock axes and the pose drawn (while subscribed)"),
+    camera_info_topic: str = setting(
+        "camera_info",
+        help="sensor_msgs/CameraInfo: the camera when no file gives it, else checked",
+        cli_help="default: %(default)s",
+    )
+    pose_topic: str = setting(
+        DOCK_POSE_TOPIC,
+        help="geometry_msgs/PoseStamped of each valid estimate, stamped with its image's stamp",
+        cli_help="default: %(default)s",
+    )
+    pose_covariance_topic: str = setting(
+        DOCK_POSE_COVARIANCE_TOPIC,
+        help="PoseWithCovarianceStamped of each estimate that has a covariance (fused)",
+        cli_help="PoseWithCovarianceStamped of the estimates that have a covariance (default: %(default)s)",
+    )
+    frame_id: str = setting(
+        "base_link", live=True, help="frame of the published poses: the robot's base", cli_help="default: %(default)s"
+    )
+    max_stamp_age: float = setting(
+        1.0,
+        live=True,
+        range=(0.0, 3600.0),
+        help="images older than this by the node's clock are skipped, s (0: no limit)",
+        cli_help="skip images older than this by the node's clock, s; 0: no limit (default: %(default)s)",
+    )
+    diagnostics_period: float = setting(
+        1.0,
+        range=(0.1, 60.0),
+        help="seconds between two /diagnostics messages",
+        cli_help="/diagnostics period, s (%(default)s)",
+    )
+    dock_frame: str = setting(
+        "",
+        help="broadcast each pose on /tf as frame_id -> this frame (for RViz); empty: none",
+        cli_help="broadcast each pose on /tf as FRAME_ID -> this frame",
+    )
+    active: bool = setting(
+        True,
+        help="estimate from the start; false: only after ~/start or ~/toggle (Nav2's detector_service_name)",
+        cli_help="estimate from the start; --no-active: only after ~/start or ~/toggle (Nav2's detector_service_name)",
+    )
+    debug_image_topic: str = setting(
+        "~/debug_image",
+        help="the image with markers, corners, dock axes and the pose drawn (while subscribed)",
+        cli_help="default: %(default)s",
+    )
+    # The command line's alone (the node's class depends on it): not a ROS parameter.
+    lifecycle: bool = setting(
+        False, ros=False, help="a managed (lifecycle) node: unconfigured at start, estimating only while active"
+    )
     # A managed node's (--lifecycle); the plain node has no lifecycle and ignores them.
-    **LIFECYCLE_PARAMETERS,
-}
+    autostart_node: bool = autostart_setting(False, flag="")
+    bond_heartbeat_period: float = bond_heartbeat_setting(flag="")
+
+
+# One per DetectorOptions setting (``lifecycle`` aside), of the same name; read-only ones are read once, at start-up.
+PARAMETERS: dict[str, Parameter] = parameters_of(DetectorOptions)
 
 
 def camera_mismatch(used: CameraModel, info: CameraModel, tolerance: float = MISMATCH_TOLERANCE) -> str | None:
@@ -231,7 +255,7 @@ class DockPoseNode(Node):  # type: ignore[misc, unused-ignore]
             "KeyValue": KeyValue,
             "Image": Image,
         }
-        self.options = declare_options(self, options, PARAMETERS)
+        self.options = declare_settings(self, options)
         o = self.options
         self.frame_id, self.max_stamp_age = o.frame_id, o.max_stamp_age
         self.add_post_set_parameters_callback(self._on_parameters)

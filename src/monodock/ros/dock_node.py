@@ -40,10 +40,12 @@ from typing import Any
 
 import numpy as np
 
+from monodock.core import settings
 from monodock.core.camera import CameraModel
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
-from monodock.dock.config import docking_config_from_dict, docking_config_to_dict, load_docking_config
+from monodock.core.settings import setting
+from monodock.dock.config import load_docking_config
 from monodock.dock.controller import (
     DockingConfig,
     DockingMission,
@@ -62,15 +64,15 @@ from monodock.recording import messages as m
 from monodock.ros._rclpy import LifecycleNode, rclpy
 from monodock.ros.dock_actions import DOCK_ACTION, UNDOCK_ACTION, DockActions
 from monodock.ros.dock_database import declare_database, read_database
-from monodock.ros.lifecycle import LIFECYCLE_PARAMETERS, ManagerBond, autostart
-from monodock.ros.options import ESTIMATOR_PARAMETERS, EstimatorOptions
+from monodock.ros.lifecycle import ManagerBond, autostart, autostart_setting, bond_heartbeat_setting
+from monodock.ros.options import EstimatorOptions
 from monodock.ros.parameters import (
     Parameter,
-    declare,
-    declare_options,
-    flatten,
+    config_from_parameters,
+    declare_config,
+    declare_settings,
+    parameters_of,
     refuse_unknown_overrides,
-    unflatten,
 )
 from monodock.ros.ros2_robot import ChargingSignal, RobotTopics, Ros2Robot
 from monodock.ros.shutdown import ShutdownFlag
@@ -90,62 +92,94 @@ StopCheck = Callable[[DockingMission], tuple[FailureReason, str] | None]
 class DockOptions(EstimatorOptions):
     """The node's fixed settings (its command-line flags, which set the parameters' defaults)."""
 
-    image_topic: str = "image"
-    camera_info_topic: str = "camera_info"
-    odom_topic: str = "odom"
-    cmd_vel_topic: str = "cmd_vel"
-    battery_topic: str = "battery_state"
-    contact_topic: str = "contact"
-    rear_range_topic: str = "rear_range"
-    pose_topic: str = "detected_dock_pose"
-    pose_covariance_topic: str = "detected_dock_pose_with_covariance"
-    frame_id: str = "base_link"
-    config: str = ""
-    odom_timeout: float = 1.0
-    sensor_timeout: float = 1.0
-    dock_id: str = "home_dock"
-    dock_type: str = "monodock"
-    enable_stamped_cmd_vel: bool = True
-    dock_prestaging_tolerance: float = 0.5
-    navigator_bt_xml: str = ""
-    autostart_node: bool = True
-    bond_heartbeat_period: float = 0.1
+    robot: str | None = setting(
+        None,
+        help="robot YAML: mounts, front_offset, speed limits (needed without a model; overrides the model's)",
+    )
+    camera_info_topic: str = setting(
+        "camera_info", help="sensor_msgs/CameraInfo, used when no camera file is given", cli_help=""
+    )
+    odom_topic: str = setting("odom", help="nav_msgs/Odometry of the base", cli_help="")
+    cmd_vel_topic: str = setting(
+        "cmd_vel", help="geometry_msgs/TwistStamped (Twist with enable_stamped_cmd_vel: false) to the base", cli_help=""
+    )
+    battery_topic: str = setting(
+        "battery_state",
+        help="sensor_msgs/BatteryState: current above a dock type's charging_threshold (or, with no current, "
+        "CHARGING or FULL) confirms docking (empty: no charging signal)",
+        cli_help="BatteryState; empty: no charging signal",
+    )
+    contact_topic: str = setting(
+        "contact",
+        help="std_msgs/Bool, true on contact with the charger (empty: none)",
+        cli_help="std_msgs/Bool contact switch; empty: none",
+    )
+    rear_range_topic: str = setting(
+        "rear_range",
+        help="sensor_msgs/Range behind the robot, watched while reversing (empty: none)",
+        cli_help="sensor_msgs/Range behind; empty: none",
+    )
+    pose_topic: str = setting(
+        "detected_dock_pose",
+        help="PoseStamped of the dock filter's estimate in base_link (for Nav2's docking server)",
+        cli_help="",
+    )
+    pose_covariance_topic: str = setting(
+        "detected_dock_pose_with_covariance",
+        help="the same with its covariance (PoseWithCovarianceStamped)",
+        cli_help="",
+    )
+    frame_id: str = setting("base_link", help="the robot's base frame", cli_help="")
+    config: str = setting(
+        "",
+        help="docking config YAML read before the parameters (docs/docking.md); empty: the defaults",
+        cli_help="docking config YAML (docs/docking.md), read before parameters",
+    )
+    odom_timeout: float = setting(
+        1.0,
+        positive=True,
+        help="a mission fails with odometry-lost when odometry is older than this, s",
+        cli_help="odometry older than this: stop, s",
+    )
+    sensor_timeout: float = setting(
+        1.0,
+        positive=True,
+        help="battery, contact and rear range readings older than this count as absent, s",
+        cli_help="other sensors' age limit, s",
+    )
+    dock_id: str = setting(
+        "home_dock",
+        help="the one dock's name when no docks or dock_database are given (DockRobot's dock_id)",
+        cli_help="the one dock's name without a dock database (%(default)s)",
+    )
+    dock_type: str = setting("monodock", help="the one dock type's name when no dock_plugins are given", flag="")
+    enable_stamped_cmd_vel: bool = setting(
+        True,
+        help="cmd_vel as geometry_msgs/TwistStamped (Kilted's default); false: Twist",
+        flag="--stamped-cmd-vel",
+        cli_help="cmd_vel as TwistStamped (default, as Kilted); --no-stamped-cmd-vel: Twist",
+    )
+    dock_prestaging_tolerance: float = setting(
+        0.5,
+        positive=True,
+        help="a robot this close to the staging pose (m, with the heading error in rad) is not sent there",
+        flag="",
+    )
+    navigator_bt_xml: str = setting(
+        "", help="the behaviour tree navigate_to_pose runs to the staging pose; empty: its default", flag=""
+    )
+    autostart_node: bool = autostart_setting(
+        True,
+        flag="--autostart",
+        cli_help="configure and activate at start (default); --no-autostart: wait for nav2_lifecycle_manager",
+    )
+    bond_heartbeat_period: float = bond_heartbeat_setting(flag="")
 
 
-# One per DockOptions field, of the same name, all read once at start-up (the docking config's keys are parameters
+# One per DockOptions setting, of the same name, all read once at start-up (the docking config's keys are parameters
 # too, declared with the config's values as defaults: DockNode._declare_config; the dock database's names are
 # declared by monodock.ros.dock_database).
-PARAMETERS: dict[str, Parameter] = {
-    **ESTIMATOR_PARAMETERS,
-    "robot": Parameter(
-        "robot YAML: mounts, front_offset, speed limits (needed without a model; overrides the model's)"
-    ),
-    "camera_info_topic": Parameter("sensor_msgs/CameraInfo, used when no camera file is given"),
-    "odom_topic": Parameter("nav_msgs/Odometry of the base"),
-    "cmd_vel_topic": Parameter("geometry_msgs/TwistStamped (Twist with enable_stamped_cmd_vel: false) to the base"),
-    "battery_topic": Parameter(
-        "sensor_msgs/BatteryState: current above a dock type's charging_threshold (or, with no current, CHARGING or "
-        "FULL) confirms docking (empty: no charging signal)"
-    ),
-    "contact_topic": Parameter("std_msgs/Bool, true on contact with the charger (empty: none)"),
-    "rear_range_topic": Parameter("sensor_msgs/Range behind the robot, watched while reversing (empty: none)"),
-    "pose_topic": Parameter("PoseStamped of the dock filter's estimate in base_link (for Nav2's docking server)"),
-    "pose_covariance_topic": Parameter("the same with its covariance (PoseWithCovarianceStamped)"),
-    "frame_id": Parameter("the robot's base frame"),
-    "config": Parameter("docking config YAML read before the parameters (docs/docking.md); empty: the defaults"),
-    "odom_timeout": Parameter("a mission fails with odometry-lost when odometry is older than this, s", positive=True),
-    "sensor_timeout": Parameter(
-        "battery, contact and rear range readings older than this count as absent, s", positive=True
-    ),
-    "dock_id": Parameter("the one dock's name when no docks or dock_database are given (DockRobot's dock_id)"),
-    "dock_type": Parameter("the one dock type's name when no dock_plugins are given"),
-    "enable_stamped_cmd_vel": Parameter("cmd_vel as geometry_msgs/TwistStamped (Kilted's default); false: Twist"),
-    "dock_prestaging_tolerance": Parameter(
-        "a robot this close to the staging pose (m, with the heading error in rad) is not sent there", positive=True
-    ),
-    "navigator_bt_xml": Parameter("the behaviour tree navigate_to_pose runs to the staging pose; empty: its default"),
-    **LIFECYCLE_PARAMETERS,
-}
+PARAMETERS: dict[str, Parameter] = parameters_of(DockOptions)
 
 
 class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
@@ -155,9 +189,9 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         super().__init__("monodock_dock")
         from sensor_msgs.msg import CameraInfo  # type: ignore[import-not-found, unused-ignore]
 
-        self.options = declare_options(self, options, PARAMETERS)
+        self.options = declare_settings(self, options)
         base = load_docking_config(self.options.config) if self.options.config else DockingConfig()
-        self._config_names = list(flatten(docking_config_to_dict(base)))
+        self._config_names = list(settings.flat(base))
         self._config_base = base
         self._estimators: dict[str, Estimator] = {}  # by layout file ("": the node's own)
         self.estimator: Estimator | None = None
@@ -323,22 +357,18 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         base = self._config_base
         if not self.options.config and self.method:
             base = dataclasses.replace(base, measurement=MeasurementNoise.for_method(self.method))
-        for name, default in flatten(docking_config_to_dict(base)).items():
-            declare(self, name, Parameter(f"docking config: {name} (docs/docking.md)", read_only=False), default)
+        declare_config(self, base)
 
     def docking_config(self) -> DockingConfig:
         """The docking config of the parameters as they are now (checked like a config file)."""
-        values = {name: self.get_parameter(name).value for name in self._config_names}
-        return docking_config_from_dict(unflatten(values), "ROS parameters")
+        return config_from_parameters(self, DockingConfig, self._config_names)
 
     def _check_new_parameters(self, parameters: list[Any]) -> Any:
         """Refuse a live change that would make the docking config invalid (it would only fail at the next ~/dock)."""
         from rcl_interfaces.msg import SetParametersResult  # type: ignore[import-not-found, unused-ignore]
 
-        values = {name: self.get_parameter(name).value for name in self._config_names}
-        values.update({p.name: p.value for p in parameters if p.name in values})
         try:
-            docking_config_from_dict(unflatten(values), "ROS parameters")
+            config_from_parameters(self, DockingConfig, self._config_names, {p.name: p.value for p in parameters})
         except MonodockError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)

@@ -16,20 +16,31 @@ from __future__ import annotations
 
 from typing import Any
 
+from monodock.core.settings import setting
 from monodock.ros.bond import Bond
-from monodock.ros.parameters import Parameter
 
-__all__ = ["LIFECYCLE_PARAMETERS", "ManagerBond", "autostart"]
+__all__ = ["ManagerBond", "autostart", "autostart_setting", "bond_heartbeat_setting"]
 
-LIFECYCLE_PARAMETERS: dict[str, Parameter] = {
-    "autostart_node": Parameter(
-        "configure and activate at start (a node with no lifecycle manager); false: unconfigured until a lifecycle "
-        "manager (nav2_lifecycle_manager, ros2 lifecycle set) brings it up"
-    ),
-    "bond_heartbeat_period": Parameter(
-        "s between heartbeats of the bond to nav2_lifecycle_manager while active; 0: no bond", bounds=(0.0, 10.0)
-    ),
-}
+
+def autostart_setting(default: bool, **meta: Any) -> Any:
+    """A managed node's ``autostart_node`` setting (its default the node's; ``meta``: its flag, as ``setting``)."""
+    return setting(
+        default,
+        **meta,
+        help="configure and activate at start (a node with no lifecycle manager); false: unconfigured until a "
+        "lifecycle manager (nav2_lifecycle_manager, ros2 lifecycle set) brings it up",
+    )
+
+
+def bond_heartbeat_setting(**meta: Any) -> Any:
+    """A managed node's ``bond_heartbeat_period`` setting (``meta``: its flag, as ``setting``)."""
+    return setting(
+        0.1,
+        **meta,
+        range=(0.0, 10.0),
+        help="s between heartbeats of the bond to nav2_lifecycle_manager while active; 0: no bond",
+    )
+
 
 # nav2_util::LifecycleNode::createBond's heartbeat time-out on the node's side (it is disabled there, as upstream).
 NODE_HEARTBEAT_TIMEOUT = 4.0

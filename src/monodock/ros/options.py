@@ -1,5 +1,5 @@
 """What both ROS 2 nodes run: the estimator, from a model bundle or the calibration files, and the camera topic;
-and the ROS parameters that set them."""
+and the ROS parameters that set them (derived from the declarations: ``ros.parameters.parameters_of``)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ from dataclasses import dataclass
 
 from monodock.core.camera import CameraModel
 from monodock.core.robot import RobotConfig
+from monodock.core.settings import setting
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
-from monodock.ros.parameters import Parameter
 
-__all__ = ["ESTIMATOR_PARAMETERS", "EstimatorOptions"]
+__all__ = ["EstimatorOptions"]
 
 
 @dataclass(frozen=True)
@@ -31,18 +31,59 @@ class EstimatorOptions:
         mount_tolerance_m, mount_tolerance_deg: /tf_static and the robot file disagree beyond these: a warning.
     """
 
-    model: str | None = None
-    method: str | None = None
-    camera: str | None = None
-    layout: str | None = None
-    robot: str | None = None
-    refinement: str = "subpix"
-    image_topic: str = "image"
-    compressed: bool = False
-    image_is_rectified: bool = False
-    camera_mount_source: str = "tf"
-    mount_tolerance_m: float = 0.01
-    mount_tolerance_deg: float = 0.5
+    model: str | None = setting(
+        None, help="model bundle folder (it carries the camera, layout and mounts); empty: PnP on the files"
+    )
+    method: str | None = setting(
+        None,
+        choices=METHOD_NAMES,
+        help="regression, pnp, board or fused; empty: regression with a model, board without",
+    )
+    camera: str | None = setting(
+        None, help="camera file (ROS camera_info YAML or OpenCV); empty: the model's, else camera_info's"
+    )
+    layout: str | None = setting(
+        None, help="dock layout YAML (needed without a model; with one, it must match the model's)"
+    )
+    robot: str | None = setting(
+        None, help="robot YAML with the camera mount (needed without a model; overrides the model's)"
+    )
+    refinement: str = setting("subpix", choices=REFINEMENTS, help="OpenCV's ArUco corner refinement")
+    image_topic: str = setting(
+        "image",
+        help="sensor_msgs/Image topic; with compressed, its /compressed sub-topic is subscribed",
+        cli_help="sensor_msgs/Image (default: %(default)s)",
+    )
+    compressed: bool = setting(
+        False,
+        help="subscribe to image_topic/compressed (sensor_msgs/CompressedImage)",
+        cli_help="subscribe to IMAGE_TOPIC/compressed (CompressedImage)",
+    )
+    image_is_rectified: bool = setting(
+        False,
+        help="the images are rectified (image_rect): the camera from camera_info is its P, with no distortion",
+        cli_help="rectified images: the camera is camera_info's P, undistorted",
+    )
+    camera_mount_source: str = setting(
+        "tf",
+        choices=("tf", "robot"),
+        help="tf: base_link -> the images' frame from /tf_static when it is there, else the robot file's; "
+        "robot: the robot file's (checked against /tf_static)",
+        cli_help="tf: base_link -> the images' frame from /tf_static when there, else the robot file's "
+        "(default: %(default)s)",
+    )
+    mount_tolerance_m: float = setting(
+        0.01,
+        positive=True,
+        help="warn once when /tf_static and the robot file place the camera further apart than this, m",
+        cli_help="default: %(default)s",
+    )
+    mount_tolerance_deg: float = setting(
+        0.5,
+        positive=True,
+        help="warn once when /tf_static and the robot file turn the camera apart by more than this, degrees",
+        cli_help="default: %(default)s",
+    )
 
     @property
     def image_is_compressed(self) -> bool:
@@ -68,33 +109,3 @@ class EstimatorOptions:
             robot=robot if robot is not None else self.robot,
             refinement=self.refinement,
         )
-
-
-# The parameters of EstimatorOptions' fields, of the same names, read once at start-up (a node adds its own and
-# may describe one of these more closely).
-ESTIMATOR_PARAMETERS: dict[str, Parameter] = {
-    "model": Parameter("model bundle folder (it carries the camera, layout and mounts); empty: PnP on the files"),
-    "method": Parameter(
-        "regression, pnp, board or fused; empty: regression with a model, board without", choices=("", *METHOD_NAMES)
-    ),
-    "camera": Parameter("camera file (ROS camera_info YAML or OpenCV); empty: the model's, else camera_info's"),
-    "layout": Parameter("dock layout YAML (needed without a model; with one, it must match the model's)"),
-    "robot": Parameter("robot YAML with the camera mount (needed without a model; overrides the model's)"),
-    "refinement": Parameter("OpenCV's ArUco corner refinement", choices=REFINEMENTS),
-    "image_topic": Parameter("sensor_msgs/Image topic; with compressed, its /compressed sub-topic is subscribed"),
-    "compressed": Parameter("subscribe to image_topic/compressed (sensor_msgs/CompressedImage)"),
-    "image_is_rectified": Parameter(
-        "the images are rectified (image_rect): the camera from camera_info is its P, with no distortion"
-    ),
-    "camera_mount_source": Parameter(
-        "tf: base_link -> the images' frame from /tf_static when it is there, else the robot file's; "
-        "robot: the robot file's (checked against /tf_static)",
-        choices=("tf", "robot"),
-    ),
-    "mount_tolerance_m": Parameter(
-        "warn once when /tf_static and the robot file place the camera further apart than this, m", positive=True
-    ),
-    "mount_tolerance_deg": Parameter(
-        "warn once when /tf_static and the robot file turn the camera apart by more than this, degrees", positive=True
-    ),
-}

@@ -7,9 +7,12 @@ the parameter, the value and what is allowed. The parameter then carries a typed
 read-only, choices) that ``ros2 param set`` obeys. An integer serves a real-valued parameter, at start-up
 (``-p max_stamp_age:=2``) and in a live change alike.
 
-A params file's nested mapping (``planner: {standoff: 1.2}``) reaches rclpy as the dotted name
-``planner.standoff``; ``flatten`` and ``unflatten`` turn monodock's nested config mappings into those names and
-back, so a node's parameters and a config file share one schema.
+The specs are derived from a settings class's declarations (``core.settings``): ``parameters_of`` gives one per
+setting (its help the description, ``live`` the opposite of read-only, its range, positive, choices, and a tuple's
+length), ``declare_settings`` declares them with the options' values as defaults. A params file's nested mapping
+(``planner: {standoff: 1.2}``) reaches rclpy as the dotted name ``planner.standoff``, a setting's flat name:
+``declare_config`` declares a config's settings so, ``config_from_parameters`` reads them back through the config
+file's reader, so a node's parameters and a config file share one schema and one dialect of errors.
 """
 
 from __future__ import annotations
@@ -19,13 +22,15 @@ import dataclasses
 import functools
 import itertools
 import math
+import typing
 import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from monodock.core.config import load_yaml
-from monodock.errors import ConfigError, InputError
+from monodock.core.settings import Setting, flat, from_flat, settings_of
+from monodock.errors import InputError
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -36,12 +41,16 @@ __all__ = [
     "Parameter",
     "check_params_files",
     "checked",
+    "config_from_parameters",
     "declare",
+    "declare_config",
     "declare_options",
-    "flatten",
+    "declare_settings",
+    "parameter_of",
+    "parameters_of",
     "refuse_unknown_overrides",
-    "unflatten",
 ]
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -256,27 +265,70 @@ def refuse_unknown_overrides(node: Any) -> None:
         raise InputError(f"unknown parameter {unknown[0]} (docs/ros2.md lists the node's parameters)")
 
 
-def flatten(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """A nested mapping as dotted names: ``{"a": {"b": 1}}`` → ``{"a.b": 1}``."""
-    out: dict[str, Any] = {}
-    for key, value in mapping.items():
-        if isinstance(value, Mapping):
-            out.update(flatten(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
+def parameter_of(setting: Setting) -> Parameter:
+    """The ROS parameter spec a setting declares: its help, read-only unless live, its range, positive, choices
+    ("" among them where the default is None: empty means not given), and a tuple's length or a list of strings."""
+    hint = setting.type
+    args = typing.get_args(hint)
+    fixed = typing.get_origin(hint) is tuple and bool(args) and Ellipsis not in args
+    strings = typing.get_origin(hint) is tuple and args == (str, Ellipsis)
+    choices = setting.meta.choices
+    if choices and setting.default is None and "" not in choices:
+        choices = ("", *choices)
+    return Parameter(
+        setting.meta.help,
+        read_only=not setting.live,
+        bounds=setting.meta.range,
+        positive=setting.meta.positive,
+        choices=choices,
+        length=len(args) if fixed else None,
+        strings=strings,
+    )
 
 
-def unflatten(values: Mapping[str, Any]) -> dict[str, Any]:
-    """Dotted names as a nested mapping (``flatten``'s inverse)."""
-    out: dict[str, Any] = {}
-    for name, value in values.items():
-        *parents, leaf = name.split(".")
-        node = out
-        for part in parents:
-            child = node.setdefault(part, {})
-            if not isinstance(child, dict):
-                raise ConfigError(f"parameter {name}: {part} is a value, not a section")
-            node = child
-        node[leaf] = value
-    return out
+def parameters_of(cls: type[Any]) -> dict[str, Parameter]:
+    """A spec per setting of the options class (those declared ``ros=False`` left out), in declaration order."""
+    return {s.key: parameter_of(s) for s in settings_of(cls) if s.meta.ros}
+
+
+def declare_settings(node: Any, options: _Options) -> _Options:
+    """Declare a parameter per setting of ``options`` (``parameters_of``), its value the default, and return the
+    options they hold.
+
+    Raises:
+        InputError: as ``checked``.
+    """
+    return declare_options(node, options, parameters_of(type(options)))
+
+
+def _config_description(setting: Setting) -> str:
+    unit = f", {setting.meta.unit}" if setting.meta.unit else ""
+    return f"{setting.meta.help}{unit} (docs/docking.md)"
+
+
+def declare_config(node: Any, config: Any) -> list[str]:
+    """Declare each setting of a config by its flat name (``cruise_speed``, ``planner.standoff``), the config's value
+    its default, without a range: a value out of range is the config file's one line, from
+    ``config_from_parameters``. Returns the names.
+
+    Raises:
+        InputError: a value of the wrong type, as ``checked``.
+    """
+    values = flat(config)
+    for s in settings_of(type(config)):
+        declare(node, s.key, Parameter(_config_description(s), read_only=not s.live), values[s.key])
+    return list(values)
+
+
+def config_from_parameters(
+    node: Any, cls: type[_T], names: Sequence[str], changes: Mapping[str, Any] | None = None
+) -> _T:
+    """The config the parameters ``names`` hold now (with ``changes``, a live change, applied), read as a config file
+    named "ROS parameters" is.
+
+    Raises:
+        ConfigError: as the config file's reader.
+    """
+    values = {name: node.get_parameter(name).value for name in names}
+    values.update({k: v for k, v in (changes or {}).items() if k in values})
+    return from_flat(cls, values, "ROS parameters")

@@ -29,7 +29,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any
@@ -38,9 +38,10 @@ from rosbags.interfaces import Connection, Nodetype, Qos, QosReliability
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
+from monodock.core.settings import setting, to_argv
 from monodock.errors import InputError
 from monodock.recording.messages import normalize_msgtype
-from monodock.recording.write import LATCHED, RELIABLE, SENSOR, BagWriter
+from monodock.recording.write import LATCHED, RELIABLE, SENSOR, STORAGES, BagWriter
 
 __all__ = [
     "DEFAULT_TOPICS",
@@ -120,6 +121,22 @@ def parse_topic(text: str) -> TopicSpec:
     return TopicSpec(name, normalize_msgtype(msgtype))
 
 
+def _topics(value: str) -> tuple[TopicSpec, ...]:
+    """Comma-separated topic names (``NAME`` or ``NAME:pkg/msg/Type``) as TopicSpecs."""
+    return tuple(parse_topic(t) for t in value.split(",") if t.strip())
+
+
+def _seconds(value: str) -> float:
+    """A positive, finite number of seconds from a word."""
+    try:
+        seconds = float(value)
+    except ValueError:
+        seconds = math.nan
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise InputError(f"'{value}' is not a positive number of seconds")
+    return seconds
+
+
 @dataclass(frozen=True)
 class RecorderOptions:
     """What the recorder records and how (``monodock-record-ros``'s flags).
@@ -137,15 +154,26 @@ class RecorderOptions:
         poll_period: seconds between looks at the graph for new topics.
     """
 
-    output: str
-    topics: tuple[TopicSpec, ...] = field(default_factory=lambda: tuple(TopicSpec(t) for t in DEFAULT_TOPICS))
-    all_topics: bool = False
-    force: bool = False
-    storage: str = "mcap"
-    distro: str = "kilted"
-    timestamps: str = "receive"
-    duration: float = math.inf
-    poll_period: float = 0.2
+    output: str = setting(flag="output", help="the bag folder to write (refused if it exists, unless --force)")
+    topics: tuple[TopicSpec, ...] = setting(
+        default_factory=lambda: tuple(TopicSpec(t) for t in DEFAULT_TOPICS),
+        parse=_topics,
+        show=lambda topics: ",".join(str(t) for t in topics),
+        help="comma-separated topics, each NAME or NAME:pkg/msg/Type (default: a docking run's: "
+        + ",".join(DEFAULT_TOPICS)
+        + ")",
+    )
+    all_topics: bool = setting(False, flag="--all", help="also record every other topic that appears")
+    force: bool = setting(False, help="replace an existing output")
+    storage: str = setting("mcap", choices=tuple(STORAGES))
+    distro: str = setting("kilted", choices=DISTROS, help="whose message definitions to store")
+    timestamps: str = setting(
+        "receive",
+        choices=TIMESTAMPS,
+        help="log time of a message: its receive time, or its header stamp (when it has a header)",
+    )
+    duration: float = setting(math.inf, parse=_seconds, help="stop after this many seconds")
+    poll_period: float = setting(0.2, parse=_seconds, help="seconds between looks for new topics")
 
     def __post_init__(self) -> None:
         if self.distro not in DISTROS:
@@ -158,19 +186,6 @@ class RecorderOptions:
             raise InputError(f"poll period must be a positive number of seconds, got {self.poll_period}")
         if not self.topics and not self.all_topics:
             raise InputError("no topic to record (name some, or record them all)")
-
-    def argv(self) -> list[str]:
-        """These options as ``monodock-record-ros``'s command line (without the program's name)."""
-        out = [self.output, "--topics", ",".join(str(t) for t in self.topics)] if self.topics else [self.output]
-        out += ["--storage", self.storage, "--distro", self.distro, "--timestamps", self.timestamps]
-        out += ["--poll-period", repr(self.poll_period)]
-        if math.isfinite(self.duration):
-            out += ["--duration", repr(self.duration)]
-        if self.all_topics:
-            out.append("--all")
-        if self.force:
-            out.append("--force")
-        return out
 
 
 def subscription_qos(offers: Iterable[tuple[bool, bool]]) -> tuple[bool, bool]:
@@ -481,7 +496,7 @@ class RecorderProcess:
 
     def __init__(self, options: RecorderOptions, *, ros_args: Sequence[str] = (), stderr: Any = None) -> None:
         self.options = options
-        self.command = [sys.executable, "-m", "monodock.cli.ros_record", *options.argv()]
+        self.command = [sys.executable, "-m", "monodock.cli.ros_record", *to_argv(options)]
         if ros_args:
             self.command += ["--ros-args", *[a for a in ros_args if a != "--ros-args"]]
         self._stderr = stderr

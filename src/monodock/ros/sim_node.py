@@ -34,7 +34,7 @@ from monodock.dock.interface import CameraFrame, Odometry
 from monodock.errors import MonodockError
 from monodock.recording.messages import split_stamp
 from monodock.ros._rclpy import Node, rclpy
-from monodock.ros.parameters import Parameter, declare_options
+from monodock.ros.parameters import Parameter, declare_settings, parameters_of
 from monodock.ros.shutdown import ShutdownFlag
 from monodock.ros.sim_settings import CHARGING_CURRENT, DRAIN_CURRENT, SimSettings
 from monodock.ros.tf import set_transform
@@ -47,32 +47,7 @@ __all__ = ["PARAMETERS", "SimNode", "SimSettings", "run_sim"]
 
 
 # SimSettings' parameters: read once, at start-up (writable as they always were, though a change does nothing).
-PARAMETERS: dict[str, Parameter] = {
-    "start": Parameter("x, y (m), yaw (rad) of base_link in the dock frame", read_only=False, length=3),
-    "seed": Parameter("the simulator's random seed", read_only=False),
-    "layout": Parameter("dock layout YAML; empty: the built-in default", read_only=False),
-    "robot": Parameter("robot YAML; empty: the built-in default", read_only=False),
-    "camera": Parameter("camera file (ROS camera_info YAML or OpenCV); empty: the built-in default", read_only=False),
-    "camera_rate": Parameter("frames per second", read_only=False, positive=True),
-    "cmd_vel_timeout": Parameter(
-        "simulated seconds of cmd_vel silence before the base stops", read_only=False, positive=True
-    ),
-    "enable_stamped_cmd_vel": Parameter(
-        "cmd_vel is geometry_msgs/TwistStamped (Kilted's default, as monodock_dock sends it); false: Twist",
-        read_only=False,
-    ),
-    "nuisances": Parameter(
-        "the camera's nuisances: default (a cheap indoor webcam) or clean (the exact render)",
-        read_only=False,
-        choices=("default", "clean"),
-    ),
-    # Frames (two simulated robots on one graph need their own): odometry's, /tf's and the images'.
-    "frame_id": Parameter("the robot's base frame (odometry's child, /tf's odom -> this)", read_only=False),
-    "odom_frame": Parameter("the odometry frame (odometry's and /tf's parent)", read_only=False),
-    "camera_frame": Parameter("the camera body's frame (x forward, y left, z up) on /tf_static", read_only=False),
-    "camera_frame_id": Parameter("the images' frame, the camera's optical frame, on /tf_static", read_only=False),
-    "rear_range_frame": Parameter("the rear range sensor's frame (its messages' frame_id)", read_only=False),
-}
+PARAMETERS: dict[str, Parameter] = parameters_of(SimSettings)
 
 
 # A real-time factor below this is said once in the log (and again after it recovers above REAL_TIME_RECOVERED).
@@ -116,7 +91,7 @@ class SimNode(Node):  # type: ignore[misc, unused-ignore]
             "Range": Range,
             "Bool": Bool,
         }
-        self.settings = declare_options(self, SimSettings(), PARAMETERS)
+        self.settings = declare_settings(self, SimSettings())
         s = self.settings
         sim = Simulator(
             layout=DockLayout.load(s.layout) if s.layout else DockLayout.default(),

@@ -4,6 +4,9 @@ to know of it (its start, its frames, its battery's current) without loading ROS
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
+
+from monodock.core.settings import Policy, setting
 
 __all__ = ["CHARGING_CURRENT", "DRAIN_CURRENT", "SimSettings"]
 
@@ -15,19 +18,35 @@ DRAIN_CURRENT = -0.8
 
 @dataclass(frozen=True)
 class SimSettings:
-    """The node's settings: ROS parameters of the same names (``PARAMETERS``), and the frames of its messages."""
+    """The node's settings: ROS parameters of the same names (``sim_node.PARAMETERS``, derived from these
+    declarations), and the frames of its messages."""
 
-    start: tuple[float, float, float] = (-1.8, 0.0, 0.0)  # x, y (m), yaw (rad) of base_link in the dock frame
-    seed: int = 0
-    layout: str = ""
-    robot: str = ""
-    camera: str = ""
-    camera_rate: float = 15.0
-    cmd_vel_timeout: float = 0.5
-    enable_stamped_cmd_vel: bool = True  # cmd_vel is TwistStamped (Kilted's default, as the docking node sends it)
-    nuisances: str = "default"  # the camera's: "default" (a cheap indoor webcam) or "clean" (the exact render)
-    frame_id: str = "base_link"
-    camera_frame_id: str = "camera_optical_frame"
-    odom_frame: str = "odom"
-    camera_frame: str = "camera_link"
-    rear_range_frame: str = "rear_range"
+    SETTINGS: ClassVar[Policy] = Policy(what="simulated robot", live=True)  # writable, though a change does nothing
+
+    start: tuple[float, float, float] = setting(
+        (-1.8, 0.0, 0.0), help="x, y (m), yaw (rad) of base_link in the dock frame"
+    )
+    seed: int = setting(0, help="the simulator's random seed")
+    layout: str = setting("", help="dock layout YAML; empty: the built-in default")
+    robot: str = setting("", help="robot YAML; empty: the built-in default")
+    camera: str = setting("", help="camera file (ROS camera_info YAML or OpenCV); empty: the built-in default")
+    camera_rate: float = setting(15.0, positive=True, help="frames per second")
+    cmd_vel_timeout: float = setting(
+        0.5, positive=True, help="simulated seconds of cmd_vel silence before the base stops"
+    )
+    enable_stamped_cmd_vel: bool = setting(
+        True, help="cmd_vel is geometry_msgs/TwistStamped (Kilted's default, as monodock_dock sends it); false: Twist"
+    )
+    nuisances: str = setting(
+        "default",
+        choices=("default", "clean"),
+        help="the camera's nuisances: default (a cheap indoor webcam) or clean (the exact render)",
+    )
+    # Frames (two simulated robots on one graph need their own): odometry's, /tf's and the images'.
+    frame_id: str = setting("base_link", help="the robot's base frame (odometry's child, /tf's odom -> this)")
+    camera_frame_id: str = setting(
+        "camera_optical_frame", help="the images' frame, the camera's optical frame, on /tf_static"
+    )
+    odom_frame: str = setting("odom", help="the odometry frame (odometry's and /tf's parent)")
+    camera_frame: str = setting("camera_link", help="the camera body's frame (x forward, y left, z up) on /tf_static")
+    rear_range_frame: str = setting("rear_range", help="the rear range sensor's frame (its messages' frame_id)")

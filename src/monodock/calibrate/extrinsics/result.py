@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from monodock.core.atomic import write_text_atomic
 from monodock.core.config import yaml_text
 from monodock.core.robot import Mount, RobotConfig
+from monodock.core.settings import to_mapping
 
 PAIRING_TOLERANCE_S = 0.05
 # A LiDAR segment on a flat face (the charger's, a target's edge) is this straight at most (RMS, metres).
@@ -149,7 +150,7 @@ def result_yaml(result: ExtrinsicsResult) -> str:
     o = result.optical_T_laser
     qx, qy, qz, qw = _quaternion(o[:3, :3])
     data: dict[str, Any] = {
-        "laser_mount": result.laser_mount.to_dict(),
+        "laser_mount": to_mapping(result.laser_mount),
         "camera_optical_to_laser": {
             "x": float(o[0, 3]),
             "y": float(o[1, 3]),
@@ -163,7 +164,7 @@ def result_yaml(result: ExtrinsicsResult) -> str:
         "method": result.method,
         "solved": [k for k in ("x", "y", "z", "roll", "pitch", "yaw") if k not in result.fixed],
         "fixed_from_prior": list(result.fixed),
-        "prior_laser_mount": result.prior_mount.to_dict(),
+        "prior_laser_mount": to_mapping(result.prior_mount),
         "residual_rms": float(result.rms),
         "residual_unit": result.residual_unit,
         "pairs" if result.method == "pairs" else "views": result.count,
