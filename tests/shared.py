@@ -134,7 +134,7 @@ def truthful_robot(start: Pose2D, **drive: object) -> TruthfulRobot:
 
 
 def worker_pid(_: object, __: object) -> int:
-    """The process a task ran in (``core.parallel`` tests: a module-level function, so it pickles)."""
+    """The process a task ran in (``compute.parallel`` tests: a module-level function, so it pickles)."""
     import os
 
     return os.getpid()

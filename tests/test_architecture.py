@@ -12,9 +12,16 @@ import subprocess
 import sys
 import textwrap
 
-# What the robot must never load: the simulator, training, evaluation, reports, the command line, and the
-# heavy libraries only they need.
-FORBIDDEN_MONODOCK = ("monodock.sim", "monodock.learning", "monodock.evaluation", "monodock.report")
+# What the robot must never load: the simulator, training, evaluation, the designer, the sweeps' executor (local
+# pools, the Dask cluster), reports, the command line, and the heavy libraries only they need.
+FORBIDDEN_MONODOCK = (
+    "monodock.sim",
+    "monodock.learning",
+    "monodock.evaluation",
+    "monodock.design",
+    "monodock.compute",
+    "monodock.report",
+)
 FORBIDDEN_THIRD_PARTY = ("matplotlib", "sklearn", "skl2onnx", "pyarrow", "joblib", "dask", "distributed")
 ROBOT_SIDE = (
     "monodock.core",

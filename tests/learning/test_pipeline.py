@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from monodock.cli.main import main
-from monodock.core import parallel
+from monodock.compute import parallel
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.core.records import to_record

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Iterable, Sequence
 from typing import NoReturn
 
-from monodock.core.cluster import cluster_session
+from monodock.compute import cluster_session
 from monodock.core.images import printable
 from monodock.core.interrupt import Terminated, exit_on_signal, install_signal_handlers, received
 from monodock.core.quiet import command_session

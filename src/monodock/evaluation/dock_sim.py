@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from monodock.compute import map_with_state
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
-from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig

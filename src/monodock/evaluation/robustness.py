@@ -15,7 +15,7 @@ nuisance, everything else at the defaults (``Nuisances()``), and every method ru
 
 Errors are against the simulator's truth. Every frame's random draws (noise, exposure jitter, motion-blur
 direction, occluder) come from the frame's own seeds and are the same at every level, so the curves differ by
-the nuisance alone. Frames are rendered and estimated in worker processes (``monodock.core.parallel``).
+the nuisance alone. Frames are rendered and estimated in worker processes (``monodock.compute.parallel``).
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from monodock.compute import map_with_state
 from monodock.core.camera import CameraModel
 from monodock.core.layout import ROLE_NUMBER, ROLES, DockLayout
-from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
 from monodock.core.scan import LaserScan

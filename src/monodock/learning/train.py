@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from monodock.core.cluster import active_client
+from monodock.compute import active_client
 from monodock.core.interrupt import sigint_blocked
 from monodock.errors import InputError
 from monodock.learning.regressors import MODEL_NAMES, SEARCH_SPACES, describe_search_space, make_regressor, resolve_draw
@@ -371,7 +371,7 @@ def _run(
                 yield _fit_task(*args(batch))
                 bar.update(len(batch.draws))
             return
-        # --cluster (core.cluster): every task a task of the Dask cluster, through joblib's dask backend.
+        # --cluster (compute.cluster): every task a task of the Dask cluster, through joblib's dask backend.
         where = parallel_config("loky", n_jobs=n_workers) if client is None else parallel_config("dask", client=client)
         # One task per call, its rows sent with it (a few hundred kB at most). max_nbytes=None: they go pickled,
         # not through temp memory-mapped folders, whose tracker would print a "leaked folder" warning after the

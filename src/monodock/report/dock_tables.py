@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from monodock.evaluation.commissioning import wilson
+from monodock.evaluation.commission import wilson
 from monodock.evaluation.dock_sim import (
     FAULTS,
     AbsStats,

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from monodock.core.parallel import map_with_state
+from monodock.compute import map_with_state
 from monodock.dock.planner import CASES
 from monodock.evaluation.dock_sim import (
     ROOM_BEARING_DEG,

@@ -24,8 +24,8 @@ import pytest
 import cluster_tasks
 import monodock
 from monodock.cli.main import main
-from monodock.core.cluster import MISSING_EXTRA, active_client, cluster_session
-from monodock.core.parallel import SINGLE_THREAD_ENV, map_with_state
+from monodock.compute.cluster import MISSING_EXTRA, active_client, cluster_session
+from monodock.compute.parallel import SINGLE_THREAD_ENV, map_with_state
 from monodock.errors import InputError, MonodockError
 from monodock.evaluation.dock_sim import DockSimConfig, TrialResult, run_dock_sim
 from monodock.learning.train import TrainConfig, TrainingResult, TrainingSet, train
