@@ -14,8 +14,8 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import Observation
-from monodock.learning.train import TrainingSet
+from monodock.dock.tracking import Observation
+from monodock.learning.tasks import TrainingSet
 from monodock.perception.detect import Detection, MarkerObservation
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances

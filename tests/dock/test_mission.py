@@ -17,6 +17,8 @@ import pytest
 
 from monodock.cli.main import main
 from monodock.core.pose import DockPose, wrap_angle
+from monodock.core.pose2d import Pose2D
+from monodock.core.projection import blind_gap
 from monodock.core.robot import RobotConfig
 from monodock.dock import (
     CASES,
@@ -24,15 +26,15 @@ from monodock.dock import (
     DockingMission,
     Observation,
     PlannerConfig,
-    Pose2D,
     State,
     classify,
     plan,
     point_a,
     run_mission,
 )
-from monodock.dock.controller import FailureReason, blind_gap, make_perceive
 from monodock.dock.pose_filter import DockFilter, MeasurementNoise
+from monodock.dock.states import FailureReason
+from monodock.dock.tracking import make_perceive
 from monodock.estimation.estimator import Estimator
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot

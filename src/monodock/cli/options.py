@@ -14,9 +14,9 @@ from monodock.core.robot import RobotConfig
 from monodock.errors import InputError
 from monodock.estimation.bundle import Bundle
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
+from monodock.estimation.factory import REFINEMENTS, make_estimator
 from monodock.estimation.factory import bundle_calibration as _bundle_calibration
-from monodock.estimation.methods import NEEDS_BUNDLE
+from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE
 
 if TYPE_CHECKING:
     SubParsers = argparse._SubParsersAction[Any]

@@ -15,7 +15,7 @@ candidate that fits the face and meets every constraint is the proposal:
 
 - coverage: at every envelope pose at least one marker is detectable;
 - near the dock: the three papers' markers are all detectable on the axis from ``NEAR_ALL_THREE`` (1 m) in to
-  ``NEAR_THREE_FROM`` (0.7 m), and the centre marker's blind gap (``dock.controller.blind_gap``) is no larger
+  ``NEAR_THREE_FROM`` (0.7 m), and the centre marker's blind gap (``core.projection.blind_gap``) is no larger
   than the papers' dock's on the same camera;
 - tolerance: the bound's σ of x, y and yaw at the near-field poses (on the axis and ±10° off, ``NEAR_ALL_THREE``
   to ``NEAR_FIELD``) is within the tolerance;
@@ -38,9 +38,9 @@ from monodock.core import transforms
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.core.pose import DockPose
+from monodock.core.projection import blind_gap
 from monodock.core.robot import RobotConfig
 from monodock.design.detection_model import DetectionModel, pixels_per_cell
-from monodock.dock.controller import blind_gap
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.corner_noise import CornerNoise
 from monodock.estimation.factory import make_estimator

@@ -44,20 +44,16 @@ from monodock.estimation.fused import FusionTables
 from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods, run_methods
 from monodock.estimation.pnp import PoseEstimate
 from monodock.evaluation.robustness_results import (
-    GOOD_ENOUGH,
     METHODS,
     STALE,
-    STATS,
     Axis,
     AxisKind,
     AxisResult,
-    HeadlineRow,
     LevelStats,
     MethodCurve,
     OcclusionStats,
     RobustnessSettings,
     RobustnessSummary,
-    WorstLevel,
     headline,
 )
 from monodock.learning.dataset import Dataset, LabelRun, label_frames
@@ -72,27 +68,12 @@ from monodock.sim.world import Surface, World, rectangle
 
 __all__ = [
     "AXES",
-    "GOOD_ENOUGH",
-    "METHODS",
-    "STALE",
-    "STATS",
-    "Axis",
-    "AxisKind",
-    "AxisResult",
     "Calibration",
-    "HeadlineRow",
     "ImageCondition",
-    "LevelStats",
-    "MethodCurve",
-    "OcclusionStats",
     "RobustnessConfig",
     "RobustnessResult",
-    "RobustnessSettings",
-    "RobustnessSummary",
-    "WorstLevel",
     "axis_stats",
     "calibration_for",
-    "headline",
     "image_condition",
     "occluder_hiding",
     "run_robustness",

@@ -36,21 +36,15 @@ from tqdm import tqdm
 from monodock.compute import active_client
 from monodock.core.interrupt import sigint_blocked
 from monodock.errors import InputError
-from monodock.learning.regressors import MODEL_NAMES, SEARCH_SPACES, describe_search_space, make_regressor, resolve_draw
-from monodock.learning.tasks import Task, TrainConfig, TrainingSet, make_tasks, segment_quota, stable_seed
+from monodock.learning.regressors import SEARCH_SPACES, make_regressor, resolve_draw
+from monodock.learning.tasks import Task, TrainConfig, TrainingSet, make_tasks, stable_seed
 from monodock.learning.treefit import lean_predict
 
 __all__ = [
-    "MODEL_NAMES",
     "ModelScore",
     "SetResult",
     "TaskResult",
-    "TrainConfig",
     "TrainingResult",
-    "TrainingSet",
-    "describe_search_space",
-    "make_regressor",
-    "segment_quota",
     "train",
 ]
 

@@ -50,7 +50,7 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import DockingMission, FailureReason, State
+from monodock.dock.controller import DockingMission
 from monodock.dock.database import DockInstance, DockType, load_dock_file, pose_distance, staging_pose
 from monodock.dock.nav2 import (
     UNDOCK_CODES,
@@ -64,7 +64,7 @@ from monodock.dock.nav2 import (
     Nav2Code,
 )
 from monodock.dock.run import MissionResult
-from monodock.dock.states import feedback_state
+from monodock.dock.states import FailureReason, State, feedback_state
 from monodock.errors import MonodockError
 from monodock.ros.navigator import Navigator
 

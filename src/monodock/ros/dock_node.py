@@ -42,20 +42,16 @@ import numpy as np
 
 from monodock.core.camera import CameraModel
 from monodock.core.pose2d import Pose2D
+from monodock.core.projection import blind_gap
 from monodock.core.robot import RobotConfig
-from monodock.dock.config import docking_config_from_dict, docking_config_to_dict, load_docking_config
-from monodock.dock.controller import (
-    DockingConfig,
-    DockingMission,
-    FailureReason,
-    State,
-    blind_gap,
-    make_perceive,
-)
+from monodock.dock.config import DockingConfig, docking_config_from_dict, docking_config_to_dict, load_docking_config
+from monodock.dock.controller import DockingMission
 from monodock.dock.database import DockDatabase, DockType
 from monodock.dock.interface import Odometry
 from monodock.dock.pose_filter import MeasurementNoise
 from monodock.dock.run import MissionResult, run_mission
+from monodock.dock.states import FailureReason, State
+from monodock.dock.tracking import make_perceive
 from monodock.errors import ConfigError, InputError, MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.recording import messages as m

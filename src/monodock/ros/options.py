@@ -8,7 +8,8 @@ from dataclasses import dataclass
 from monodock.core.camera import CameraModel
 from monodock.core.robot import RobotConfig
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
+from monodock.estimation.factory import REFINEMENTS, make_estimator
+from monodock.estimation.methods import METHOD_NAMES
 from monodock.ros.parameters import Parameter
 
 __all__ = ["ESTIMATOR_PARAMETERS", "EstimatorOptions"]
