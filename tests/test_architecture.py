@@ -86,6 +86,7 @@ def test_the_robot_side_loads_no_simulator_training_report_or_their_libraries() 
         "monodock.errors",
         "monodock.cli",
         "monodock.cli.options",
+        "monodock.cli.parser",
         "monodock.cli.ros_nodes",
     )
     outside = [m for m in ours if not m.startswith(ROBOT_SIDE) and m not in allowed]

@@ -12,7 +12,7 @@ import math
 import sys
 from collections.abc import Sequence
 
-from monodock.cli.main import Parser
+from monodock.cli.parser import Parser
 from monodock.core.atomic import check_writable
 from monodock.errors import InputError
 from monodock.recording.write import STORAGES
