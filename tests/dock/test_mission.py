@@ -106,19 +106,6 @@ def test_heading_away_takes_the_longer_first_turn() -> None:
     assert towards.first_turn < 0
 
 
-def test_blind_gap_is_where_marker_2_leaves_the_image() -> None:
-    sim = Simulator(nuisances=Nuisances.clean())
-    gap = blind_gap(sim.camera, sim.layout, sim.robot)
-    assert 0.02 < gap < 0.3
-
-    def in_view(g: float) -> bool:
-        corners = sim.true_corners(DockPose(g + FRONT, 0.0, 0.0))["center"]
-        return sim.in_view(corners)
-
-    assert in_view(gap + 0.002)
-    assert not in_view(gap - 0.002)
-
-
 # --- the dock filter -----------------------------------------------------------------------------------------
 
 
