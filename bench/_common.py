@@ -61,7 +61,7 @@ def parallel_map(
                 bar.update(frames_of(t))
                 yield out
             return
-        from monodock.core.parallel import worker_pool
+        from monodock.compute import worker_pool
 
         with worker_pool(workers) as pool:
             for t, out in zip(tasks, pool.imap(fn, tasks), strict=True):

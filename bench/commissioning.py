@@ -2,7 +2,7 @@
 
 Each world (``monodock.sim.wrong_world``): every marker ±3 mm in place (standing 0-3 mm off the face), ±2° tilt,
 printed at 97-103 %; the camera mount ±1.5 cm / ±1.5°; the contacts ±1 cm from ``front_offset``; the wheels'
-radii as the simulated base draws them. ``monodock.evaluation.commissioning.commission_world`` photographs it (24
+radii as the simulated base draws them. ``monodock.evaluation.commission.commission_world`` photographs it (24
 handheld views), drives a minute before it, backs off its contacts, runs the three commissioning steps, and
 measures against the truth: the survey (relative to the centre marker), the mount, the fused method (geometry
 alone: no LiDAR, no bundle) and board PnP by 25 cm band with the nominal, the commissioned and the exact files,
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from monodock.evaluation.commissioning import (
+from monodock.evaluation.commission import (
     ACCURACY_METHODS,
     FILE_SETS,
     CommissioningSummary,

@@ -25,7 +25,8 @@ import sys  # noqa: E402
 from typing import Any  # noqa: E402
 
 from _common import emit, environment, fmt, markdown_table, pin_one_cpu  # noqa: E402
-from monodock.evaluation.dock_sim import ALL_METHODS, BUNDLE_METHODS, DockSimConfig, TrialResult, run_dock_sim  # noqa: E402
+from monodock.evaluation.dock_results import TrialResult  # noqa: E402
+from monodock.evaluation.dock_sim import ALL_METHODS, BUNDLE_METHODS, DockSimConfig, run_dock_sim  # noqa: E402
 
 TARGET_S = 4.0  # one run, wall, on a quiet 2-core machine (issue 24)
 

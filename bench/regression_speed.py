@@ -38,7 +38,8 @@ from monodock.estimation.segments import SegmentTable
 from monodock.learning.dataset import label_recording, read_dataset
 from monodock.learning.export import save_bundle
 from monodock.learning.pipeline import bundle_metadata, training_sets
-from monodock.learning.train import TrainConfig, TrainingResult, train
+from monodock.learning.tasks import TrainConfig
+from monodock.learning.train import TrainingResult, train
 from monodock.perception.detect import MarkerDetector
 from monodock.perception.features import DEFAULT_MARKER_SETS, MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
 from monodock.sim import Nuisances, PoseDistribution, Simulator

@@ -36,7 +36,8 @@ from monodock.cli.dock_sim import _cases as case_list
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.evaluation.dock_sim import DockSimConfig, TrialResult, run_dock_sim
+from monodock.evaluation.dock_results import TrialResult
+from monodock.evaluation.dock_sim import DockSimConfig, run_dock_sim
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from private_graph import can_isolate, run_private_graph

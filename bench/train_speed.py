@@ -50,7 +50,9 @@ from monodock.estimation.bundle import Bundle, bundle_size_bytes, ort_session
 from monodock.learning.dataset import read_dataset
 from monodock.learning.export import onnx_model_bytes, save_bundle
 from monodock.learning.pipeline import training_sets
-from monodock.learning.train import MODEL_NAMES, TrainConfig, TrainingSet, make_regressor, train
+from monodock.learning.regressors import MODEL_NAMES, make_regressor
+from monodock.learning.tasks import TrainConfig, TrainingSet
+from monodock.learning.train import train
 
 # Samples per 5 cm segment from 25 cm in the paper's Table 2 (the 245-250 cm segment is not listed: none).
 PAPER_SEGMENT_COUNTS = [

@@ -1,4 +1,4 @@
-"""Tasks that tests/core/test_cluster.py sends to a real Dask cluster: module-level, so that the workers (whose
+"""Tasks that tests/compute/test_cluster.py sends to a real Dask cluster: module-level, so that the workers (whose
 PYTHONPATH holds src/ and tests/) import them by name, as they do monodock's own."""
 
 from __future__ import annotations

@@ -19,7 +19,8 @@ import pytest
 from monodock.cli.main import main
 from monodock.core.pose import DockPose
 from monodock.learning.export import save_bundle
-from monodock.learning.train import TrainConfig, TrainingResult, TrainingSet, train
+from monodock.learning.tasks import TrainConfig, TrainingSet
+from monodock.learning.train import TrainingResult, train
 from monodock.sim import Nuisances, PoseDistribution, Simulator
 from monodock.sim.drive import DriveConfig, plan_drive
 from monodock.sim.recording import write_recording

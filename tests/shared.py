@@ -21,8 +21,8 @@ from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
 from monodock.core.settings import to_mapping
-from monodock.dock.controller import Observation
-from monodock.learning.train import TrainingSet
+from monodock.dock.tracking import Observation
+from monodock.learning.tasks import TrainingSet
 from monodock.perception.detect import Detection, MarkerObservation
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances
@@ -141,7 +141,7 @@ def truthful_robot(start: Pose2D, **drive: object) -> TruthfulRobot:
 
 
 def worker_pid(_: object, __: object) -> int:
-    """The process a task ran in (``core.parallel`` tests: a module-level function, so it pickles)."""
+    """The process a task ran in (``compute.parallel`` tests: a module-level function, so it pickles)."""
     import os
 
     return os.getpid()

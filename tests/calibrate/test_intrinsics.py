@@ -15,13 +15,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from monodock.calibrate import (
-    IntrinsicsResult,
-    calibrate_intrinsics,
-    find_board,
-    parse_board,
-    select_frames,
-)
+from monodock.calibrate.intrinsics import IntrinsicsResult, calibrate_intrinsics, find_board, parse_board, select_frames
 from monodock.cli.main import parser
 from monodock.core.camera import CameraModel
 from monodock.errors import InputError

@@ -109,7 +109,7 @@ def test_a_bad_record_is_one_line_naming_the_key(change: object, message: str) -
 
 def test_a_dock_sim_summary_from_before_issue_16_reads_with_zero_counts() -> None:
     """A summary.json as written before the charging, redock and fault counts (and the papers' planner) existed."""
-    from monodock.evaluation.dock_sim import DockSimSummary
+    from monodock.evaluation.dock_results import DockSimSummary
 
     group = {
         "runs": 2,

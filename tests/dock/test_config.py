@@ -10,8 +10,7 @@ import pytest
 import yaml
 
 from monodock.core.settings import settings_of
-from monodock.dock.config import docking_config_to_dict, load_docking_config, save_docking_config
-from monodock.dock.controller import DockingConfig
+from monodock.dock.config import DockingConfig, docking_config_to_dict, load_docking_config, save_docking_config
 from monodock.errors import ConfigError
 
 

@@ -13,10 +13,12 @@ import math
 import pytest
 
 from monodock.core.pose import wrap_angle
-from monodock.dock import DockingConfig, DockingMission, Pose2D, State, run_mission
-from monodock.dock.controller import FailureReason, blind_gap
+from monodock.core.pose2d import Pose2D
+from monodock.core.projection import blind_gap
+from monodock.dock import DockingConfig, DockingMission, State, run_mission
 from monodock.dock.far_approach import beyond_manoeuvre, leg_end, off_axis, staging_point
 from monodock.dock.pose_filter import MeasurementNoise
+from monodock.dock.states import FailureReason
 from monodock.errors import ConfigError
 from shared import TruthfulRobot, truthful_robot
 

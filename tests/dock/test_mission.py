@@ -17,6 +17,8 @@ import pytest
 
 from monodock.cli.main import main
 from monodock.core.pose import DockPose, wrap_angle
+from monodock.core.pose2d import Pose2D
+from monodock.core.projection import blind_gap
 from monodock.core.robot import RobotConfig
 from monodock.dock import (
     CASES,
@@ -24,15 +26,15 @@ from monodock.dock import (
     DockingMission,
     Observation,
     PlannerConfig,
-    Pose2D,
     State,
     classify,
     plan,
     point_a,
     run_mission,
 )
-from monodock.dock.controller import FailureReason, blind_gap, make_perceive
 from monodock.dock.pose_filter import DockFilter, MeasurementNoise
+from monodock.dock.states import FailureReason
+from monodock.dock.tracking import make_perceive
 from monodock.estimation.estimator import Estimator
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
@@ -102,19 +104,6 @@ def test_heading_away_takes_the_longer_first_turn() -> None:
     assert abs(away.first_turn) > abs(towards.first_turn)
     assert away.first_turn < 0
     assert towards.first_turn < 0
-
-
-def test_blind_gap_is_where_marker_2_leaves_the_image() -> None:
-    sim = Simulator(nuisances=Nuisances.clean())
-    gap = blind_gap(sim.camera, sim.layout, sim.robot)
-    assert 0.02 < gap < 0.3
-
-    def in_view(g: float) -> bool:
-        corners = sim.true_corners(DockPose(g + FRONT, 0.0, 0.0))["center"]
-        return sim.in_view(corners)
-
-    assert in_view(gap + 0.002)
-    assert not in_view(gap - 0.002)
 
 
 # --- the dock filter -----------------------------------------------------------------------------------------

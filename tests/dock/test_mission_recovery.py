@@ -15,17 +15,14 @@ import pytest
 
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import (
-    DockingConfig,
-    DockingMission,
-    FailureReason,
-    Observation,
-    State,
-    blind_gap,
-)
+from monodock.core.projection import blind_gap
+from monodock.dock.config import DockingConfig
+from monodock.dock.controller import DockingMission
 from monodock.dock.planner import PlannerConfig, plan_monodock
 from monodock.dock.pose_filter import MeasurementNoise
 from monodock.dock.run import MissionResult, run_mission
+from monodock.dock.states import FailureReason, State
+from monodock.dock.tracking import Observation
 from monodock.sim.faults import Obstacle
 from shared import TruthfulRobot, truthful_robot
 

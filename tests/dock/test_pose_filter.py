@@ -22,7 +22,8 @@ from scipy.stats import chi2
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
-from monodock.dock.controller import DockingConfig, DockingMission, Observation
+from monodock.dock.config import DockingConfig
+from monodock.dock.controller import DockingMission
 from monodock.dock.interface import Odometry
 from monodock.dock.pose_filter import (
     GATE_CHI2_3DOF,
@@ -32,6 +33,7 @@ from monodock.dock.pose_filter import (
     measurement_model,
     process_jacobian,
 )
+from monodock.dock.tracking import Observation
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from monodock.cli.main import main
-from monodock.evaluation.robustness import AXES, METHODS, STALE, occluder_hiding
+from monodock.evaluation.robustness import AXES, occluder_hiding
+from monodock.evaluation.robustness_results import METHODS, STALE
 from monodock.sim import Nuisances, PoseDistribution, Simulator
 
 FRAMES = 32

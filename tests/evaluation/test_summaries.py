@@ -14,7 +14,8 @@ import numpy as np
 
 from monodock.core.pose2d import Pose2D
 from monodock.dock.states import FailureReason, State
-from monodock.evaluation.dock_sim import DockSimConfig, DockSimSummary, FilterFrame, TrialResult, summarize
+from monodock.evaluation.dock_results import DockSimSummary, FilterFrame, TrialResult
+from monodock.evaluation.dock_sim import DockSimConfig, summarize
 from monodock.evaluation.heldout import (
     HeldoutResult,
     MethodResult,

@@ -47,8 +47,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.core.settings import to_mapping
-from monodock.dock.config import docking_config_to_dict
-from monodock.dock.controller import DockingConfig
+from monodock.dock.config import DockingConfig, docking_config_to_dict
 from monodock.estimation.bundle import seal_manifest
 
 __all__ = ["CASES", "FAMILIES", "Case", "run_case"]

@@ -24,12 +24,19 @@ from monodock.core.layout import DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.core.settings import to_mapping
-from monodock.dock.config import save_docking_config
-from monodock.dock.controller import DockingConfig
+from monodock.dock.config import DockingConfig, save_docking_config
 from monodock.recording import messages as m
-from monodock.recording.write import LATCHED, SENSOR, BagWriter
+from monodock.recording.write import (
+    CAMERA_FRAME,
+    CAMERA_INFO_TOPIC,
+    IMAGE_TOPIC,
+    LATCHED,
+    SCAN_TOPIC,
+    SENSOR,
+    TF_STATIC_TOPIC,
+    BagWriter,
+)
 from monodock.sim import Nuisances, Simulator
-from monodock.sim.recording import CAMERA_FRAME, CAMERA_INFO_TOPIC, IMAGE_TOPIC, SCAN_TOPIC, TF_STATIC_TOPIC
 
 __all__ = ["TRUTH", "TRUTH_DEPTH_M", "World", "build_world", "opencv_camera_text", "write_recording"]
 
@@ -162,7 +169,8 @@ def write_recording(
 def _train_bundle(out: Path) -> Path:
     """A bundle of this monodock's feature schema for marker 2 alone: linear models on synthetic rows (~1 s)."""
     from monodock.learning.export import save_bundle
-    from monodock.learning.train import TrainConfig, TrainingSet, train
+    from monodock.learning.tasks import TrainConfig, TrainingSet
+    from monodock.learning.train import train
     from monodock.perception.features import MODEL_FEATURE_SCHEMA, model_feature_names
 
     rng = np.random.default_rng(0)

@@ -12,7 +12,9 @@ import pytest
 from monodock.errors import InputError
 from monodock.estimation.bundle import BUNDLE_FILE, Bundle, bundle_size_bytes
 from monodock.learning.export import save_bundle
-from monodock.learning.train import MODEL_NAMES, TrainConfig, TrainingResult, TrainingSet, train
+from monodock.learning.regressors import MODEL_NAMES
+from monodock.learning.tasks import TrainConfig, TrainingSet
+from monodock.learning.train import TrainingResult, train
 from shared import FEATURES, META, SET, SPARSE_SEGMENT, as_float32
 
 

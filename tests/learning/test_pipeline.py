@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from monodock.cli.main import main
-from monodock.core import parallel
+from monodock.compute import parallel
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.core.records import to_record
@@ -333,7 +333,8 @@ def test_a_segment_without_data_gives_no_angle_and_says_why(work: Path, tmp_path
     from monodock.estimation.regression import RegressionEstimator
     from monodock.learning.export import save_bundle
     from monodock.learning.pipeline import bundle_metadata, training_sets
-    from monodock.learning.train import TrainConfig, train
+    from monodock.learning.tasks import TrainConfig
+    from monodock.learning.train import train
     from monodock.perception.detect import MarkerDetector
 
     ds = read_dataset(work / "train.parquet")

@@ -8,7 +8,9 @@ import pytest
 
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.segments import SegmentTable
-from monodock.learning.train import MODEL_NAMES, TrainConfig, TrainingResult, TrainingSet, train
+from monodock.learning.regressors import MODEL_NAMES
+from monodock.learning.tasks import TrainConfig, TrainingSet
+from monodock.learning.train import TrainingResult, train
 from shared import FEATURES, SET, SPARSE_SEGMENT, as_float32
 
 

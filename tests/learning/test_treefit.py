@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from monodock.learning import train as train_module
-from monodock.learning.train import TrainConfig, TrainingResult, TrainingSet, make_regressor, train
+from monodock.learning.regressors import make_regressor
+from monodock.learning.tasks import TrainConfig, TrainingSet
+from monodock.learning.train import TrainingResult, train
 from monodock.learning.treefit import LEAN_MODELS, lean_predict
 from shared import synthetic_set
 

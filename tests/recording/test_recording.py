@@ -399,7 +399,7 @@ def ros1_header(stamp: float, frame: str) -> Any:
 
 
 def ros1_transform(parent: str, child: str, T: NDArray[np.float64]) -> Any:
-    from monodock.recording.messages import quaternion_from_matrix
+    from monodock.core.transforms import quaternion_from_matrix
 
     t = ROS1.types
     x, y, z, w = quaternion_from_matrix(T[:3, :3])

@@ -18,7 +18,8 @@ from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
 from monodock.dock.states import State
 from monodock.estimation.pnp import PoseEstimate, estimate_board, estimate_single_marker
-from monodock.evaluation.dock_sim import DockSimConfig, TrialResult, summarize
+from monodock.evaluation.dock_results import TrialResult
+from monodock.evaluation.dock_sim import DockSimConfig, summarize
 from monodock.evaluation.heldout import (
     HeldoutResult,
     MethodResult,

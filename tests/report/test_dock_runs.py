@@ -13,7 +13,9 @@ import pytest
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.states import FailureReason, State
-from monodock.evaluation.dock_sim import DockSimConfig, TrialResult, summarize
+from monodock.evaluation.dock_results import TrialResult
+from monodock.evaluation.dock_sim import DockSimConfig, summarize
+from monodock.report.dock_figures import run_plot
 from monodock.report.dock_runs import (
     agreement_table,
     executed_case_table,
@@ -26,7 +28,7 @@ from monodock.report.dock_runs import (
     variant_label,
     variants,
 )
-from monodock.report.docking import run_plot, trajectory_file, write_dock_report
+from monodock.report.docking import trajectory_file, write_dock_report
 
 FRONT = RobotConfig.default().front_offset
 STEP = 0.04  # metres per 0.2 s sample: 0.2 m/s

@@ -19,7 +19,7 @@ import pytest
 
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
-from monodock.dock.controller import DockingConfig
+from monodock.dock.config import DockingConfig
 from private_graph import can_isolate, run_private_graph
 
 HERE = Path(__file__).parent

@@ -23,7 +23,7 @@ import pytest
 
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.dock.controller import DockingConfig
+from monodock.dock.config import DockingConfig
 from private_graph import GraphRun, can_isolate, run_private_graph
 
 HERE = Path(__file__).parent

@@ -40,8 +40,8 @@ import yaml
 
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
+from monodock.core.projection import blind_gap
 from monodock.core.robot import RobotConfig
-from monodock.dock.controller import blind_gap
 from monodock.dock.planner import PlannerConfig
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import make_estimator

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from monodock.dock.controller import DockingConfig
+from monodock.dock.config import DockingConfig
 from private_graph import can_isolate, run_private_graph
 
 HERE = Path(__file__).parent

@@ -15,7 +15,8 @@ from numpy.typing import NDArray
 
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
-from monodock.sim import LaserScan, LidarModel, Nuisances, Simulator
+from monodock.core.scan import LaserScan
+from monodock.sim import LidarModel, Nuisances, Simulator
 
 FACE_HALF_WIDTH = 0.30  # the face spans at least y in [-0.3, 0.3]; stay clear of its edges
 EDGE_MARGIN = 0.02

@@ -48,7 +48,7 @@ from monodock.core.layout import FACE_R_MARKER, ROLES, DockLayout, MarkerSpec
 from monodock.core.robot import Mount, OdometryCalibration, RobotConfig
 from monodock.errors import InputError
 from monodock.perception.edge_offset import EdgeOffset
-from monodock.recording.read import open_recording
+from monodock.recording.read import Recording, open_recording
 
 __all__ = [
     "MOUNT_FIELDS",
@@ -58,6 +58,7 @@ __all__ = [
     "MountLimits",
     "calibrate_mount",
     "calibrate_mount_of",
+    "camera_and_odometry",
     "corrected_layout",
     "frames_from_recording",
     "odometry_at",
@@ -544,6 +545,20 @@ class Drive:
     edge_offset: EdgeOffset | None = None
 
 
+def camera_and_odometry(
+    rec: Recording, path: str, camera: CameraModel | None
+) -> tuple[CameraModel, NDArray[np.float64]]:
+    """A drive's camera (``camera``, else the recording's CameraInfo) and its odometry (two samples or more), or
+    the one-line InputError that says what the recording lacks."""
+    cam = camera or rec.camera()
+    if cam is None:
+        raise InputError(f"{path} has no CameraInfo: give --camera")
+    odometry = rec.odometry()
+    if odometry.shape[0] < 2:
+        raise InputError(f"{path} has no odometry (nav_msgs/Odometry): record the robot's odom topic too")
+    return cam, odometry
+
+
 def frames_from_recording(
     path: str, layout: DockLayout, *, camera: CameraModel | None = None, image_topic: str | None = None
 ) -> Drive:
@@ -553,12 +568,7 @@ def frames_from_recording(
     More than ``MAX_FRAMES`` usable frames are thinned evenly: neighbours a fifteenth of a second apart add little.
     """
     with open_recording(path, image_topic=image_topic) as rec:
-        cam = camera or rec.camera()
-        if cam is None:
-            raise InputError(f"{path} has no CameraInfo: give --camera")
-        odometry = rec.odometry()
-        if odometry.shape[0] < 2:
-            raise InputError(f"{path} has no odometry (nav_msgs/Odometry): record the robot's odom topic too")
+        cam, odometry = camera_and_odometry(rec, path, camera)
         stamps: dict[str, float] = {}
 
         def stamped() -> Iterator[Frame]:

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.calibrate.mount import odometry_at
+from monodock.calibrate.mount import camera_and_odometry, odometry_at
 from monodock.core.camera import CameraModel
 from monodock.core.config import yaml_text
 from monodock.core.layout import DockLayout
@@ -240,12 +240,7 @@ def teach_from_recording(
     if method not in ("fused", "board"):
         raise InputError(f"teach uses the fused or the board method, got {method!r}")
     with open_recording(path) as rec:
-        cam = camera or rec.camera()
-        if cam is None:
-            raise InputError(f"{path} has no CameraInfo: give --camera")
-        odometry = rec.odometry()
-        if odometry.shape[0] < 2:
-            raise InputError(f"{path} has no odometry (nav_msgs/Odometry): record the robot's odom topic too")
+        cam, odometry = camera_and_odometry(rec, path, camera)
         charging = rec.charging()
         if docked_at_start:
             charged_at = float(odometry[0, 0])

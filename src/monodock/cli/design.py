@@ -14,8 +14,8 @@ from monodock.cli.options import SubParsers, add_seed, float_in, int_in
 from monodock.core.atomic import atomic_directory, check_writable, write_bytes_atomic
 from monodock.core.camera import CameraModel
 from monodock.core.robot import RobotConfig
+from monodock.design import Envelope, Tolerance, check_in_sim, check_poses, design
 from monodock.errors import InputError
-from monodock.evaluation.design import Envelope, Tolerance, check_in_sim, check_poses, design
 from monodock.report.design import KIT_PAPERS, check_summary, design_report
 from monodock.report.dock_kit import dock_kit_pdf, misfit
 

@@ -14,15 +14,14 @@ from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.dock.config import load_docking_config
-from monodock.dock.controller import DockingConfig
+from monodock.dock.config import DockingConfig, load_docking_config
 from monodock.dock.planner import CASES, PLANNERS
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
+from monodock.evaluation.dock_faults import FAULTS
 from monodock.evaluation.dock_sim import (
     ALL_METHODS,
     BUNDLE_METHODS,
-    FAULTS,
     STARTS,
     DockSimConfig,
     case_distances,
@@ -30,7 +29,8 @@ from monodock.evaluation.dock_sim import (
     summarize,
 )
 from monodock.evaluation.selftrain import SelfTrainConfig, cached_bundle
-from monodock.report.docking import console_table, fault_table, write_dock_report
+from monodock.report.dock_tables import console_table, fault_table
+from monodock.report.docking import write_dock_report
 from monodock.sim.diffdrive import DiffDriveConfig
 from monodock.sim.render import MAX_SUPERSAMPLE
 

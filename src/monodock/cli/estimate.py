@@ -14,7 +14,8 @@ from monodock.cli.options import SubParsers, add_calibration, build_estimator
 from monodock.core.atomic import check_writable, write_text_atomic
 from monodock.errors import InputError
 from monodock.estimation.estimator import Estimator, FrameEstimates
-from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS
+from monodock.estimation.factory import REFINEMENTS
+from monodock.estimation.methods import METHOD_NAMES
 from monodock.io.frames import open_frames
 from monodock.io.nav2 import UNSTAMPED_BAG, write_pose_bag
 from monodock.io.rows import estimates_csv

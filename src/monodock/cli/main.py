@@ -11,9 +11,9 @@ import os
 import re
 import sys
 from collections.abc import Iterable, Sequence
-from typing import NoReturn
 
-from monodock.core.cluster import cluster_session
+from monodock.cli.parser import Parser
+from monodock.compute import cluster_session
 from monodock.core.images import printable
 from monodock.core.interrupt import Terminated, exit_on_signal, install_signal_handlers, received
 from monodock.core.quiet import command_session
@@ -40,13 +40,6 @@ COMMANDS = {
     "dock-sim": "monodock.cli.dock_sim",
     "demo": "monodock.cli.demo",
 }
-
-
-class Parser(argparse.ArgumentParser):
-    """argparse with the usage error on one line, like every other monodock error."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _command(argv: Sequence[str]) -> str | None:

@@ -16,9 +16,9 @@ from monodock.core.settings import Setting, flag_of, settings_of
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.bundle import Bundle
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
+from monodock.estimation.factory import REFINEMENTS, make_estimator
 from monodock.estimation.factory import bundle_calibration as _bundle_calibration
-from monodock.estimation.methods import NEEDS_BUNDLE
+from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE
 
 if TYPE_CHECKING:
     SubParsers = argparse._SubParsersAction[Any]
@@ -171,7 +171,7 @@ def add_jobs(p: argparse.ArgumentParser | argparse._ArgumentGroup, default: str 
 
 
 def add_cluster(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
-    """``--cluster``: the parallel stages on a Dask cluster (core.cluster), else on the local cores."""
+    """``--cluster``: the parallel stages on a Dask cluster (compute.cluster), else on the local cores."""
     p.add_argument(
         "--cluster",
         metavar="ADDRESS",

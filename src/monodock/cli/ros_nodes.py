@@ -10,24 +10,17 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
-from typing import NoReturn
 
 from rclpy.utilities import remove_ros_args  # type: ignore[import-not-found, unused-ignore]  # noqa: TID253
 
 from monodock.cli.options import add_estimator_options, add_flags
+from monodock.cli.parser import Parser as _Parser
 from monodock.errors import MonodockError
 from monodock.ros.detector import DetectorOptions, non_ros_arguments, run_detector
 from monodock.ros.dock_node import DockOptions, run_dock
 from monodock.ros.parameters import check_params_files
 
 __all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser"]
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with the usage error on one line, like every other monodock error."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 # The flags of add_estimator_options (shared with the other commands that estimate).

@@ -11,8 +11,8 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from monodock.cli.main import Parser
 from monodock.cli.options import add_flags
+from monodock.cli.parser import Parser
 from monodock.core.atomic import check_writable
 from monodock.errors import InputError
 from monodock.ros.recorder import RecorderOptions, run_recorder

@@ -17,6 +17,7 @@ __all__ = [
     "apply",
     "invert",
     "planar",
+    "quaternion_from_matrix",
     "rotation_from_rpy",
     "rpy_from_rotation",
     "transform",
@@ -82,3 +83,27 @@ def yaw_of(T: ArrayLike) -> float:
     """Heading (rotation about z, radians) of the x axis of a 4x4 transform."""
     m = np.asarray(T, dtype=np.float64)
     return math.atan2(m[1, 0], m[0, 0])
+
+
+def quaternion_from_matrix(R: ArrayLike) -> tuple[float, float, float, float]:
+    """Unit quaternion (x, y, z, w), w >= 0, of a rotation matrix, shape (3, 3)."""
+    m = np.asarray(R, dtype=np.float64)
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    # Shepperd's method: divide by the largest of the four candidates, for accuracy near 180 degrees.
+    if trace > max(m[0, 0], m[1, 1], m[2, 2]):
+        s = 2.0 * math.sqrt(1.0 + trace)
+        q = (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4.0
+    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = s / 4.0, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s
+    elif m[1, 1] >= m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = (m[0, 1] + m[1, 0]) / s, s / 4.0, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4.0, (m[1, 0] - m[0, 1]) / s
+    v = np.array(q, dtype=np.float64)
+    v /= np.linalg.norm(v)
+    if v[3] < 0:
+        v = -v
+    return float(v[0]), float(v[1]), float(v[2]), float(v[3])

@@ -1,14 +1,8 @@
 """Docking: the eight cases and Point A (planner), the mission's state machine (controller), the dock's pose
 tracked in odometry (pose_filter) and the robot interface; what runs on the robot (dock-sim is in evaluation)."""
 
-from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import (
-    DockingConfig,
-    DockingMission,
-    FailureReason,
-    Observation,
-    State,
-)
+from monodock.dock.config import DockingConfig
+from monodock.dock.controller import DockingMission
 from monodock.dock.interface import CameraFrame, Odometry, RobotInterface
 from monodock.dock.planner import (
     CASES,
@@ -23,6 +17,8 @@ from monodock.dock.planner import (
     point_a,
 )
 from monodock.dock.run import MissionResult, run_mission
+from monodock.dock.states import FailureReason, State
+from monodock.dock.tracking import Observation
 
 __all__ = [
     "CASES",
@@ -36,7 +32,6 @@ __all__ = [
     "Observation",
     "Odometry",
     "PlannerConfig",
-    "Pose2D",
     "RobotInterface",
     "State",
     "classify",

@@ -30,10 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from monodock.core import transforms
-from monodock.core.camera import CameraModel
-from monodock.core.layout import DockLayout
-from monodock.core.pose import DockPose, wrap_angle
+from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock import control_law as law
@@ -53,42 +50,10 @@ from monodock.dock.phases import (
 )
 from monodock.dock.planner import Manoeuvre, plan_for, point_a
 from monodock.dock.states import FailureReason, State
-from monodock.dock.tracking import DockTrack, Observation, Perceive, make_perceive
+from monodock.dock.tracking import DockTrack, Observation
 from monodock.errors import ConfigError
 
-__all__ = [
-    "DockingConfig",
-    "DockingMission",
-    "FailureReason",
-    "Observation",
-    "Perceive",
-    "State",
-    "blind_gap",
-    "make_perceive",
-]
-
-
-def blind_gap(camera: CameraModel, layout: DockLayout, robot: RobotConfig) -> float:
-    """The front edge's distance from the face below which marker 2 no longer fits in the image (robot square on)."""
-
-    def fits(gap: float) -> bool:
-        base_T_dock = DockPose(gap + robot.front_offset, 0.0, 0.0).matrix()
-        optical_T_dock = transforms.invert(robot.base_T_optical()) @ base_T_dock
-        p = transforms.apply(optical_T_dock, layout.corners_in_dock("center"))
-        if np.any(p[:, 2] <= 0) or not np.all(camera.in_view_field(p)):
-            return False
-        px = camera.project(p)
-        return bool(np.all((px >= 0) & (px <= np.array(camera.size) - 1)))
-
-    lo, hi = 0.0, 3.0
-    if fits(lo):
-        return 0.0
-    if not fits(hi):
-        raise ConfigError("marker 2 never fits in the image in front of the dock; check the camera and layout")
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
-    return hi
+__all__ = ["DockingMission"]
 
 
 @dataclass

@@ -25,6 +25,7 @@ __all__ = [
     "FailedToStage",
     "FeedbackState",
     "Nav2Code",
+    "docking_error",
 ]
 
 
@@ -108,3 +109,17 @@ class FailedToCharge(DockingError):  # noqa: N818 - opennav_docking_core's name
     """On the contacts, charging never started."""
 
     code = Nav2Code.FAILED_TO_CHARGE
+
+
+# Each code's exception type, from the types themselves: the one table is Nav2Code and each type's ``code``.
+_BY_CODE: dict[Nav2Code, type[DockingError]] = {
+    t.code: t for t in (DockNotInDB, DockNotValid, FailedToStage, FailedToDetectDock, FailedToControl, FailedToCharge)
+}
+
+
+def docking_error(code: Nav2Code, message: str) -> DockingError:
+    """The exception that ends a goal with ``code``: opennav_docking's type of that code, else a DockingError (both
+    carrying ``code``)."""
+    error = _BY_CODE.get(code, DockingError)(message)
+    error.code = code
+    return error

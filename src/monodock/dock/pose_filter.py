@@ -64,6 +64,22 @@ Matrix = NDArray[np.float64]
 GATE_CHI2_3DOF = 16.27
 
 
+# The geometric methods' noise (MeasurementNoise.for_method): board PnP, and one marker's PnP (IPPE; its two-fold
+# yaw ambiguity past 2 m is left to the gate).
+_GEOMETRIC_FIELDS = (
+    "lateral_base",
+    "yaw_three_markers_deg",
+    "yaw_one_marker_deg",
+    "depth_per_metre3",
+    "lateral_per_metre3",
+    "yaw_per_metre3_deg",
+)
+_GEOMETRIC = {
+    "board": (0.0005, 0.1, 1.0, 0.0025, 0.0005, 0.2),
+    "pnp": (0.0003, 0.15, 0.15, 0.004, 0.0006, 0.5),
+}
+
+
 @dataclass(frozen=True)
 class MeasurementNoise:
     """One frame's error, standard deviations growing with the distance d to the dock (DockPose.x, metres).
@@ -93,30 +109,9 @@ class MeasurementNoise:
         """
         if method == "regression":
             return cls()
-        if method == "board":
-            return cls(
-                depth_base=0.001,
-                depth_per_metre=0.0,
-                lateral_base=0.0005,
-                lateral_per_metre=0.0,
-                yaw_three_markers_deg=0.1,
-                yaw_one_marker_deg=1.0,
-                depth_per_metre3=0.0025,
-                lateral_per_metre3=0.0005,
-                yaw_per_metre3_deg=0.2,
-            )
-        # One marker's PnP (IPPE); the two-fold yaw ambiguity past 2 m is left to the gate.
-        return cls(
-            depth_base=0.001,
-            depth_per_metre=0.0,
-            lateral_base=0.0003,
-            lateral_per_metre=0.0,
-            yaw_three_markers_deg=0.15,
-            yaw_one_marker_deg=0.15,
-            depth_per_metre3=0.004,
-            lateral_per_metre3=0.0006,
-            yaw_per_metre3_deg=0.5,
-        )
+        # The geometric methods: a millimetre of depth, no linear growth, the rest theirs (_GEOMETRIC).
+        fitted = dict(zip(_GEOMETRIC_FIELDS, _GEOMETRIC["board" if method == "board" else "pnp"], strict=True))
+        return cls(depth_base=0.001, depth_per_metre=0.0, lateral_per_metre=0.0, **fitted)
 
     def sigmas(self, pose: DockPose, markers: int) -> tuple[float, float, float]:
         """(depth, lateral, yaw) standard deviations for a frame at this pose seeing this many markers."""

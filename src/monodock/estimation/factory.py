@@ -23,7 +23,11 @@ from monodock.estimation.estimator import Estimator
 from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE, MethodSetup, build_methods
 from monodock.estimation.regression import RegressionEstimator
 
-__all__ = ["METHOD_NAMES", "REFINEMENTS", "bundle_calibration", "make_estimator"]
+__all__ = [
+    "REFINEMENTS",
+    "bundle_calibration",
+    "make_estimator",
+]
 
 REFINEMENTS = ("none", "subpix", "contour")
 

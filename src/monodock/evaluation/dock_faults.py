@@ -8,7 +8,8 @@ import math
 from typing import ClassVar
 
 from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import DockingMission, State
+from monodock.dock.controller import DockingMission
+from monodock.dock.states import State
 from monodock.sim.diffdrive import SimulatedRobot
 from monodock.sim.faults import Obstacle
 

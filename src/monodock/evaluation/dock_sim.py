@@ -21,47 +21,36 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from monodock.compute import map_with_state
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
-from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
+from monodock.core.projection import blind_gap
 from monodock.core.robot import RobotConfig
-from monodock.dock.controller import (
-    DockingConfig,
-    DockingMission,
-    Observation,
-    Perceive,
-    State,
-    blind_gap,
-    make_perceive,
-)
+from monodock.dock.config import DockingConfig
+from monodock.dock.controller import DockingMission
 from monodock.dock.interface import Odometry
 from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise, OdometryNoise
 from monodock.dock.run import run_mission
+from monodock.dock.states import State
+from monodock.dock.tracking import Observation, Perceive, make_perceive
 from monodock.errors import InputError
 from monodock.estimation.bundle import load_bundle
 from monodock.estimation.consistency import camera_disagreement
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.factory import make_estimator
 from monodock.estimation.methods import METHOD_NAMES, NEEDS_BUNDLE, USES_BUNDLE
-from monodock.evaluation.dock_faults import FAULTS, FaultInjector
+from monodock.evaluation.dock_faults import FaultInjector
 from monodock.evaluation.dock_results import (
-    AbsStats,
     DockSimSettings,
     DockSimSummary,
-    FilterAccuracy,
-    FilterBand,
-    FilterBlock,
     FilterFrame,
     MethodRuns,
-    PoseMae,
-    RunGroup,
     RunSpeed,
     TrialResult,
     filter_accuracy,
-    runs_csv,
 )
 from monodock.sim.diffdrive import DiffDriveConfig, SimulatedRobot
 from monodock.sim.nuisance import Nuisances
@@ -70,29 +59,13 @@ from monodock.sim.simulator import Simulator
 __all__ = [
     "ALL_METHODS",
     "BUNDLE_METHODS",
-    "FAULTS",
     "ROOM_BEARING_DEG",
     "ROOM_DISTANCE",
     "STARTS",
-    "AbsStats",
     "DockSimConfig",
-    "DockSimSettings",
-    "DockSimSummary",
-    "FilterAccuracy",
-    "FilterBand",
-    "FilterBlock",
-    "FilterFrame",
-    "MethodRuns",
-    "PoseMae",
-    "RunGroup",
-    "RunSpeed",
-    "TrialResult",
     "case_distances",
-    "filter_accuracy",
-    "make_perceive",
     "room_tasks",
     "run_dock_sim",
-    "runs_csv",
     "sample_room_start",
     "sample_start",
     "summarize",

@@ -28,7 +28,7 @@ from monodock.core.records import to_record
 from monodock.core.robot import RobotConfig
 from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods, run_methods
 from monodock.estimation.pnp import PoseEstimate
-from monodock.evaluation.dock_sim import RunGroup
+from monodock.evaluation.dock_results import RunGroup
 from monodock.evaluation.limit import PhysicalLimit, physical_limit
 from monodock.evaluation.metrics import BandRow, band_table
 from monodock.learning.dataset import Dataset

@@ -15,7 +15,7 @@ nuisance, everything else at the defaults (``Nuisances()``), and every method ru
 
 Errors are against the simulator's truth. Every frame's random draws (noise, exposure jitter, motion-blur
 direction, occluder) come from the frame's own seeds and are the same at every level, so the curves differ by
-the nuisance alone. Frames are rendered and estimated in worker processes (``monodock.core.parallel``).
+the nuisance alone. Frames are rendered and estimated in worker processes (``monodock.compute.parallel``).
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from monodock.compute import map_with_state
 from monodock.core.camera import CameraModel
 from monodock.core.layout import ROLE_NUMBER, ROLES, DockLayout
-from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
 from monodock.core.scan import LaserScan
@@ -45,20 +45,16 @@ from monodock.estimation.fused import FusionTables
 from monodock.estimation.methods import MethodFrame, MethodSetup, PoseMethod, build_methods, run_methods
 from monodock.estimation.pnp import PoseEstimate
 from monodock.evaluation.robustness_results import (
-    GOOD_ENOUGH,
     METHODS,
     STALE,
-    STATS,
     Axis,
     AxisKind,
     AxisResult,
-    HeadlineRow,
     LevelStats,
     MethodCurve,
     OcclusionStats,
     RobustnessSettings,
     RobustnessSummary,
-    WorstLevel,
     headline,
 )
 from monodock.learning.dataset import Dataset, LabelRun, label_frames
@@ -73,27 +69,12 @@ from monodock.sim.world import Surface, World, rectangle
 
 __all__ = [
     "AXES",
-    "GOOD_ENOUGH",
-    "METHODS",
-    "STALE",
-    "STATS",
-    "Axis",
-    "AxisKind",
-    "AxisResult",
     "Calibration",
-    "HeadlineRow",
     "ImageCondition",
-    "LevelStats",
-    "MethodCurve",
-    "OcclusionStats",
     "RobustnessConfig",
     "RobustnessResult",
-    "RobustnessSettings",
-    "RobustnessSummary",
-    "WorstLevel",
     "axis_stats",
     "calibration_for",
-    "headline",
     "image_condition",
     "occluder_hiding",
     "run_robustness",

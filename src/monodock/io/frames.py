@@ -31,7 +31,6 @@ __all__ = [
     "IMAGE_SUFFIXES",
     "STALL_TIMEOUT_S",
     "VIDEO_SUFFIXES",
-    "Frame",
     "FrameSource",
     "open_frames",
     "read_image",

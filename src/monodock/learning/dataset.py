@@ -34,12 +34,12 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from monodock import __version__
+from monodock.compute import map_stream
 from monodock.core.atomic import write_bytes_atomic
 from monodock.core.camera import CameraModel
 from monodock.core.config import parse_json
 from monodock.core.frame import Frame
 from monodock.core.layout import DockLayout
-from monodock.core.parallel import map_stream
 from monodock.core.records import to_record
 from monodock.core.robot import RobotConfig
 from monodock.core.settings import from_mapping, to_mapping

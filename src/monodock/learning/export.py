@@ -101,7 +101,7 @@ def _svr_onnx(pipeline: Any, n_features: int) -> Any:
 
 
 def onnx_model_bytes(estimator: Any, n_features: int) -> bytes:
-    """The serialized ONNX model of a fitted monodock estimator (see ``train.make_regressor``).
+    """The serialized ONNX model of a fitted monodock estimator (see ``regressors.make_regressor``).
 
     Args:
         estimator: A fitted tree model, or a Pipeline of StandardScaler and a linear model or RBF SVR.

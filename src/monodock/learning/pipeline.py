@@ -32,7 +32,8 @@ from monodock.estimation.regression import ANGLE_LABELS, DEPTH_LABELS
 from monodock.learning.dataset import Dataset
 from monodock.learning.export import write_bundle
 from monodock.learning.fusion import FUSION_FRACTION, fusion_holdout, train_fusion
-from monodock.learning.train import TrainConfig, TrainingResult, TrainingSet, train
+from monodock.learning.tasks import TrainConfig, TrainingSet
+from monodock.learning.train import TrainingResult, train
 from monodock.perception.features import (
     DEFAULT_MARKER_SETS,
     FEATURE_NAMES,

@@ -33,24 +33,18 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 from tqdm import tqdm
 
-from monodock.core.cluster import active_client
+from monodock.compute import active_client
 from monodock.core.interrupt import sigint_blocked
 from monodock.errors import InputError
-from monodock.learning.regressors import MODEL_NAMES, SEARCH_SPACES, describe_search_space, make_regressor, resolve_draw
-from monodock.learning.tasks import Task, TrainConfig, TrainingSet, make_tasks, segment_quota, stable_seed
+from monodock.learning.regressors import SEARCH_SPACES, make_regressor, resolve_draw
+from monodock.learning.tasks import Task, TrainConfig, TrainingSet, make_tasks, stable_seed
 from monodock.learning.treefit import lean_predict
 
 __all__ = [
-    "MODEL_NAMES",
     "ModelScore",
     "SetResult",
     "TaskResult",
-    "TrainConfig",
     "TrainingResult",
-    "TrainingSet",
-    "describe_search_space",
-    "make_regressor",
-    "segment_quota",
     "train",
 ]
 
@@ -371,7 +365,7 @@ def _run(
                 yield _fit_task(*args(batch))
                 bar.update(len(batch.draws))
             return
-        # --cluster (core.cluster): every task a task of the Dask cluster, through joblib's dask backend.
+        # --cluster (compute.cluster): every task a task of the Dask cluster, through joblib's dask backend.
         where = parallel_config("loky", n_jobs=n_workers) if client is None else parallel_config("dask", client=client)
         # One task per call, its rows sent with it (a few hundred kB at most). max_nbytes=None: they go pickled,
         # not through temp memory-mapped folders, whose tracker would print a "leaked folder" warning after the

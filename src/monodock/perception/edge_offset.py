@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.errors import InputError
+from monodock.perception.checks import black_cells, check_corners, check_gray
 from monodock.perception.detect import Detection, MarkerObservation
 from monodock.perception.refine import MAX_REACH_PX, MIN_CLIPPED, MIN_REACH_PX, REACH
 
@@ -116,9 +117,9 @@ def marker_runs(
     Raises:
         InputError: on an image, corners or cells of the wrong form.
     """
-    img = _check_image(gray, camera)
-    quad = _check_corners(corners)
-    black = _black_cells(bits)
+    img = check_gray(gray, "edge offset", camera)
+    quad = check_corners(corners)
+    black = black_cells(bits)
     M = black.shape[0]
     anchors, directions, runs = _code_edges(black)
     if not runs:
@@ -225,7 +226,7 @@ def offset_corners(corners: NDArray[np.float64], offset_px: float) -> F64:
     Raises:
         InputError: on corners that are not 4 finite points of a proper quad.
     """
-    c = _check_corners(corners)
+    c = check_corners(corners)
     # Inward normals whatever the winding: the shoelace sign says which side of each edge the quad lies on.
     area2 = float(np.dot(c[:, 0], np.roll(c[:, 1], -1)) - np.dot(c[:, 1], np.roll(c[:, 0], -1)))
     side = np.roll(c, -1, axis=0) - c  # side k: corner k -> k + 1
@@ -276,7 +277,7 @@ def clipped_roles(gray: NDArray[np.uint8], detection: Detection, *, modules: int
         detection: the detection.
         modules: the marker's width in modules, border included (``DockLayout.modules``), as for the refiner.
     """
-    img = _check_image_only(gray)
+    img = check_gray(gray, "edge offset")
     out = []
     for role, o in detection.observations.items():
         c = np.asarray(o.corners, dtype=np.float64)
@@ -313,42 +314,6 @@ def detection_edge_offset(
 
 
 # --- helpers ---------------------------------------------------------------------------------------
-
-
-def _check_image_only(gray: NDArray[np.uint8]) -> NDArray[np.uint8]:
-    if not isinstance(gray, np.ndarray) or gray.dtype != np.uint8 or gray.ndim != 2:
-        shape = getattr(gray, "shape", None)
-        dtype = getattr(gray, "dtype", type(gray).__name__)
-        raise InputError(f"edge offset needs an 8-bit single-channel image (as_gray), got {dtype} of shape {shape}")
-    return gray
-
-
-def _check_image(gray: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint8]:
-    img = _check_image_only(gray)
-    if (img.shape[1], img.shape[0]) != camera.size:
-        raise InputError(
-            f"image is {img.shape[1]}x{img.shape[0]} but camera '{camera.name}' is {camera.width}x{camera.height}"
-        )
-    return img
-
-
-def _check_corners(corners: NDArray[np.float64]) -> F64:
-    c = np.asarray(corners, dtype=np.float64)
-    if c.shape != (4, 2) or not np.isfinite(c).all():
-        raise InputError(f"marker corners must be 4 finite (x, y) pixels, got an array of shape {c.shape}")
-    return c
-
-
-def _black_cells(bits: NDArray[np.integer] | NDArray[np.bool_]) -> F64:
-    """1 = black, from monodock's cells (0 black, 1 white), checked: square, 0/1 and a black border."""
-    b = np.asarray(bits)
-    if b.ndim != 2 or b.shape[0] != b.shape[1] or b.shape[0] < 3 or not np.isin(b, (0, 1)).all():
-        raise InputError(f"marker cells must be a square array of 0 (black) and 1 (white), got shape {b.shape}")
-    black = 1.0 - b.astype(np.float64)
-    ring = np.r_[black[0], black[-1], black[:, 0], black[:, -1]]
-    if not np.all(ring == 1.0):
-        raise InputError("marker cells must include the black border (DockLayout.marker_bits: 0 black, 1 white)")
-    return black
 
 
 def _code_edges(black: F64) -> tuple[F64, F64, list[tuple[int, int, int, float]]]:

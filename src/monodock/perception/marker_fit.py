@@ -69,6 +69,7 @@ from monodock.core.compiled import inlined, kernel
 from monodock.core.layout import DockLayout
 from monodock.core.lens import lens_of, project
 from monodock.errors import InputError
+from monodock.perception.checks import black_cells, check_corners, check_gray
 from monodock.perception.detect import Detection, MarkerObservation
 from monodock.perception.marker_model import _homography, _Model, _Pixels, _State
 
@@ -146,9 +147,9 @@ def fit_marker(
     Raises:
         InputError: on an image, corners, cells or offset of the wrong form.
     """
-    img = _check_image(gray, camera)
-    start = _check_corners(corners)
-    black = _black_cells(bits)
+    img = check_gray(gray, "marker fit", camera)
+    start = check_corners(corners)
+    black = black_cells(bits)
     if offset_px is not None and not math.isfinite(offset_px):
         raise InputError(f"offset_px must be a finite number of pixels or None, got {offset_px}")
     return _fit(img, start, camera, black, offset_px)
@@ -175,7 +176,7 @@ def fit_detection(
     Raises:
         InputError: on an image or offset of the wrong form.
     """
-    img = _check_image(gray, camera)
+    img = check_gray(gray, "marker fit", camera)
     if offset_px is not None and not math.isfinite(offset_px):
         raise InputError(f"offset_px must be a finite number of pixels or None, got {offset_px}")
     observations = dict(detection.observations)
@@ -184,7 +185,7 @@ def fit_detection(
         c = np.asarray(o.corners, dtype=np.float64)
         fit = None
         if c.shape == (4, 2) and np.isfinite(c).all():  # as refine_detection: a bad quad is not fitted, no error
-            fit = _fit(img, c, camera, _black_cells(layout.marker_bits(o.marker_id)), offset_px)
+            fit = _fit(img, c, camera, black_cells(layout.marker_bits(o.marker_id)), offset_px)
         if fit is None:
             failed.append(role)
         else:
@@ -315,39 +316,6 @@ def _pixels(
         return _Pixels(xn, jn, xy, obs)
     spread = max(float(np.ptp(xy, axis=0).max()) / 2.0, 1.0)
     return _Pixels(xn, jn, (xy - xy.mean(axis=0)) / spread, obs)
-
-
-# --- checks ----------------------------------------------------------------------------------------
-
-
-def _check_image(gray: NDArray[np.uint8], camera: CameraModel) -> NDArray[np.uint8]:
-    if not isinstance(gray, np.ndarray) or gray.dtype != np.uint8 or gray.ndim != 2:
-        shape = getattr(gray, "shape", None)
-        dtype = getattr(gray, "dtype", type(gray).__name__)
-        raise InputError(f"marker fit needs an 8-bit single-channel image (as_gray), got {dtype} of shape {shape}")
-    if (gray.shape[1], gray.shape[0]) != camera.size:
-        raise InputError(
-            f"image is {gray.shape[1]}x{gray.shape[0]} but camera '{camera.name}' is {camera.width}x{camera.height}"
-        )
-    return gray
-
-
-def _check_corners(corners: NDArray[np.float64]) -> F64:
-    c = np.asarray(corners, dtype=np.float64)
-    if c.shape != (4, 2) or not np.isfinite(c).all():
-        raise InputError(f"marker corners must be 4 finite (x, y) pixels, got an array of shape {c.shape}")
-    return c
-
-
-def _black_cells(bits: NDArray[np.integer[Any]] | NDArray[np.bool_]) -> F64:
-    """1 = black, from monodock's cells (0 black, 1 white), checked: square, 0/1 and a black border."""
-    b = np.asarray(bits)
-    if b.ndim != 2 or b.shape[0] != b.shape[1] or b.shape[0] < 3 or not np.isin(b, (0, 1)).all():
-        raise InputError(f"marker cells must be a square array of 0 (black) and 1 (white), got shape {b.shape}")
-    black = 1.0 - b.astype(np.float64)
-    if not (black[0].all() and black[-1].all() and black[:, 0].all() and black[:, -1].all()):
-        raise InputError("marker cells must include the black border (DockLayout.marker_bits: 0 black, 1 white)")
-    return black
 
 
 # --- geometry --------------------------------------------------------------------------------------

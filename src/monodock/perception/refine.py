@@ -52,6 +52,7 @@ from monodock.core.camera import CameraModel
 from monodock.core.compiled import inlined, kernel
 from monodock.core.lens import distort, lens_of
 from monodock.errors import InputError
+from monodock.perception.checks import check_gray
 from monodock.perception.detect import Detection, MarkerObservation
 
 __all__ = ["refine_detection", "refine_marker"]
@@ -142,14 +143,7 @@ def refine_detection(
 
 
 def _check_image(gray: NDArray[np.uint8], camera: CameraModel, modules: int) -> NDArray[np.uint8]:
-    if not isinstance(gray, np.ndarray) or gray.dtype != np.uint8 or gray.ndim != 2:
-        shape = getattr(gray, "shape", None)
-        dtype = getattr(gray, "dtype", type(gray).__name__)
-        raise InputError(f"refine needs an 8-bit single-channel image (as_gray), got {dtype} of shape {shape}")
-    if (gray.shape[1], gray.shape[0]) != camera.size:
-        raise InputError(
-            f"image is {gray.shape[1]}x{gray.shape[0]} but camera '{camera.name}' is {camera.width}x{camera.height}"
-        )
+    check_gray(gray, "refine", camera)
     if modules < 3:
         raise InputError(f"a marker is at least 3 modules wide (bits + 2), got {modules}")
     return gray

@@ -13,7 +13,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
@@ -51,7 +51,6 @@ __all__ = [
     "odometry_msg",
     "pose_from_msg",
     "pose_msg",
-    "quaternion_from_matrix",
     "raw_header_stamp",
     "scan_from_msg",
     "scan_msg",
@@ -158,30 +157,6 @@ def raw_header_stamp(raw: bytes | memoryview, *, ros1: bool) -> float | None:
 # --- geometry -------------------------------------------------------------------------------------
 
 
-def quaternion_from_matrix(R: ArrayLike) -> tuple[float, float, float, float]:
-    """Unit quaternion (x, y, z, w), w >= 0, of a rotation matrix, shape (3, 3)."""
-    m = np.asarray(R, dtype=np.float64)
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    # Shepperd's method: divide by the largest of the four candidates, for accuracy near 180 degrees.
-    if trace > max(m[0, 0], m[1, 1], m[2, 2]):
-        s = 2.0 * math.sqrt(1.0 + trace)
-        q = (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4.0
-    elif m[0, 0] >= m[1, 1] and m[0, 0] >= m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = s / 4.0, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s
-    elif m[1, 1] >= m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = (m[0, 1] + m[1, 0]) / s, s / 4.0, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s
-    else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4.0, (m[1, 0] - m[0, 1]) / s
-    v = np.array(q, dtype=np.float64)
-    v /= np.linalg.norm(v)
-    if v[3] < 0:
-        v = -v
-    return float(v[0]), float(v[1]), float(v[2]), float(v[3])
-
-
 def matrix_from_quaternion(x: float, y: float, z: float, w: float) -> NDArray[np.float64]:
     """Rotation matrix, shape (3, 3), of a quaternion (normalised first); DecodeError if it is zero."""
     n = math.sqrt(x * x + y * y + z * z + w * w)
@@ -205,7 +180,7 @@ def transform_of(msg: Any) -> NDArray[np.float64]:
 
 
 def _transform_stamped(ts: Typestore, parent: str, child: str, T: NDArray[np.float64], stamp: float) -> Any:
-    qx, qy, qz, qw = quaternion_from_matrix(T[:3, :3])
+    qx, qy, qz, qw = transforms.quaternion_from_matrix(T[:3, :3])
     Vector3 = ts.types["geometry_msgs/msg/Vector3"]
     Quaternion = ts.types["geometry_msgs/msg/Quaternion"]
     return ts.types["geometry_msgs/msg/TransformStamped"](

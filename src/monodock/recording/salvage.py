@@ -264,7 +264,25 @@ class Salvage:
             size = rec.u64()
         except _TruncatedError:
             return
-        data = rec.data[rec.pos : rec.pos + size]
+
+        def record(inner: _Buf) -> Message | None:
+            op = inner.take(1)[0]
+            return self._mcap_record(op, _Buf(inner.take(inner.u64())), schemas, wanted)
+
+        yield from self._chunk(rec.data[rec.pos : rec.pos + size], compression, record, (_TruncatedError,), cut, pos)
+
+    def _chunk(
+        self,
+        data: bytes | memoryview,
+        compression: str,
+        record: Callable[[_Buf], Message | None],
+        broken: tuple[type[Exception], ...],
+        cut: bool,
+        pos: int,
+    ) -> Iterator[Message]:
+        """The messages of one chunk (MCAP or ROS 1), decompressed as far as it goes, each record read by ``record``;
+        a record that raises one of ``broken`` ends the chunk (and the scan's reason is set, unless ``cut``: the
+        chunk the file was cut in ends where it ends)."""
         try:
             inner = _Buf(_partial_decompress(data, compression))
         except SalvageError as exc:
@@ -273,10 +291,8 @@ class Salvage:
         while inner.left():
             start = inner.pos
             try:
-                op = inner.take(1)[0]
-                body = _Buf(inner.take(inner.u64()))
-                msg = self._mcap_record(op, body, schemas, wanted)
-            except _TruncatedError:
+                msg = record(inner)
+            except broken:
                 if not cut:
                     self.reason = f"chunk at byte {pos} is corrupt at its byte {start}"
                 return
@@ -415,20 +431,9 @@ class Salvage:
     def _ros1_chunk(
         self, data: bytes, compression: str, wanted: Collection[int] | None, cut: bool, pos: int
     ) -> Iterator[Message]:
-        try:
-            inner = _Buf(_partial_decompress(data, compression))
-        except SalvageError as exc:
-            self.reason = f"chunk at byte {pos}: {exc}"
-            return
-        while inner.left():
-            start = inner.pos
-            try:
-                header = self._ros1_fields(_Buf(inner.take(inner.u32())))
-                body = _Buf(inner.take(inner.u32()))
-                msg = self._ros1_record(header, body, wanted)
-            except (_TruncatedError, KeyError, struct.error):
-                if not cut:
-                    self.reason = f"chunk at byte {pos} is corrupt at its byte {start}"
-                return
-            if msg is not None:
-                yield msg
+
+        def record(inner: _Buf) -> Message | None:
+            header = self._ros1_fields(_Buf(inner.take(inner.u32())))
+            return self._ros1_record(header, _Buf(inner.take(inner.u32())), wanted)
+
+        yield from self._chunk(data, compression, record, (_TruncatedError, KeyError, struct.error), cut, pos)

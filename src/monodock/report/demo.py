@@ -24,7 +24,8 @@ from monodock.core.layout import ROLES, DockLayout
 from monodock.core.pose import DockPose
 from monodock.core.robot import RobotConfig
 from monodock.estimation.pnp import PoseEstimate
-from monodock.evaluation.dock_sim import DockSimConfig, DockSimSummary, TrialResult
+from monodock.evaluation.dock_results import DockSimSummary, TrialResult
+from monodock.evaluation.dock_sim import DockSimConfig
 from monodock.evaluation.heldout import PAPERS, HeldoutResult, HeldoutSummary
 from monodock.learning.dataset import LabelError, LabelRun, label_error_table
 from monodock.learning.train import TrainingResult

@@ -1,5 +1,5 @@
 """The dock designer's report: the proposal, its predicted detection and accuracy over the envelope (maps), and the
-prediction checked against the simulator (``evaluation.design``)."""
+prediction checked against the simulator (``design.designer``)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,7 @@ from matplotlib.patches import Patch
 
 from monodock.core.config import json_text
 from monodock.core.settings import to_mapping
-from monodock.evaluation.design import Design, SimCheck
-from monodock.evaluation.detection_model import DETECTION_SOURCE
+from monodock.design import DETECTION_SOURCE, Design, SimCheck
 from monodock.report.dock_kit import Paper
 from monodock.report.html import HtmlReport
 from monodock.report.plotting import plt

@@ -23,7 +23,8 @@ from monodock.core.layout import DockLayout
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.planner import CASES
-from monodock.evaluation.dock_sim import ROOM_BEARING_DEG, ROOM_DISTANCE, DockSimConfig, TrialResult
+from monodock.evaluation.dock_results import TrialResult
+from monodock.evaluation.dock_sim import ROOM_BEARING_DEG, ROOM_DISTANCE, DockSimConfig
 from monodock.report.dock_cases import draw_dock, draw_robot, top_uv
 from monodock.report.dock_runs import (
     REVERSE_COLOUR,

@@ -16,7 +16,8 @@ from matplotlib.axes import Axes
 from matplotlib.patches import FancyArrowPatch
 
 from monodock.dock.planner import CASES
-from monodock.evaluation.dock_sim import DockSimConfig, TrialResult
+from monodock.evaluation.dock_results import TrialResult
+from monodock.evaluation.dock_sim import DockSimConfig
 
 __all__ = [
     "PATH_DT",

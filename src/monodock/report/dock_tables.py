@@ -9,16 +9,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from monodock.evaluation.commissioning import wilson
-from monodock.evaluation.dock_sim import (
-    FAULTS,
-    AbsStats,
-    DockSimConfig,
-    DockSimSummary,
-    FilterBlock,
-    RunGroup,
-    TrialResult,
-)
+from monodock.evaluation.commission import wilson
+from monodock.evaluation.dock_faults import FAULTS
+from monodock.evaluation.dock_results import AbsStats, DockSimSummary, FilterBlock, RunGroup, TrialResult
+from monodock.evaluation.dock_sim import DockSimConfig
 
 __all__ = ["comparison_table", "console_table", "fault_table", "filter_table", "room_table"]
 

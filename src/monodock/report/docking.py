@@ -15,17 +15,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from monodock.core.parallel import map_with_state
+from monodock.compute import map_with_state
 from monodock.dock.planner import CASES
-from monodock.evaluation.dock_sim import (
-    ROOM_BEARING_DEG,
-    ROOM_DISTANCE,
-    DockSimConfig,
-    DockSimSummary,
-    TrialResult,
-    runs_csv,
-)
-from monodock.report.dock_cases import case_diagram, draw_dock, draw_robot, example_start, write_case_diagrams
+from monodock.evaluation.dock_results import DockSimSummary, TrialResult, runs_csv
+from monodock.evaluation.dock_sim import ROOM_BEARING_DEG, ROOM_DISTANCE, DockSimConfig
+from monodock.report.dock_cases import case_diagram, write_case_diagrams
 from monodock.report.dock_figures import (
     FAR_START,
     final_error_plot,
@@ -46,29 +40,15 @@ from monodock.report.dock_runs import (
     variant_of,
     variants,
 )
-from monodock.report.dock_tables import comparison_table, console_table, fault_table, filter_table, room_table
+from monodock.report.dock_tables import comparison_table, fault_table, filter_table, room_table
 from monodock.report.html import HtmlReport, plain
 
 __all__ = [
-    "case_diagram",
-    "comparison_table",
-    "console_table",
     "dock_section",
     "dock_settings",
-    "draw_dock",
-    "draw_robot",
-    "example_start",
-    "fault_table",
-    "filter_table",
-    "final_error_plot",
     "room_section",
-    "room_table",
-    "run_plot",
     "trajectory_cases",
     "trajectory_file",
-    "trajectory_overview",
-    "trajectory_plot",
-    "write_case_diagrams",
     "write_dock_files",
     "write_dock_report",
 ]

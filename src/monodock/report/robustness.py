@@ -10,7 +10,8 @@ import numpy as np
 from matplotlib import ticker
 
 from monodock.core.records import to_record
-from monodock.evaluation.robustness import METHODS, STALE, AxisKind, AxisResult, HeadlineRow, RobustnessResult
+from monodock.evaluation.robustness import RobustnessResult
+from monodock.evaluation.robustness_results import METHODS, STALE, AxisKind, AxisResult, HeadlineRow
 from monodock.report.html import HtmlReport
 from monodock.report.plotting import METHOD_COLOURS, METHOD_LABELS, plt
 

@@ -21,14 +21,9 @@ from matplotlib.patches import Patch
 
 from monodock.core.atomic import check_writable, write_bytes_atomic, write_text_atomic
 from monodock.estimation.segments import SegmentTable
-from monodock.learning.train import (
-    MODEL_NAMES,
-    SetResult,
-    TaskResult,
-    TrainingResult,
-    describe_search_space,
-    segment_quota,
-)
+from monodock.learning.regressors import MODEL_NAMES, describe_search_space
+from monodock.learning.tasks import segment_quota
+from monodock.learning.train import SetResult, TaskResult, TrainingResult
 from monodock.report.plotting import plt
 
 __all__ = [

@@ -50,21 +50,19 @@ import time
 from typing import TYPE_CHECKING, Any
 
 from monodock.core.pose2d import Pose2D
-from monodock.dock.controller import DockingMission, FailureReason, State
+from monodock.dock.controller import DockingMission
 from monodock.dock.database import DockInstance, DockType, load_dock_file, pose_distance, staging_pose
 from monodock.dock.nav2 import (
     UNDOCK_CODES,
     DockingError,
     DockNotValid,
-    FailedToCharge,
     FailedToControl,
-    FailedToDetectDock,
-    FailedToStage,
     FeedbackState,
     Nav2Code,
+    docking_error,
 )
 from monodock.dock.run import MissionResult
-from monodock.dock.states import feedback_state
+from monodock.dock.states import FailureReason, State, feedback_state
 from monodock.errors import MonodockError
 from monodock.ros.navigator import Navigator
 
@@ -77,13 +75,6 @@ DOCK_ACTION = "dock_robot"
 UNDOCK_ACTION = "undock_robot"
 FEEDBACK_PERIOD = 0.2  # s (ROS time) between two feedback messages of the same state
 
-_ERRORS: dict[Nav2Code, type[DockingError]] = {
-    Nav2Code.FAILED_TO_STAGE: FailedToStage,
-    Nav2Code.FAILED_TO_DETECT_DOCK: FailedToDetectDock,
-    Nav2Code.FAILED_TO_CONTROL: FailedToControl,
-    Nav2Code.FAILED_TO_CHARGE: FailedToCharge,
-}
-
 
 def mission_error(result: MissionResult, task: str) -> DockingError:
     """The docking exception a failed mission ends its goal with (UndockRobot's codes for an undock)."""
@@ -91,9 +82,7 @@ def mission_error(result: MissionResult, task: str) -> DockingError:
     code = result.failure.nav2_error_code
     if task == "undock" and code not in UNDOCK_CODES:
         code = Nav2Code.UNKNOWN
-    error = _ERRORS.get(code, DockingError)(f"{result.failure}: {result.reason}")
-    error.code = code
-    return error
+    return docking_error(code, f"{result.failure}: {result.reason}")
 
 
 class _GoalSlots:

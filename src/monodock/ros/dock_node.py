@@ -43,21 +43,17 @@ import numpy as np
 from monodock.core import settings
 from monodock.core.camera import CameraModel
 from monodock.core.pose2d import Pose2D
+from monodock.core.projection import blind_gap
 from monodock.core.robot import RobotConfig
 from monodock.core.settings import setting
-from monodock.dock.config import load_docking_config
-from monodock.dock.controller import (
-    DockingConfig,
-    DockingMission,
-    FailureReason,
-    State,
-    blind_gap,
-    make_perceive,
-)
+from monodock.dock.config import DockingConfig, load_docking_config
+from monodock.dock.controller import DockingMission
 from monodock.dock.database import DockDatabase, DockType
 from monodock.dock.interface import Odometry
 from monodock.dock.pose_filter import MeasurementNoise
 from monodock.dock.run import MissionResult, run_mission
+from monodock.dock.states import FailureReason, State
+from monodock.dock.tracking import make_perceive
 from monodock.errors import ConfigError, InputError, MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.recording import messages as m

@@ -9,7 +9,8 @@ from monodock.core.camera import CameraModel
 from monodock.core.robot import RobotConfig
 from monodock.core.settings import setting
 from monodock.estimation.estimator import Estimator
-from monodock.estimation.factory import METHOD_NAMES, REFINEMENTS, make_estimator
+from monodock.estimation.factory import REFINEMENTS, make_estimator
+from monodock.estimation.methods import METHOD_NAMES
 
 __all__ = ["EstimatorOptions"]
 

@@ -43,7 +43,11 @@ from monodock.sim.nuisance import Nuisances
 from monodock.sim.realtime import RealTimeRunner
 from monodock.sim.simulator import Simulator
 
-__all__ = ["PARAMETERS", "SimNode", "SimSettings", "run_sim"]
+__all__ = [
+    "PARAMETERS",
+    "SimNode",
+    "run_sim",
+]
 
 
 # SimSettings' parameters: read once, at start-up (writable as they always were, though a change does nothing).

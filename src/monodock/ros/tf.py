@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 
 from monodock.core import transforms
 from monodock.core.robot import Mount, RobotConfig
-from monodock.recording.messages import DecodeError, matrix_from_quaternion, quaternion_from_matrix, split_stamp
+from monodock.recording.messages import DecodeError, matrix_from_quaternion, split_stamp
 
 __all__ = [
     "CameraMountFromTF",
@@ -67,7 +67,7 @@ def set_transform(stamped: Any, parent: str, child: str, T: NDArray[np.float64],
     move = stamped.transform.translation
     move.x, move.y, move.z = (float(v) for v in T[:3, 3])
     q = stamped.transform.rotation
-    q.x, q.y, q.z, q.w = quaternion_from_matrix(T[:3, :3])
+    q.x, q.y, q.z, q.w = transforms.quaternion_from_matrix(T[:3, :3])
     return stamped
 
 

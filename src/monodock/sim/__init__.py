@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from monodock.core.scan import LaserScan
 from monodock.sim.lidar import LidarModel, simulate_scan
 from monodock.sim.nuisance import Nuisances, apply_nuisances
 from monodock.sim.render import render_radiance
@@ -12,7 +11,6 @@ from monodock.sim.world import ChargerGeometry, Patch, RoomGeometry, Surface, Wo
 __all__ = [
     "ChargerGeometry",
     "FrameTruth",
-    "LaserScan",
     "LidarModel",
     "Nuisances",
     "Patch",

@@ -45,7 +45,12 @@ from monodock.sim.render import render_radiance
 from monodock.sim.simulator import Simulator
 from monodock.sim.world import PAPER_WHITE
 
-__all__ = ["DiffDriveConfig", "Exposure", "Obstacle", "SimulatedRobot", "TruthSample"]
+__all__ = [
+    "DiffDriveConfig",
+    "Exposure",
+    "SimulatedRobot",
+    "TruthSample",
+]
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from monodock.compute import map_with_state
 from monodock.core.atomic import atomic_directory
 from monodock.core.images import encode_png
 from monodock.core.layout import ROLE_NUMBER, ROLES
-from monodock.core.parallel import map_with_state
 from monodock.core.pose import DockPose
 from monodock.core.scan import LaserScan
 from monodock.sim.simulator import FrameTruth, SimFrame, Simulator

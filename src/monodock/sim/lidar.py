@@ -11,7 +11,10 @@ from numpy.typing import ArrayLike
 from monodock.core.scan import LaserScan
 from monodock.sim.world import World
 
-__all__ = ["LaserScan", "LidarModel", "simulate_scan"]
+__all__ = [
+    "LidarModel",
+    "simulate_scan",
+]
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,7 @@ import numpy as np
 from rosbags.interfaces import Connection
 from tqdm import tqdm
 
-from monodock.core.parallel import map_with_state
+from monodock.compute import map_with_state
 from monodock.core.scan import LaserScan
 from monodock.errors import ConfigError
 from monodock.recording import messages as m

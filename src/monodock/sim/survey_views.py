@@ -23,7 +23,6 @@ from monodock.core.images import encode_png
 from monodock.core.layout import ROLES
 from monodock.core.pose import DockPose
 from monodock.errors import ConfigError
-from monodock.recording.messages import quaternion_from_matrix
 from monodock.sim.nuisance import apply_nuisances
 from monodock.sim.render import render_radiance
 from monodock.sim.simulator import PoseDistribution, Simulator
@@ -143,7 +142,7 @@ def write_view_folder(out: str | Path, sim: Simulator, kind: str, count: int, se
             name = f"view_{k:03d}.png"
             shot = render_shot(sim, name, T, np.random.default_rng([seed, 4, k]))
             (tmp / "images" / name).write_bytes(encode_png(shot.image))
-            qx, qy, qz, qw = quaternion_from_matrix(T[:3, :3])
+            qx, qy, qz, qw = transforms.quaternion_from_matrix(T[:3, :3])
             truth = robot_pose_of(sim, T) if kind == "robot" else None
             dock = f"{truth.x:.6f},{truth.y:.6f},{truth.yaw_deg:.5f}" if truth is not None else ",,"
             rows.append(

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core import transforms
 from monodock.core.atomic import write_text_atomic
 from monodock.core.config import yaml_text
 from monodock.core.robot import Mount, RobotConfig
@@ -99,31 +100,8 @@ def _view_stats(view_rms: Sequence[float]) -> str:
 # --- small geometry ---------------------------------------------------------------------------------
 
 
-def _quaternion(R: NDArray[np.float64]) -> tuple[float, float, float, float]:
-    """(qx, qy, qz, qw) of a rotation matrix, qw >= 0 (Shepperd's method)."""
-    m = np.asarray(R, dtype=np.float64)
-    tr = float(np.trace(m))
-    if tr > 0:
-        s = 2.0 * math.sqrt(tr + 1.0)
-        q = ((m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s)
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 1e-300))
-        v = [0.0, 0.0, 0.0]
-        v[i] = 0.25 * s
-        v[j] = (m[j, i] + m[i, j]) / s
-        v[k] = (m[k, i] + m[i, k]) / s
-        q = (v[0], v[1], v[2], (m[k, j] - m[j, k]) / s)
-    qa = np.asarray(q, dtype=np.float64)
-    qa = qa / np.linalg.norm(qa)
-    if qa[3] < 0:
-        qa = -qa
-    return float(qa[0]), float(qa[1]), float(qa[2]), float(qa[3])
-
-
 def _pose_text(T: NDArray[np.float64]) -> str:
-    qx, qy, qz, qw = _quaternion(T[:3, :3])
+    qx, qy, qz, qw = transforms.quaternion_from_matrix(T[:3, :3])
     x, y, z = (float(v) for v in T[:3, 3])
     return f"{x:.6f} {y:.6f} {z:.6f} {qx:.9f} {qy:.9f} {qz:.9f} {qw:.9f}"
 
@@ -148,7 +126,7 @@ def result_yaml(result: ExtrinsicsResult) -> str:
     """The result as YAML: ``laser_mount`` (as in the robot file), the laser in camera_optical, the tf line."""
 
     o = result.optical_T_laser
-    qx, qy, qz, qw = _quaternion(o[:3, :3])
+    qx, qy, qz, qw = transforms.quaternion_from_matrix(o[:3, :3])
     data: dict[str, Any] = {
         "laser_mount": to_mapping(result.laser_mount),
         "camera_optical_to_laser": {

@@ -1,4 +1,4 @@
-"""core.parallel: workers where they pay, inline where they would cost more than the tasks."""
+"""compute.parallel: workers where they pay, inline where they would cost more than the tasks."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import os
 import subprocess
 import sys
 
-from monodock.core.parallel import map_stream, map_with_state
+from monodock.compute.parallel import map_stream, map_with_state
 from shared import worker_pid
 
 
@@ -28,7 +28,7 @@ _TERM_WHILE_A_WORKER_STARTS = """
 import gc, os, signal, time
 import multiprocessing.util as util
 from monodock.core.interrupt import install_signal_handlers
-from monodock.core.parallel import worker_pool
+from monodock.compute.parallel import worker_pool
 
 install_signal_handlers()
 spawn = util.spawnv_passfds

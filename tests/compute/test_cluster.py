@@ -24,11 +24,13 @@ import pytest
 import cluster_tasks
 import monodock
 from monodock.cli.main import main
-from monodock.core.cluster import MISSING_EXTRA, active_client, cluster_session
-from monodock.core.parallel import SINGLE_THREAD_ENV, map_with_state
+from monodock.compute.cluster import MISSING_EXTRA, active_client, cluster_session
+from monodock.compute.parallel import SINGLE_THREAD_ENV, map_with_state
 from monodock.errors import InputError, MonodockError
-from monodock.evaluation.dock_sim import DockSimConfig, TrialResult, run_dock_sim
-from monodock.learning.train import TrainConfig, TrainingResult, TrainingSet, train
+from monodock.evaluation.dock_results import TrialResult
+from monodock.evaluation.dock_sim import DockSimConfig, run_dock_sim
+from monodock.learning.tasks import TrainConfig, TrainingSet
+from monodock.learning.train import TrainingResult, train
 
 SRC = Path(monodock.__file__).resolve().parents[1]
 TESTS = Path(__file__).resolve().parents[1]

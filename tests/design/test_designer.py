@@ -11,8 +11,7 @@ import pytest
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
-from monodock.errors import InputError
-from monodock.evaluation.design import (
+from monodock.design.designer import (
     Design,
     Envelope,
     Tolerance,
@@ -23,7 +22,8 @@ from monodock.evaluation.design import (
     facing_pose,
     predict_map,
 )
-from monodock.evaluation.detection_model import DetectionModel, pixels_per_cell
+from monodock.design.detection_model import DetectionModel, pixels_per_cell
+from monodock.errors import InputError
 from monodock.sim import Simulator
 
 WIDE = Path(__file__).resolve().parents[2] / "bench" / "setups" / "wide"

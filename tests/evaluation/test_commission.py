@@ -1,4 +1,4 @@
-"""Commissioning a wrong world (``evaluation.commissioning``), measured against the world the simulator built.
+"""Commissioning a wrong world (``evaluation.commission``), measured against the world the simulator built.
 
 Ground truth: ``sim.wrong_world`` draws the dock, the camera mount, the contacts and the wheels as a person builds
 them; the survey, the drive and the back-off see only pixels and odometry, and the nominal files.
@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from monodock.evaluation.commissioning import commission_world, summarize_worlds
+from monodock.evaluation.commission import commission_world, summarize_worlds
 
 
 @pytest.mark.slow

@@ -1,14 +1,14 @@
 """Sweeps on a Dask cluster: ``--cluster ADDRESS`` (a running scheduler) or ``--cluster auto`` (one on this machine).
 
-A command runs inside ``cluster_session``; while one is open, ``core.parallel.map_with_state`` (dock-sim, the
+A command runs inside ``cluster_session``; while one is open, ``compute.parallel.map_with_state`` (dock-sim, the
 robustness sweep, rendering, labelling) sends its tasks to the cluster instead of a local pool, and the trainer's
 model selection runs on joblib's ``dask`` backend. Without ``--cluster`` nothing here runs, and Dask (the optional
 ``cluster`` extra) is never imported: it is loaded inside the functions below, only when a cluster is asked for
-(the robot side never loads it; .importlinter allows this one module to).
+(the robot side never loads it: .importlinter forbids it ``monodock.compute``, this subpackage).
 
 What the cluster changes is where a task runs, never what it computes: every task carries its own seed (from the
 sweep's seed and the task's index, never from a worker), so the same sweep gives identical results locally and
-on the cluster (tests/core/test_cluster.py, against a real scheduler and two workers). docs/cluster.md tells how
+on the cluster (tests/compute/test_cluster.py, against a real scheduler and two workers). docs/cluster.md tells how
 to start one and what it costs.
 """
 

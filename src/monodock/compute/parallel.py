@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 
 import cv2
 
-from monodock.core.cluster import active_client, cluster_map
+from monodock.compute.cluster import active_client, cluster_map
 from monodock.core.interrupt import HeldSignals
 
 S = TypeVar("S")
@@ -86,7 +86,7 @@ def _call_with_state(args: tuple[Callable[[Any, Any], Any], Any]) -> Any:
 
 def map_with_state(fn: Callable[[S, T], R], state: S, tasks: list[T], *, jobs: int, chunksize: int = 2) -> Iterator[R]:
     """``fn(state, task)`` for every task, in order, in ``jobs`` workers (inline when jobs <= 1 or there is one task
-    only), or on the Dask cluster of an open ``core.cluster.cluster_session`` (``--cluster``), whatever ``jobs``.
+    only), or on the Dask cluster of an open ``compute.cluster.cluster_session`` (``--cluster``), whatever ``jobs``.
 
     ``state`` (e.g. a Simulator with its world) goes to each worker once, not with every task; ``fn`` must be
     a module-level function so that it pickles. Results come back as they are ready and in order, so memory

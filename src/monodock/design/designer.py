@@ -3,7 +3,7 @@
 The envelope is every robot pose 0.5 m to ``max_distance`` from the face centre (base_link's distance) within
 ±``max_bearing`` of the dock's axis, the robot facing the face centre (a far approach turns to face the dock
 first). At each pose a marker counts as detectable when it is fully in the image and its pixels per code cell
-(``evaluation.detection_model``, measured against the simulator) meet the budget; the pose's accuracy is the
+(``design.detection_model``, measured against the simulator) meet the budget; the pose's accuracy is the
 Cramér–Rao bound (``estimation.crlb``'s model, ``CornerNoise``'s corners) of the detectable markers.
 
 The search is a small grid, smallest face first: dictionary (DICT_4X4_50, DICT_5X5_100), the papers' three
@@ -15,7 +15,7 @@ candidate that fits the face and meets every constraint is the proposal:
 
 - coverage: at every envelope pose at least one marker is detectable;
 - near the dock: the three papers' markers are all detectable on the axis from ``NEAR_ALL_THREE`` (1 m) in to
-  ``NEAR_THREE_FROM`` (0.7 m), and the centre marker's blind gap (``dock.controller.blind_gap``) is no larger
+  ``NEAR_THREE_FROM`` (0.7 m), and the centre marker's blind gap (``core.projection.blind_gap``) is no larger
   than the papers' dock's on the same camera;
 - tolerance: the bound's σ of x, y and yaw at the near-field poses (on the axis and ±10° off, ``NEAR_ALL_THREE``
   to ``NEAR_FIELD``) is within the tolerance;
@@ -38,13 +38,13 @@ from monodock.core import transforms
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout, MarkerSpec
 from monodock.core.pose import DockPose
+from monodock.core.projection import blind_gap
 from monodock.core.robot import RobotConfig
-from monodock.dock.controller import blind_gap
+from monodock.design.detection_model import DetectionModel, pixels_per_cell
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.corner_noise import CornerNoise
 from monodock.estimation.factory import make_estimator
 from monodock.estimation.planar import planar_model
-from monodock.evaluation.detection_model import DetectionModel, pixels_per_cell
 from monodock.sim import Nuisances, Simulator
 from monodock.sim.world import ChargerGeometry
 
