@@ -1,7 +1,8 @@
 """Driver (tests/ros/test_recorder.py, inside a private network namespace): monodock-record-ros on a live graph.
 
 ``graph_recorder.py OUT drive``: start monodock_sim and the recorder, stand still 1 s, drive by cmd_vel at
-0.1 m/s for 2 s, fall silent 2 s, stop the recorder with SIGINT, then the sim.
+0.1 m/s for 2 s, fall silent 2 s (both in the sim's time, by its odometry's stamps), stop the recorder with SIGINT,
+then the sim.
 ``graph_recorder.py OUT latched``: publish a transient-local result and a volatile state before the recorder
 starts, one more state once it records, then stop it with SIGTERM.
 Prints what happened as JSON lines; the test reads the bag.
@@ -14,11 +15,13 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from geometry_msgs.msg import TwistStamped
+from nav_msgs.msg import Odometry
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_msgs.msg import String
@@ -38,6 +41,22 @@ def spin_for(node: Any, seconds: float) -> None:
     until = time.monotonic() + seconds
     while time.monotonic() < until:
         rclpy.spin_once(node, timeout_sec=0.02)
+
+
+def spin_for_sim(node: Any, seconds: float, clock: list[float], then: Callable[[], None] | None = None) -> None:
+    """Spin until ``seconds`` of the sim's time have passed by its odometry stamps (``clock``, the newest last),
+    calling ``then()`` every 50 ms meanwhile: on a busy machine the sim runs slower than the wall clock, and the
+    drive must last as long in the world it moves in (at most 30 s of the wall clock)."""
+    give_up = time.monotonic() + 30.0
+    start: float | None = None
+    while time.monotonic() < give_up:
+        if start is None and clock:
+            start = clock[-1]
+        if start is not None and clock[-1] - start >= seconds:
+            return
+        if then is not None:
+            then()
+        spin_for(node, 0.05)
 
 
 def stop(process: subprocess.Popen[str]) -> tuple[int, str]:
@@ -60,6 +79,16 @@ def drive(node: Any) -> None:
     images: list[float] = []
     node.create_subscription(Image, "image", lambda _: images.append(time.time()), qos_profile_sensor_data)
     sent: list[float] = []
+    clock: list[float] = []  # the sim's time, from its odometry's stamps
+    stamp = lambda msg: msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9  # noqa: E731
+    node.create_subscription(Odometry, "odom", lambda msg: clock.append(stamp(msg)), 10)
+
+    def send() -> None:
+        twist = TwistStamped()  # the sim's default, as the docking node sends it
+        twist.twist.linear.x = 0.1
+        cmd.publish(twist)
+        sent.append(time.time())
+
     with RecorderProcess(RecorderOptions(out)) as recorder:
         ready = recorder.wait_for(SENSORS, timeout=60)
         waited = time.monotonic()
@@ -67,14 +96,9 @@ def drive(node: Any) -> None:
             rclpy.spin_once(node, timeout_sec=0.05)
         report("ready", ready=ready and bool(images), recording=sorted(recorder.recording))
         spin_for(node, 1.0)
-        start = time.monotonic()
-        while ready and time.monotonic() - start < 2.0:
-            twist = TwistStamped()  # the sim's default, as the docking node sends it
-            twist.twist.linear.x = 0.1
-            cmd.publish(twist)
-            sent.append(time.time())
-            spin_for(node, 0.05)
-        spin_for(node, 2.0)  # the base stops on its cmd_vel time-out
+        if ready:
+            spin_for_sim(node, 2.0, clock, then=send)  # 2 s of driving in the sim's time
+            spin_for_sim(node, 2.0, clock)  # the base stops on its cmd_vel time-out
         code = recorder.stop()
         report("recorder", returncode=code, summary=recorder.summary, log=recorder.log[-3000:])
     report("sent", count=len(sent), first=sent[0] if sent else None, last=sent[-1] if sent else None)

@@ -257,15 +257,15 @@ def test_a_recorded_drive_matches_the_sims_ground_truth(tmp_path: Path) -> None:
     assert abs(first_cmd - sent["first"]) < 0.2
     assert abs(last_cmd - sent["last"]) < 0.2
 
-    # The robot moved as commanded: at the commanded 0.1 m/s, straight ahead, about 0.2 m in 2 s (less on a busy
-    # machine, where fewer simulated seconds pass), and no farther once cmd_vel stopped; odometry and the ground
-    # truth in the same bag agree on how far.
+    # The robot moved as commanded: at the commanded 0.1 m/s, straight ahead, about 0.2 m in the 2 s of the sim's
+    # time the driver commanded (timed by the odometry's stamps, so on a busy machine too), and no farther once
+    # cmd_vel stopped; odometry and the ground truth in the same bag agree on how far.
     x = np.array([msg.pose.pose.position.x for _, msg in odom])
     y = np.array([msg.pose.pose.position.y for _, msg in odom])
     speed = np.array([msg.twist.twist.linear.x for _, msg in odom])
     assert float(np.median(speed[speed > 0.05])) == pytest.approx(0.1, abs=0.01)
     moved = float(x[-1] - x[0])
-    assert 0.08 < moved < 0.3
+    assert 0.15 < moved < 0.3
     assert abs(float(y[-1] - y[0])) < 0.02
     truth = messages["/ground_truth"]
     closer = truth[0][1].pose.position.x - truth[-1][1].pose.position.x  # the dock's distance ahead shrinks
