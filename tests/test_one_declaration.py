@@ -45,7 +45,7 @@ class _Node:
 def test_a_new_docking_setting_is_read_written_checked_and_a_ros_parameter() -> None:
     config = from_mapping(WiderConfig, {"max_turn_correction_rate": 0.3, "cruise_speed": 0.25}, "docking.yaml")
     assert config.max_turn_correction_rate == 0.3
-    assert config.cruise_speed == 0.25
+    assert config.limits.cruise_speed == 0.25
     text = yaml_text(to_mapping(config))
     assert text.endswith("max_turn_correction_rate: 0.3\n")
     assert from_mapping(WiderConfig, to_mapping(config), "again") == config

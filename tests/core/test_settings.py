@@ -341,3 +341,5 @@ def test_replace_by_flat_name_goes_through_the_sections() -> None:
         replace(Gadget(), speed=0.0)
     with pytest.raises(KeyError, match="k_laterl"):
         replace(Gadget(), k_laterl=1.0)
+    assert replace(Gadget(), planner=Planner(legs=4)).planner.legs == 4  # a keyed section, whole
+    assert replace(Gadget(), {"planner.noise": Noise(seeded=True)}).planner.noise.seeded

@@ -3,12 +3,12 @@ value or key is refused with one line naming the file and the key."""
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import pytest
 import yaml
 
+from monodock.core import settings
 from monodock.core.settings import settings_of
 from monodock.dock.config import DockingConfig, docking_config_to_dict, load_docking_config, save_docking_config
 from monodock.errors import ConfigError
@@ -21,11 +21,12 @@ def _write(tmp_path: Path, data: object) -> Path:
 
 
 def test_a_saved_config_loads_back_equal_and_refuses_to_overwrite(tmp_path: Path) -> None:
-    config = dataclasses.replace(DockingConfig(), approach_speed=0.08, max_retries=4, acquire=False)
+    config = settings.replace(DockingConfig(), approach_speed=0.08, max_retries=4, acquire=False)
     path = tmp_path / "docking.yaml"
     save_docking_config(config, path)
     assert load_docking_config(path) == config
-    assert set(yaml.safe_load(path.read_text())) == {f.name for f in dataclasses.fields(DockingConfig)}
+    names = (Path(__file__).parents[1] / "data" / "settings" / "docking_names.txt").read_text(encoding="utf-8")
+    assert set(yaml.safe_load(path.read_text())) == {name.split(".")[0] for name in names.split()}
     with pytest.raises(Exception, match="exists"):
         save_docking_config(DockingConfig(), path)
 
@@ -34,8 +35,8 @@ def test_a_partial_file_sets_only_its_keys_nested_ones_included(tmp_path: Path) 
     path = _write(tmp_path, {"k_lateral": 3, "planner": {"standoff": 0.8}, "track": {"odometry": {"track_width": 0.5}}})
     config = load_docking_config(path)
     default = DockingConfig()
-    assert config.k_lateral == 3.0
-    assert isinstance(config.k_lateral, float)
+    assert config.approach.k_lateral == 3.0
+    assert isinstance(config.approach.k_lateral, float)
     assert config.planner.standoff == 0.8
     assert config.planner.arrive_tolerance == default.planner.arrive_tolerance
     assert config.track.odometry.track_width == 0.5

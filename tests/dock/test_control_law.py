@@ -16,7 +16,7 @@ from monodock.dock.config import DockingConfig
 from monodock.dock.interface import Odometry
 
 C = DockingConfig()
-MAX_SPEED, MAX_TURN = C.cruise_speed, C.turn_rate
+MAX_SPEED, MAX_TURN = C.limits.cruise_speed, C.limits.turn_rate
 
 
 class Unicycle:
@@ -33,15 +33,18 @@ class Unicycle:
         """Limit the desired command as the mission does, check the limits held, and move one period."""
         before = self.sent
         v, w = law.limit_command(v, w, before, C, MAX_SPEED, MAX_TURN)
-        dt = C.control_period
-        assert -C.max_reverse_speed - 1e-12 <= v <= MAX_SPEED + 1e-12
+        dt = C.limits.control_period
+        assert -C.reverse.max_reverse_speed - 1e-12 <= v <= MAX_SPEED + 1e-12
         assert abs(w) <= MAX_TURN + 1e-12
         # The acceleration limits hold, except for the step up to the minimum speed a base moves at and the step
         # down to zero from below it (a base does not move that slowly).
-        dv, dw = C.linear_accel * dt, C.angular_accel * dt
-        crawl_v, crawl_w = abs(before[0]) <= C.min_speed + dv + 1e-12, abs(before[1]) <= C.min_turn_rate + dw + 1e-12
-        assert abs(v - before[0]) <= dv + 1e-12 or abs(v) == C.min_speed or (v == 0.0 and crawl_v)
-        assert abs(w - before[1]) <= dw + 1e-12 or abs(w) == C.min_turn_rate or (w == 0.0 and crawl_w)
+        dv, dw = C.limits.linear_accel * dt, C.limits.angular_accel * dt
+        crawl_v, crawl_w = (
+            abs(before[0]) <= C.limits.min_speed + dv + 1e-12,
+            abs(before[1]) <= C.limits.min_turn_rate + dw + 1e-12,
+        )
+        assert abs(v - before[0]) <= dv + 1e-12 or abs(v) == C.limits.min_speed or (v == 0.0 and crawl_v)
+        assert abs(w - before[1]) <= dw + 1e-12 or abs(w) == C.limits.min_turn_rate or (w == 0.0 and crawl_w)
         self.sent = (v, w)
         self.v, self.w = v, w
         th = self.pose.theta
@@ -69,7 +72,7 @@ def test_turn_in_place_stops_on_the_heading(turn_deg: float) -> None:
         assert robot.v == 0.0
     else:
         pytest.fail("the turn never ended")
-    assert abs(wrap_angle(robot.pose.theta - target)) < math.radians(C.turn_tolerance_deg)
+    assert abs(wrap_angle(robot.pose.theta - target)) < math.radians(C.approach.turn_tolerance_deg)
     assert (robot.pose.x, robot.pose.y) == (0.3, -0.2)
 
 
@@ -91,7 +94,7 @@ def test_drive_straight_arrives(target: tuple[float, float], reverse: bool) -> N
     else:
         pytest.fail("never arrived")
     miss = math.hypot(robot.pose.x - goal.x, robot.pose.y - goal.y)
-    assert miss < C.arrive_tolerance + C.min_speed * C.control_period + 0.01 * math.hypot(x, y)
+    assert miss < C.approach.arrive_tolerance + C.limits.min_speed * C.limits.control_period + 0.01 * math.hypot(x, y)
 
 
 def test_drive_straight_says_arrived_when_the_target_is_behind() -> None:
@@ -107,10 +110,12 @@ def test_heading_reference_closes_the_lateral_error_and_fades_near_the_face() ->
     far = 1.0
     assert law.heading_reference(0.05, far, C) < 0.0 < law.heading_reference(-0.05, far, C)
     assert law.heading_reference(0.0, far, C) == 0.0
-    bound = math.radians(C.max_correction_deg)
+    bound = math.radians(C.approach.max_correction_deg)
     assert abs(law.heading_reference(5.0, far, C)) == pytest.approx(bound)
-    assert law.heading_reference(0.05, 0.5 * C.heading_only_gap, C) == 0.0
-    assert abs(law.heading_reference(0.05, 0.75 * C.heading_only_gap, C)) < abs(law.heading_reference(0.05, far, C))
+    assert law.heading_reference(0.05, 0.5 * C.approach.heading_only_gap, C) == 0.0
+    assert abs(law.heading_reference(0.05, 0.75 * C.approach.heading_only_gap, C)) < abs(
+        law.heading_reference(0.05, far, C)
+    )
 
 
 @pytest.mark.parametrize(("lateral", "heading_deg"), [(0.0, 0.0), (0.04, 0.0), (-0.03, 4.0), (0.015, -6.0)])
@@ -132,7 +137,7 @@ def test_moving3_brings_the_robot_square_onto_the_axis(lateral: float, heading_d
         pytest.fail("never reached the face")
     assert abs(robot.pose.y) < 0.02
     assert abs(math.degrees(robot.pose.theta)) < 3.0
-    assert robot.v <= C.min_speed + 1e-12
+    assert robot.v <= C.limits.min_speed + 1e-12
 
 
 @pytest.mark.parametrize("speed", [0.02, 0.05, 0.1])
@@ -144,7 +149,7 @@ def test_reverse_stopping_distance_is_enough_to_stop_short(speed: float) -> None
     robot.sent = (-speed, 0.0)
     robot.v = -speed
     travelled = 0.0
-    latency = int(math.ceil(C.stop_lead / C.control_period))
+    latency = int(math.ceil(C.limits.stop_lead / C.limits.control_period))
     for _ in range(latency):  # the command in flight still reverses
         before = robot.pose.x
         robot.command(-speed, 0.0)
@@ -155,7 +160,7 @@ def test_reverse_stopping_distance_is_enough_to_stop_short(speed: float) -> None
         travelled += before - robot.pose.x
         if robot.v == 0.0:
             break
-    assert room - travelled >= C.rear_safety_distance - 1e-3
+    assert room - travelled >= C.reverse.rear_safety_distance - 1e-3
 
 
 def test_limit_command_never_steps_beyond_the_accelerations() -> None:
@@ -167,14 +172,14 @@ def test_limit_command_never_steps_beyond_the_accelerations() -> None:
         v, w = rng.uniform(-0.5, 0.5), rng.uniform(-2.0, 2.0)
         sent_v, _ = robot.command(v, w)  # Unicycle.command asserts the limits
         if v != 0.0:
-            assert abs(sent_v) >= C.min_speed
+            assert abs(sent_v) >= C.limits.min_speed
     assert law.limit_command(0.0, 0.0, (0.01, 0.0), C, MAX_SPEED, MAX_TURN) == (0.0, 0.0)
 
 
 def test_is_still_reads_the_settle_speed() -> None:
-    still = Odometry(0.0, Pose2D(0.0, 0.0, 0.0), 0.5 * C.settle_speed, 2 * C.settle_speed)
-    moving = Odometry(0.0, Pose2D(0.0, 0.0, 0.0), 2 * C.settle_speed, 0.0)
-    turning = Odometry(0.0, Pose2D(0.0, 0.0, 0.0), 0.0, 6 * C.settle_speed)
+    still = Odometry(0.0, Pose2D(0.0, 0.0, 0.0), 0.5 * C.settle.settle_speed, 2 * C.settle.settle_speed)
+    moving = Odometry(0.0, Pose2D(0.0, 0.0, 0.0), 2 * C.settle.settle_speed, 0.0)
+    turning = Odometry(0.0, Pose2D(0.0, 0.0, 0.0), 0.0, 6 * C.settle.settle_speed)
     assert law.is_still(still, C)
     assert not law.is_still(moving, C)
     assert not law.is_still(turning, C)

@@ -12,6 +12,7 @@ import math
 
 import pytest
 
+from monodock.core import settings
 from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.projection import blind_gap
@@ -25,7 +26,7 @@ from shared import TruthfulRobot, truthful_robot
 
 def _mission(robot: TruthfulRobot, **config: object) -> DockingMission:
     sim = robot.sim
-    cfg = DockingConfig(measurement=MeasurementNoise.for_method("board"), **config)  # type: ignore[arg-type]
+    cfg = settings.replace(DockingConfig(measurement=MeasurementNoise.for_method("board")), **config)
     return DockingMission(cfg, sim.robot, blind_gap(sim.camera, sim.layout, sim.robot))
 
 
@@ -45,11 +46,11 @@ def test_the_papers_envelope_stays_with_the_manoeuvre_and_the_room_beyond_it_doe
     assert beyond_manoeuvre(Pose2D(-4.5, 0.0, 0.0), c)  # too far
     assert beyond_manoeuvre(Pose2D(-0.8, 1.2, 0.0), c)  # 56 degrees off the axis
     assert off_axis(Pose2D(-1.0, -1.0, 2.0)) == pytest.approx(math.radians(45))
-    assert not DockingConfig(far_approach=False).far_approach
+    assert not settings.replace(DockingConfig(), far_approach=False).far.far_approach
 
 
 def test_staging_point_is_on_the_dock_axis_and_legs_are_bounded() -> None:
-    c = DockingConfig(staging_distance=1.5)
+    c = settings.replace(DockingConfig(), staging_distance=1.5)
     dock = Pose2D(3.0, 1.0, math.radians(30))  # the dock in odometry
     stage = staging_point(dock, c)
     in_dock = dock.inverse().compose(stage)
@@ -66,13 +67,13 @@ def test_staging_point_is_on_the_dock_axis_and_legs_are_bounded() -> None:
 
 def test_far_approach_keys_are_checked() -> None:
     with pytest.raises(ConfigError, match="staging_distance"):
-        DockingConfig(staging_distance=3.0, far_distance=2.8)
+        settings.replace(DockingConfig(), staging_distance=3.0, far_distance=2.8)
     with pytest.raises(ConfigError, match="far_leg"):
-        DockingConfig(far_leg=0.0)
+        settings.replace(DockingConfig(), far_leg=0.0)
     with pytest.raises(ConfigError, match="far_bearing_deg"):
-        DockingConfig(far_bearing_deg=120.0)
+        settings.replace(DockingConfig(), far_bearing_deg=120.0)
     with pytest.raises(ConfigError, match="far_max_legs"):
-        DockingConfig(far_max_legs=0)
+        settings.replace(DockingConfig(), far_max_legs=0)
 
 
 # --- the mission, against the simulator's truth ------------------------------------------------------------

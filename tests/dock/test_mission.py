@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from monodock.cli.main import main
+from monodock.core import settings
 from monodock.core.pose import DockPose, wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.projection import blind_gap
@@ -187,7 +188,7 @@ def test_the_face_is_solid() -> None:
 
 def _mission(robot: SimulatedRobot, **config: object) -> DockingMission:
     sim = robot.sim
-    cfg = DockingConfig(measurement=MeasurementNoise.for_method("board"), **config)  # type: ignore[arg-type]
+    cfg = settings.replace(DockingConfig(measurement=MeasurementNoise.for_method("board")), **config)
     return DockingMission(cfg, sim.robot, blind_gap(sim.camera, sim.layout, sim.robot))
 
 
@@ -276,8 +277,8 @@ def test_markers_hidden_mid_approach_stop_the_robot_within_the_timeout() -> None
     # frame latency and braking at the acceleration limit.
     robot.sleep(0.5)
     assert abs(robot.odometry().linear) < 1e-3
-    braking = mission.config.approach_speed / mission.config.linear_accel
-    assert result.duration - hidden_from[0] < mission.config.lost_timeout + 0.2 + braking
+    braking = mission.config.limits.approach_speed / mission.config.limits.linear_accel
+    assert result.duration - hidden_from[0] < mission.config.watch.lost_timeout + 0.2 + braking
     assert robot.front_gap() > 0.3  # nowhere near the face
 
 
@@ -332,7 +333,7 @@ def test_mission_time_out_stops_the_robot_and_says_so() -> None:
     assert result.state is State.FAILED
     assert result.failure is FailureReason.TIMEOUT
     assert result.reason == "mission took longer than 2 s"
-    assert result.duration == pytest.approx(2.0, abs=2 * mission.config.control_period)
+    assert result.duration == pytest.approx(2.0, abs=2 * mission.config.limits.control_period)
     headings = np.unwrap([s.pose.theta for s in robot.truth])
     assert headings[-1] - headings[0] > math.radians(10)  # it was turning to look when the time ran out
     robot.sleep(0.5)

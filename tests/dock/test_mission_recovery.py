@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from monodock.core import settings
 from monodock.core.pose import DockPose
 from monodock.core.pose2d import Pose2D
 from monodock.core.projection import blind_gap
@@ -32,7 +33,7 @@ TOL_LATERAL, TOL_GAP, TOL_HEADING_DEG = 0.02, 0.02, 3.0
 
 def _mission(robot: TruthfulRobot, task: str = "dock", **config: object) -> DockingMission:
     sim = robot.sim
-    cfg = DockingConfig(measurement=MeasurementNoise.for_method("board"), **config)  # type: ignore[arg-type]
+    cfg = settings.replace(DockingConfig(measurement=MeasurementNoise.for_method("board")), **config)
     return DockingMission(cfg, sim.robot, blind_gap(sim.camera, sim.layout, sim.robot), task=task)
 
 
@@ -118,7 +119,7 @@ def test_reversing_is_slow_and_bounded_and_the_robot_docks() -> None:
     assert "moving1-back" in _states(result)
     assert _docked_by_the_truth(robot)
     # The truth's reverse speed never exceeds the configured limit (plus the wheels' noise).
-    assert -_speeds(robot).min() <= mission.config.max_reverse_speed * 1.1
+    assert -_speeds(robot).min() <= mission.config.reverse.max_reverse_speed * 1.1
 
 
 def test_a_plan_that_reverses_farther_than_allowed_is_refused_before_moving() -> None:
@@ -141,7 +142,7 @@ def test_something_behind_stops_the_reverse_short_and_the_mission_fails_cleanly(
     assert result.failure is FailureReason.OBSTACLE_BEHIND
     assert not robot.collided
     # Stopped short: at least most of the safety distance was kept (the sensor's noise and the braking).
-    assert robot.min_clearance > 0.8 * mission.config.rear_safety_distance
+    assert robot.min_clearance > 0.8 * mission.config.reverse.rear_safety_distance
     robot.sleep(0.5)
     assert abs(robot.odometry().linear) < 1e-3
 

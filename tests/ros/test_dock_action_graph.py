@@ -38,9 +38,9 @@ pytestmark = [
 def _docked_by_truth(goal: dict[str, object]) -> None:
     truth = goal["truth"]
     assert isinstance(truth, dict)
-    assert abs(truth["lateral_cm"]) <= 100 * TOL.tolerance_lateral, goal
-    assert abs(truth["gap_cm"]) <= 100 * TOL.tolerance_longitudinal, goal
-    assert abs(truth["heading_deg"]) <= TOL.tolerance_heading_deg, goal
+    assert abs(truth["lateral_cm"]) <= 100 * TOL.retry.tolerance_lateral, goal
+    assert abs(truth["gap_cm"]) <= 100 * TOL.retry.tolerance_longitudinal, goal
+    assert abs(truth["heading_deg"]) <= TOL.retry.tolerance_heading_deg, goal
     assert goal["charging"], goal
 
 
@@ -247,7 +247,7 @@ def test_cancel_at_every_phase_preemption_staging_and_undock_time_limit() -> Non
 
     # A dock_pose goal (dock_type empty: the only type), cancelled at the face while it waits for the charge.
     assert charging["feedback_states"][-1] == WAIT_FOR_CHARGE, charging
-    assert abs(charging["truth"]["gap_cm"]) <= 100 * TOL.tolerance_longitudinal, charging
+    assert abs(charging["truth"]["gap_cm"]) <= 100 * TOL.retry.tolerance_longitudinal, charging
 
     # max_undocking_time: upstream's FAILED_TO_CONTROL "Undocking timed out", the robot stopped short of the
     # staging pose.

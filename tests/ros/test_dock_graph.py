@@ -105,14 +105,14 @@ def assert_docked(step: dict[str, Any]) -> None:
     """Docked by the node's own account, and truly: inside the tolerances and charging, by the sim's truth."""
     assert step["message"] == "docked", step
     truth = step["truth"]
-    assert abs(truth["lateral_cm"]) <= 100 * TOL.tolerance_lateral, step
-    assert abs(truth["gap_cm"]) <= 100 * TOL.tolerance_longitudinal, step
-    assert abs(truth["heading_deg"]) <= TOL.tolerance_heading_deg, step
+    assert abs(truth["lateral_cm"]) <= 100 * TOL.retry.tolerance_lateral, step
+    assert abs(truth["gap_cm"]) <= 100 * TOL.retry.tolerance_longitudinal, step
+    assert abs(truth["heading_deg"]) <= TOL.retry.tolerance_heading_deg, step
     assert step["charging"], step
     # The node's estimate of its final pose agrees with the truth to within the tolerances too.
     values = step["values"]
-    assert abs(float(values["lateral_cm"]) - truth["lateral_cm"]) < 100 * TOL.tolerance_lateral
-    assert abs(float(values["heading_deg"]) - truth["heading_deg"]) < TOL.tolerance_heading_deg
+    assert abs(float(values["lateral_cm"]) - truth["lateral_cm"]) < 100 * TOL.retry.tolerance_lateral
+    assert abs(float(values["heading_deg"]) - truth["heading_deg"]) < TOL.retry.tolerance_heading_deg
 
 
 @pytest.mark.slow  # about a minute: the default run keeps the 10-minute budget; CI runs it with -m slow

@@ -70,9 +70,9 @@ def test_two_namespaced_robots_dock_side_by_side_on_one_graph() -> None:
         assert robot["error_code"] == 0, robot
         assert robot["error_msg"] == "", robot
         truth = robot["truth"]
-        assert abs(truth["lateral_cm"]) <= 100 * TOL.tolerance_lateral, robot
-        assert abs(truth["gap_cm"]) <= 100 * TOL.tolerance_longitudinal, robot
-        assert abs(truth["heading_deg"]) <= TOL.tolerance_heading_deg, robot
+        assert abs(truth["lateral_cm"]) <= 100 * TOL.retry.tolerance_lateral, robot
+        assert abs(truth["gap_cm"]) <= 100 * TOL.retry.tolerance_longitudinal, robot
+        assert abs(truth["heading_deg"]) <= TOL.retry.tolerance_heading_deg, robot
         assert robot["charging"], robot
         # Every change of state is fed back, a short wait for the charge too.
         assert {INITIAL_PERCEPTION, CONTROLLING, WAIT_FOR_CHARGE} <= set(robot["feedback_states"]), robot

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from monodock.cli.options import add_cluster, add_jobs, add_seed, comma_list, float_in, int_in
+from monodock.core import settings
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -192,7 +193,7 @@ def _cmd_dock_sim(args: argparse.Namespace) -> int:
     if args.max_retries is not None:
         if args.max_retries < 0:
             raise InputError(f"--max-retries must not be negative, got {args.max_retries}")
-        mission = dataclasses.replace(mission, max_retries=args.max_retries)
+        mission = settings.replace(mission, max_retries=args.max_retries)
     if args.planner is not None:
         mission = dataclasses.replace(mission, planner=dataclasses.replace(mission.planner, kind=args.planner[0]))
     if args.standoff is not None:

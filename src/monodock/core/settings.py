@@ -619,13 +619,14 @@ def nested(values: Mapping[str, Any]) -> dict[str, Any]:
 
 def replace(obj: T, changes: Mapping[str, Any] | None = None, /, **by_name: Any) -> T:
     """A copy of the settings with values changed by flat name (``cruise_speed``, ``planner.standoff``), through
-    their sections; ``changes`` takes the names that are not identifiers.
+    their sections; a keyed section may be given whole (``planner=PlannerConfig(...)``); ``changes`` takes the
+    names that are not identifiers.
 
     Raises:
         KeyError: a name that is not one of the settings'.
     """
     wanted = {**(changes or {}), **by_name}
-    paths = {s.key: s.path for s in settings_of(type(obj))}
+    paths = {**_section_paths(type(obj), (), ""), **{s.key: s.path for s in settings_of(type(obj))}}
     tree: dict[str, Any] = {}
     for name, value in wanted.items():
         if name not in paths:
@@ -636,6 +637,18 @@ def replace(obj: T, changes: Mapping[str, Any] | None = None, /, **by_name: Any)
             node = node.setdefault(part, {})
         node[leaf] = value
     return typing.cast(T, _apply(obj, tree))
+
+
+def _section_paths(cls: type[Any], path: tuple[str, ...], prefix: str) -> dict[str, tuple[str, ...]]:
+    """The flat names of the sections that have a key of their own (``planner``, ``track.odometry``): a whole
+    section may be replaced."""
+    out: dict[str, tuple[str, ...]] = {}
+    for fld in _fields(cls):
+        if fld.section is not None:
+            if fld.key:
+                out[f"{prefix}{fld.key}"] = (*path, fld.name)
+            out.update(_section_paths(fld.section, (*path, fld.name), f"{prefix}{fld.key}." if fld.key else prefix))
+    return out
 
 
 def _apply(obj: Any, tree: dict[str, Any]) -> Any:

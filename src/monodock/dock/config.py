@@ -41,6 +41,19 @@ __all__ = [
 MAX_NUMBER = 10_000.0
 MAX_COUNT = 1_000
 
+# How the docking config's file is read (its sections too): every key optional and known, the broad ranges above,
+# each setting's rule checked whenever a config is built, an error told with the key that causes it.
+_POLICY = Policy(
+    what="docking config",
+    unknown="refuse",
+    checks="construct",
+    culprit=True,
+    numbers=(0.0, MAX_NUMBER),
+    counts=(0, MAX_COUNT),
+    units_in_errors=False,
+    live=True,  # each mission reads the config afresh: the node's parameters may change between missions
+)
+
 
 @dataclass(frozen=True)
 class ChargingOffset:
@@ -81,27 +94,12 @@ class ChargingOffset:
 
 
 @dataclass(frozen=True)
-class DockingConfig:
-    """Every gain, speed, acceleration, tolerance, time-out and retry count of docking (SI units, angles in degrees).
+class LimitSettings:
+    """Speed and acceleration limits; the robot's own maxima cap these."""
 
-    The docking config file (``monodock.dock.config``, ``--config``) and the docking node's ROS parameters set
-    these by name; docs/docking.md lists every field with its unit, default and what it does.
-    """
+    SETTINGS: ClassVar[Policy] = _POLICY
 
-    SETTINGS: ClassVar[Policy] = Policy(
-        what="docking config",
-        unknown="refuse",
-        checks="construct",
-        culprit=True,
-        numbers=(0.0, MAX_NUMBER),
-        counts=(0, MAX_COUNT),
-        units_in_errors=False,
-        live=True,  # each mission reads the config afresh: the node's parameters may change between missions
-    )
-
-    planner: PlannerConfig = section(PlannerConfig, help="where Point A is")
     control_period: float = setting(0.02, unit="s", positive=True, help="the control loop's period")
-    # Speed and acceleration limits; the robot's own maxima cap these.
     cruise_speed: float = setting(0.20, unit="m/s", positive=True, help="speed on the legs to Point A")
     approach_speed: float = setting(0.12, unit="m/s", positive=True, help="Moving₃'s speed")
     turn_rate: float = setting(0.6, unit="rad/s", positive=True, help="largest turn rate")
@@ -111,19 +109,27 @@ class DockingConfig:
     min_turn_rate: float = setting(0.08, unit="rad/s", help="smallest non-zero turn command on the spot")
     creep_distance: float = setting(0.03, unit="m", help="the last distance before the face, at `min_speed`")
     stop_lead: float = setting(0.1, unit="s", help="stop this early for the command latency and the motors' lag")
-    # Moving₃'s P-control: heading reference -atan(k_lateral * lateral error), turn rate k_heading * heading error.
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if self.min_speed > self.approach_speed:
+            raise ConfigError("docking config: min_speed must not exceed approach_speed")
+
+
+@dataclass(frozen=True)
+class ApproachSettings:
+    """Moving₃'s P-control (heading reference -atan(k_lateral * lateral error), turn rate k_heading * heading
+    error), and turning and driving on odometry."""
+
     k_lateral: float = setting(4.0, unit="1/m", help="Moving₃: heading reference −atan(k_lateral · lateral error)")
     k_heading: float = setting(2.5, unit="1/s", help="Moving₃: turn rate per radian of heading error")
     max_correction_deg: float = setting(20.0, unit="°", help="Moving₃: largest heading reference")
     heading_only_gap: float = setting(0.12, unit="m", help="Moving₃: the lateral term fades out this close to the face")
-    # Turning and driving on odometry.
     k_turn: float = setting(3.0, unit="1/s", help="turns on odometry: turn rate per radian left")
     turn_tolerance_deg: float = setting(0.3, unit="°", help="a turn is done within this")
     k_bearing: float = setting(2.0, unit="1/s", help="legs on odometry: turn rate per radian of bearing to the target")
     arrive_tolerance: float = setting(0.005, unit="m", help="a leg is done within this of its end")
     refine_while_moving: bool = setting(True, help="frames during Moving₁ and Moving₂ refine Point A and the turns")
-    # Once the dock is tracked, look for the markers the detector missed where the track puts them
-    # (perception.predicted: fitted in the image, code bits verified).
     predicted_markers: bool = setting(
         True,
         help=(
@@ -131,7 +137,12 @@ class DockingConfig:
             '(code bits verified; "Markers the detector misses")'
         ),
     )
-    # Acquire and calculate.
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """Acquire and Calculate: finding the dock and the frames a plan is made from."""
+
     acquire: bool = setting(True, help="turn on the spot to find the dock when it is not in view")
     acquire_turn_rate: float = setting(0.3, unit="rad/s", help="that turn's rate")
     first_frame_wait: float = setting(0.5, unit="s", help="stand this long at the start for the first frames")
@@ -147,8 +158,15 @@ class DockingConfig:
     center_tolerance_deg: float = setting(
         5.0, unit="°", help="fewer than three markers and the dock this far off the heading: face it first"
     )
-    # The far approach: beyond far_distance from the face centre, or far_bearing_deg off the dock's axis, make for
-    # the staging point on the axis (staging_distance from the face) in legs of at most far_leg, then plan.
+
+
+@dataclass(frozen=True)
+class FarApproachSettings:
+    """The far approach: beyond far_distance from the face centre, or far_bearing_deg off the dock's axis, make for
+    the staging point on the axis (staging_distance from the face) in legs of at most far_leg, then plan."""
+
+    SETTINGS: ClassVar[Policy] = _POLICY
+
     far_approach: bool = setting(
         True, help="beyond `far_distance` or `far_bearing_deg`, make for the staging point first (the far approach)"
     )
@@ -174,12 +192,35 @@ class DockingConfig:
         help="the longest far-approach drive before the robot faces the dock and calculates again",
     )
     far_max_legs: int = setting(8, help="after this many legs still beyond the manoeuvre's range: `approach-stalled`")
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+        if self.staging_distance >= self.far_distance:
+            raise ConfigError(
+                f"docking config: staging_distance ({self.staging_distance:g} m) must be less than far_distance "
+                f"({self.far_distance:g} m): the far approach must end where the manoeuvre takes over"
+            )
+        if self.far_bearing_deg > 90.0:
+            raise ConfigError(f"docking config: far_bearing_deg must be at most 90, got {self.far_bearing_deg:g}")
+        if self.far_max_legs < 1:
+            raise ConfigError(f"docking config: far_max_legs must be at least 1, got {self.far_max_legs}")
+
+
+@dataclass(frozen=True)
+class SettleSettings:
+    """Calculate's time-out, and standing still before a judgement."""
+
     calculate_timeout: float = setting(
         3.0, unit="s", help="Calculate takes what came in this long; nothing: re-acquire"
     )
     settle_speed: float = setting(0.005, unit="m/s", help="the odometry reads still below this (rad/s: 5 ×)")
     settle_timeout: float = setting(1.5, unit="s", help="a base that never reads still is taken as still after this")
-    # Retry, recovery and tolerances.
+
+
+@dataclass(frozen=True)
+class RetrySettings:
+    """The checkpoint's retry, the recovery and the docked tolerances."""
+
     checkpoint_gap: float = setting(0.25, unit="m", positive=True, help="the approach's checkpoint, front edge to face")
     retry_lateral: float = setting(0.02, unit="m", help="at the checkpoint, a larger lateral error retries")
     retry_heading_deg: float = setting(
@@ -194,7 +235,12 @@ class DockingConfig:
     tolerance_heading_deg: float = setting(
         3.0, unit="°", help="docked: heading within this (the papers report 3.07°: set 3.1 to accept it)"
     )
-    # Charging.
+
+
+@dataclass(frozen=True)
+class ChargingSettings:
+    """Waiting for the charger, and re-seating on the contacts."""
+
     charge_timeout: float = setting(
         2.0, unit="s", non_negative=True, help="at the face, charging must be reported within this"
     )
@@ -205,7 +251,12 @@ class DockingConfig:
         0.005, unit="m", non_negative=True, help="each re-seat drives this much farther in than the last"
     )
     max_reseats: int = setting(2, help="re-seats before `not-charging`")
-    # Safety.
+
+
+@dataclass(frozen=True)
+class ReverseSettings:
+    """Reversing, bounded and watched."""
+
     max_reverse_speed: float = setting(0.10, unit="m/s", positive=True, help="fastest reverse")
     max_reverse_distance: float = setting(1.5, unit="m", positive=True, help="longest reverse leg")
     rear_safety_distance: float = setting(
@@ -214,11 +265,39 @@ class DockingConfig:
     blocked_timeout: float = setting(
         5.0, unit="s", non_negative=True, help="wait this long for the space behind to clear, then fail"
     )
+
+
+@dataclass(frozen=True)
+class WatchSettings:
+    """What a mission watches: lost markers, its own time, the blind zone."""
+
     lost_timeout: float = setting(
         1.0, unit="s", non_negative=True, help="markers unseen this long mid-approach: recover"
     )
     mission_timeout: float = setting(120.0, unit="s", help="the whole mission's time limit")
     blind_margin: float = setting(0.04, unit="m", help="added to the computed blind zone")
+
+
+@dataclass(frozen=True)
+class DockingConfig:
+    """Every gain, speed, acceleration, tolerance, time-out and retry count of docking (SI units, angles in degrees).
+
+    The docking config file (``monodock.dock.config``, ``--config``) and the docking node's ROS parameters set
+    these by name; docs/docking.md lists every field with its unit, default and what it does.
+    """
+
+    SETTINGS: ClassVar[Policy] = _POLICY
+
+    planner: PlannerConfig = section(PlannerConfig, help="where Point A is")
+    limits: LimitSettings = section(LimitSettings, key="")
+    approach: ApproachSettings = section(ApproachSettings, key="")
+    search: SearchSettings = section(SearchSettings, key="")
+    far: FarApproachSettings = section(FarApproachSettings, key="")
+    settle: SettleSettings = section(SettleSettings, key="")
+    retry: RetrySettings = section(RetrySettings, key="")
+    charging: ChargingSettings = section(ChargingSettings, key="")
+    reverse: ReverseSettings = section(ReverseSettings, key="")
+    watch: WatchSettings = section(WatchSettings, key="")
     track: FilterConfig = section(
         FilterConfig, help="the dock filter: odometry noise, gate, reset"
     )  # the dock filter: odometry noise, gate, reset
@@ -230,21 +309,11 @@ class DockingConfig:
     )  # the taught pose (monodock teach)
 
     def __post_init__(self) -> None:
-        check_fields(self)  # positive, not negative: as declared
-        if self.staging_distance >= self.far_distance:
-            raise ConfigError(
-                f"docking config: staging_distance ({self.staging_distance:g} m) must be less than far_distance "
-                f"({self.far_distance:g} m): the far approach must end where the manoeuvre takes over"
-            )
-        if self.far_bearing_deg > 90.0:
-            raise ConfigError(f"docking config: far_bearing_deg must be at most 90, got {self.far_bearing_deg:g}")
-        if self.far_max_legs < 1:
-            raise ConfigError(f"docking config: far_max_legs must be at least 1, got {self.far_max_legs}")
-        if self.min_speed > self.approach_speed:
-            raise ConfigError("docking config: min_speed must not exceed approach_speed")
-        if self.min_speed > self.max_reverse_speed:
+        check_fields(self)  # every setting's declared rule (each section checks its own too: it is valid alone)
+        if self.limits.min_speed > self.reverse.max_reverse_speed:
             raise ConfigError("docking config: min_speed must not exceed max_reverse_speed")
-        if self.recover_distance > self.max_reverse_distance or self.reseat_distance > self.max_reverse_distance:
+        longest = self.reverse.max_reverse_distance
+        if self.retry.recover_distance > longest or self.charging.reseat_distance > longest:
             raise ConfigError(
                 "docking config: recover_distance and reseat_distance must not exceed max_reverse_distance"
             )

@@ -108,9 +108,9 @@ class DockingMission:
         self.task = task
         self.config = config
         self.robot = robot
-        self.blind = blind + config.blind_margin
-        self.max_speed = min(config.cruise_speed, robot.max_linear_speed)
-        self.max_turn = min(config.turn_rate, robot.max_angular_speed)
+        self.blind = blind + config.watch.blind_margin
+        self.max_speed = min(config.limits.cruise_speed, robot.max_linear_speed)
+        self.max_turn = min(config.limits.turn_rate, robot.max_angular_speed)
         self.track = DockTrack(
             config.track, config.measurement, config.charging_offset.dock_T_target(robot.front_offset)
         )
@@ -167,7 +167,7 @@ class DockingMission:
         """Whether this state uses camera frames (the simulator renders only frames that are used)."""
         if self.state in (State.ACQUIRE, State.CALCULATE, State.FAR_APPROACH, State.MOVING3, State.SETTLE):
             return True
-        return self.config.refine_while_moving and self.state in _MOVING_TO_A
+        return self.config.approach.refine_while_moving and self.state in _MOVING_TO_A
 
     def _enter(self, now: float, state: State, note: str = "", phase: _Phase = None) -> None:
         """Move to ``state`` with its data (``ACQUIRE``, ``CALCULATE`` and ``UNDOCK`` start from empty data)."""
@@ -230,9 +230,9 @@ class DockingMission:
                 self.last_seen = observation.stamp
         if self.finished:
             return (0.0, 0.0)
-        if now - self.start_time > self.config.mission_timeout:
+        if now - self.start_time > self.config.watch.mission_timeout:
             return self._fail(
-                now, FailureReason.TIMEOUT, f"mission took longer than {self.config.mission_timeout:.0f} s"
+                now, FailureReason.TIMEOUT, f"mission took longer than {self.config.watch.mission_timeout:.0f} s"
             )
         tick = _Tick(now, odom, contact, charging, rear_range)
         v, w = self._handlers[self.state](tick)
@@ -246,7 +246,7 @@ class DockingMission:
     def _guard_reverse(self, tick: _Tick, v: float, w: float) -> tuple[float, float]:
         """Reversing made safe: every reverse leg bounded in length; stop short of anything the rear range sees."""
         c = self.config
-        if not (v < 0.0 or tick.odom.linear < -c.settle_speed):
+        if not (v < 0.0 or tick.odom.linear < -c.settle.settle_speed):
             self._reverse = None
             return v, w
         if self._reverse is None:
@@ -255,11 +255,11 @@ class DockingMission:
         reversed_by = leg.start.distance(tick.odom.pose)
         # Every leg is planned within max_reverse_distance; the guard allows a tenth more for steering on odometry
         # and for a stop that follows one reverse leg straight with another (a recovery after a back-off).
-        if reversed_by > 1.1 * c.max_reverse_distance + c.recover_distance:
+        if reversed_by > 1.1 * c.reverse.max_reverse_distance + c.retry.recover_distance:
             self._fail(
                 tick.now,
                 FailureReason.REVERSE_LIMIT,
-                f"reversed {reversed_by:.2f} m in one leg (max_reverse_distance {c.max_reverse_distance:g} m)",
+                f"reversed {reversed_by:.2f} m in one leg (max_reverse_distance {c.reverse.max_reverse_distance:g} m)",
             )
             return 0.0, 0.0
         if tick.rear_range is not None and tick.rear_range < law.reverse_stopping_distance(abs(tick.odom.linear), c):
@@ -267,11 +267,11 @@ class DockingMission:
                 leg.blocked_since = tick.now
                 self.obstacle_waits += 1
                 self.log.append((tick.now, f"{self.state.value}: obstacle {tick.rear_range:.2f} m behind; waiting"))
-            elif tick.now - leg.blocked_since > c.blocked_timeout:
+            elif tick.now - leg.blocked_since > c.reverse.blocked_timeout:
                 self._fail(
                     tick.now,
                     FailureReason.OBSTACLE_BEHIND,
-                    f"obstacle {tick.rear_range:.2f} m behind for {c.blocked_timeout:g} s while reversing",
+                    f"obstacle {tick.rear_range:.2f} m behind for {c.reverse.blocked_timeout:g} s while reversing",
                 )
             return 0.0, 0.0
         leg.blocked_since = None
@@ -286,17 +286,17 @@ class DockingMission:
             self._enter(tick.now, State.CALCULATE, "markers in view")
             self.track.reset()
             return (0.0, 0.0)
-        wait = c.first_frame_wait if self.recoveries == 0 else c.reacquire_wait
+        wait = c.search.first_frame_wait if self.recoveries == 0 else c.search.reacquire_wait
         if tick.now - self.state_since < wait:
             return (0.0, 0.0)  # the first frames are still on their way, or whatever hid the dock may move
-        if not c.acquire:
+        if not c.search.acquire:
             return self._fail(tick.now, FailureReason.NOT_IN_VIEW, "no markers in view (acquire is off)")
-        if looking.turned >= math.radians(c.acquire_max_turn_deg):
+        if looking.turned >= math.radians(c.search.acquire_max_turn_deg):
             if self.seen_dock:
                 return self._fail(tick.now, FailureReason.DOCK_LOST, "dock lost; not in view again after a full turn")
             return self._fail(tick.now, FailureReason.NOT_FOUND, "no markers in view after a full turn")
-        looking.turned += abs(tick.odom.angular) * c.control_period
-        return (0.0, c.acquire_turn_rate)
+        looking.turned += abs(tick.odom.angular) * c.limits.control_period
+        return (0.0, c.search.acquire_turn_rate)
 
     def _on_calculate(self, tick: _Tick) -> tuple[float, float]:
         """``CALCULATE``: stand still, take the median of a few frames, and plan (or centre the dock first)."""
@@ -304,15 +304,15 @@ class DockingMission:
         now, odom = tick.now, tick.odom
         # Stand still, then take the median of a few frames: motion blur, latency and a wild frame stay
         # out of the plan. (A base whose odometry never reads still is taken as still after settle_timeout.)
-        if not law.is_still(odom, c) and now - self.state_since < c.settle_timeout:
+        if not law.is_still(odom, c) and now - self.state_since < c.settle.settle_timeout:
             calc.samples.clear()
             return (0.0, 0.0)
         n = len(calc.samples)
-        if n >= c.calculate_frames or (now - self.state_since > c.calculate_timeout and n > 0):
+        if n >= c.search.calculate_frames or (now - self.state_since > c.settle.calculate_timeout and n > 0):
             x = float(np.median([e.x for _, e, _ in calc.samples]))
             y = float(np.median([e.y for _, e, _ in calc.samples]))
             bearing = math.atan2(y, x)
-            if c.far_approach:
+            if c.far.far_approach:
                 self.track.seed(calc.samples)
                 robot = self.track.robot_in_dock(odom.pose)
                 if beyond_manoeuvre(robot, c):
@@ -322,7 +322,7 @@ class DockingMission:
             if (
                 calc.heading_before_center is None
                 and float(np.median(calc.markers)) < 3
-                and abs(bearing) > math.radians(c.center_tolerance_deg)
+                and abs(bearing) > math.radians(c.search.center_tolerance_deg)
             ):
                 turn = _Centring(wrap_angle(odom.pose.theta + bearing), odom.pose.theta)
                 note = f"fewer than three markers; turning {math.degrees(bearing):+.1f} deg"
@@ -330,7 +330,7 @@ class DockingMission:
                 return (0.0, 0.0)
             self.track.seed(calc.samples)
             return self._plan(now, odom.pose, calc.heading_before_center)
-        if now - self.state_since > c.calculate_timeout:
+        if now - self.state_since > c.settle.calculate_timeout:
             self._enter(now, State.ACQUIRE, "markers lost while calculating")
         return (0.0, 0.0)
 
@@ -350,7 +350,7 @@ class DockingMission:
         where = (
             f"{math.hypot(robot.x, robot.y):.2f} m from the face, {math.degrees(off_axis(robot)):.0f} deg off its axis"
         )
-        if self.far_legs >= c.far_max_legs:
+        if self.far_legs >= c.far.far_max_legs:
             return self._fail(now, FailureReason.APPROACH_STALLED, f"still {where} after {self.far_legs} far legs")
         self.far_legs += 1
         self._enter(now, State.FAR_APPROACH, f"leg {self.far_legs}: {where}", _FarLeg())
@@ -372,7 +372,7 @@ class DockingMission:
                 leg.step, leg.origin = "drive", pose
         if leg.step == "drive":
             assert leg.origin is not None
-            target = leg_end(pose, stage, c.far_leg - leg.origin.distance(pose))
+            target = leg_end(pose, stage, c.far.far_leg - leg.origin.distance(pose))
             v, w, arrived = law.drive_straight(target, pose, False, c, self.max_speed)
             if not arrived:
                 return (v, w)
@@ -424,28 +424,32 @@ class DockingMission:
         robot = self.track.robot_in_dock(odom.pose)
         gap = -robot.x - self.robot.front_offset
         lateral, heading = robot.y, robot.theta
-        if gap > self.blind and now - self.last_seen > c.lost_timeout:
+        if gap > self.blind and now - self.last_seen > c.watch.lost_timeout:
             why = f"markers lost for {now - self.last_seen:.1f} s during the approach"
-            if self.retries >= c.max_retries:
+            if self.retries >= c.retry.max_retries:
                 return self._fail(now, FailureReason.MARKERS_LOST, why)
             self.retries += 1
             self.recoveries += 1
-            back = _Reversing(odom.pose.compose(Pose2D(-c.recover_distance, 0.0, 0.0)))
-            self._enter(now, State.RECOVER, f"retry {self.retries}: {why}; backing off {c.recover_distance:g} m", back)
+            back = _Reversing(odom.pose.compose(Pose2D(-c.retry.recover_distance, 0.0, 0.0)))
+            self._enter(
+                now, State.RECOVER, f"retry {self.retries}: {why}; backing off {c.retry.recover_distance:g} m", back
+            )
             return (0.0, 0.0)
         # A re-seat drives on past where the estimate puts the face (the face is solid, the springs give).
-        push = c.reseat_push * self.reseats
-        if tick.contact or gap <= abs(odom.linear) * c.stop_lead - push:
+        push = c.charging.reseat_push * self.reseats
+        if tick.contact or gap <= abs(odom.linear) * c.limits.stop_lead - push:
             if self.impact_speed is None:
                 self.impact_speed = abs(odom.linear)
             self._enter(now, State.SETTLE, "contact" if tick.contact else "at the face by the estimate")
             return (0.0, 0.0)
         ref = law.heading_reference(lateral, gap, c)
-        if not approach.checked and gap <= c.checkpoint_gap:
+        if not approach.checked and gap <= c.retry.checkpoint_gap:
             # The end of the early part: too far off the axis, or not following the reference, to finish well.
             approach.checked = True
-            off = abs(lateral) > c.retry_lateral or abs(wrap_angle(heading - ref)) > math.radians(c.retry_heading_deg)
-            if off and self.retries < c.max_retries:
+            off = abs(lateral) > c.retry.retry_lateral or abs(wrap_angle(heading - ref)) > math.radians(
+                c.retry.retry_heading_deg
+            )
+            if off and self.retries < c.retry.max_retries:
                 return self._retry(now, f"lateral {lateral * 100:+.1f} cm, heading {math.degrees(heading):+.1f} deg")
         return law.approach_command(heading, ref, gap, c)
 
@@ -460,7 +464,7 @@ class DockingMission:
 
     def _on_settle(self, tick: _Tick) -> tuple[float, float]:
         """``SETTLE``: stand still at the face, then judge the final pose."""
-        if not law.is_still(tick.odom, self.config) and tick.now - self.state_since < self.config.settle_timeout:
+        if not law.is_still(tick.odom, self.config) and tick.now - self.state_since < self.config.settle.settle_timeout:
             return (0.0, 0.0)
         return self._judge(tick.now, tick.odom.pose, tick.charging)
 
@@ -471,17 +475,18 @@ class DockingMission:
             self.charging = True
             self._enter(tick.now, State.DOCKED, "charging")
             return (0.0, 0.0)
-        if tick.now - self.state_since < c.charge_timeout:
+        if tick.now - self.state_since < c.charging.charge_timeout:
             return (0.0, 0.0)
         self.charging = False
-        if self.reseats >= c.max_reseats:
+        if self.reseats >= c.charging.max_reseats:
             return self._fail(
                 tick.now,
                 FailureReason.NOT_CHARGING,
-                f"no charging {c.charge_timeout:g} s after touching the contacts, after {self.reseats} re-seats",
+                f"no charging {c.charging.charge_timeout:g} s after touching the contacts, "
+                f"after {self.reseats} re-seats",
             )
         self.reseats += 1
-        back = _Reversing(tick.odom.pose.compose(Pose2D(-c.reseat_distance, 0.0, 0.0)))
+        back = _Reversing(tick.odom.pose.compose(Pose2D(-c.charging.reseat_distance, 0.0, 0.0)))
         self._enter(tick.now, State.RESEAT, f"re-seat {self.reseats}: not charging", back)
         return (0.0, 0.0)
 
@@ -499,12 +504,12 @@ class DockingMission:
         leg = self._data(_Undocking)
         if leg.target is None:
             distance = self.config.planner.standoff
-            if distance > self.config.max_reverse_distance:
+            if distance > self.config.reverse.max_reverse_distance:
                 return self._fail(
                     tick.now,
                     FailureReason.REVERSE_LIMIT,
                     f"the staging pose is {distance:g} m back, more than max_reverse_distance "
-                    f"{self.config.max_reverse_distance:g} m",
+                    f"{self.config.reverse.max_reverse_distance:g} m",
                 )
             leg.target = tick.odom.pose.compose(Pose2D(-distance, 0.0, 0.0))
         v, w, arrived = law.drive_straight(leg.target, tick.odom.pose, True, self.config, self.max_speed)
@@ -538,12 +543,12 @@ class DockingMission:
             robot = Pose2D(robot.x, robot.y, wrap_angle(robot.theta + heading_before_center - pose.theta))
         m = plan_for(robot, self.config.planner, self.robot.front_offset)
         longest = max(m.back_out, m.drive_distance if m.reverse else 0.0)
-        if longest > self.config.max_reverse_distance:
+        if longest > self.config.reverse.max_reverse_distance:
             return self._fail(
                 now,
                 FailureReason.REVERSE_LIMIT,
                 f"case {m.case} would reverse {longest:.2f} m in one leg "
-                f"(max_reverse_distance {self.config.max_reverse_distance:g} m)",
+                f"(max_reverse_distance {self.config.reverse.max_reverse_distance:g} m)",
             )
         dock = self.track.mean
         self.manoeuvre = m
@@ -579,12 +584,12 @@ class DockingMission:
         last turn move with it; with ``aim`` (before the leg), monodock's and the turn-first plan's leg heading is
         aimed at the refined A again (the papers' leg keeps its heading: Moving₁ has no turn)."""
         m, dock = self.manoeuvre, self.track.mean
-        if not self.config.refine_while_moving or m is None or dock is None:
+        if not self.config.approach.refine_while_moving or m is None or dock is None:
             return
         a = dock.compose(m.point_a)
         self._targets.a = a
         self._targets.final_heading = wrap_angle(dock.theta + m.point_a.theta)
-        if aim and m.planner != "papers" and pose.distance(a) > self.config.arrive_tolerance:
+        if aim and m.planner != "papers" and pose.distance(a) > self.config.approach.arrive_tolerance:
             heading = math.atan2(a.y - pose.y, a.x - pose.x)
             self._targets.drive_heading = wrap_angle(heading + (math.pi if m.reverse else 0.0))
 
@@ -595,7 +600,7 @@ class DockingMission:
         assert here is not None
         self.retries += 1
         a = self.track.mean.compose(point_a(self.config.planner, self.robot.front_offset))
-        limit = self.config.max_reverse_distance
+        limit = self.config.reverse.max_reverse_distance
         if here.distance(a) > limit:  # no farther than a reverse leg may go: Calculate works from anywhere
             w = limit / here.distance(a)
             a = Pose2D(here.x + w * (a.x - here.x), here.y + w * (a.y - here.y), a.theta)
@@ -609,9 +614,9 @@ class DockingMission:
         robot = self.track.robot_in_dock(pose)
         gap = -robot.x - self.robot.front_offset
         ok = (
-            abs(robot.y) <= c.tolerance_lateral
-            and abs(gap) <= c.tolerance_longitudinal
-            and abs(robot.theta) <= math.radians(c.tolerance_heading_deg)
+            abs(robot.y) <= c.retry.tolerance_lateral
+            and abs(gap) <= c.retry.tolerance_longitudinal
+            and abs(robot.theta) <= math.radians(c.retry.tolerance_heading_deg)
         )
         summary = (
             f"lateral {robot.y * 100:+.1f} cm, gap {gap * 100:+.1f} cm, heading {math.degrees(robot.theta):+.1f} deg"
@@ -623,7 +628,7 @@ class DockingMission:
             self._enter(now, State.DOCKED, summary)
         elif ok:
             self._enter(now, State.CHARGE_WAIT, summary)
-        elif self.retries < c.max_retries:
+        elif self.retries < c.retry.max_retries:
             self._retry(now, "final pose outside the tolerances: " + summary)
         else:
             self._fail(now, FailureReason.OUTSIDE_TOLERANCES, "final pose outside the tolerances: " + summary)

@@ -23,13 +23,13 @@ def off_axis(robot: Pose2D) -> float:
 def beyond_manoeuvre(robot: Pose2D, c: DockingConfig) -> bool:
     """Whether the robot (dock frame) stands beyond what the manoeuvre takes on: farther than ``far_distance`` from
     the face centre or more than ``far_bearing_deg`` off the axis; the far approach brings it in first."""
-    return math.hypot(robot.x, robot.y) > c.far_distance or off_axis(robot) > math.radians(c.far_bearing_deg)
+    return math.hypot(robot.x, robot.y) > c.far.far_distance or off_axis(robot) > math.radians(c.far.far_bearing_deg)
 
 
 def staging_point(dock: Pose2D, c: DockingConfig) -> Pose2D:
     """Where the far approach makes for, in odometry: ``staging_distance`` before the face on the dock's axis
     (``dock``: the dock's pose in odometry), facing the face."""
-    return dock.compose(Pose2D(-c.staging_distance, 0.0, 0.0))
+    return dock.compose(Pose2D(-c.far.staging_distance, 0.0, 0.0))
 
 
 def leg_end(pose: Pose2D, stage: Pose2D, remaining: float) -> Pose2D:

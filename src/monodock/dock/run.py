@@ -70,7 +70,7 @@ def run_mission(
         if on_tick is not None:
             on_tick(mission, odom)
         if not mission.finished:
-            robot.sleep(mission.config.control_period)
+            robot.sleep(mission.config.limits.control_period)
     robot.send_velocity(0.0, 0.0)
     return MissionResult(
         state=mission.state,

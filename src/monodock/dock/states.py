@@ -14,7 +14,7 @@ class State(StrEnum):
     """The mission's states: what the robot does in each and what ends it.
 
     Every state that is not final also ends in ``FAILED`` (``FailureReason.TIMEOUT``) when the mission has run
-    longer than ``DockingConfig.mission_timeout``. The values are what the mission's log and dock-sim's
+    longer than ``DockingConfig.watch.mission_timeout``. The values are what the mission's log and dock-sim's
     ``runs.csv`` print.
     """
 

@@ -298,7 +298,7 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     perceive_s = perceive_cpu_s = 0.0
     # As the docking node does: the running mission's dock track predicts the markers the detector missed.
     running = [mission]
-    track = (lambda: running[0].track) if mission_config.predicted_markers else None
+    track = (lambda: running[0].track) if mission_config.approach.predicted_markers else None
     inner = _skip_undetectable(robot, make_perceive(env.estimators[task.method], task.method, track=track))
     frames: list[FilterFrame] = []
     pending: list[Observation] = []
@@ -411,9 +411,9 @@ def _inside_tolerances(robot: SimulatedRobot, c: DockingConfig) -> bool:
     """Whether the robot truly stands docked: lateral, gap (or overshoot) and heading within the tolerances."""
     p = robot.pose
     return (
-        abs(p.y) <= c.tolerance_lateral
-        and abs(robot.longitudinal_error()) <= c.tolerance_longitudinal
-        and abs(p.theta) <= math.radians(c.tolerance_heading_deg)
+        abs(p.y) <= c.retry.tolerance_lateral
+        and abs(robot.longitudinal_error()) <= c.retry.tolerance_longitudinal
+        and abs(p.theta) <= math.radians(c.retry.tolerance_heading_deg)
     )
 
 
@@ -495,9 +495,9 @@ def summarize(results: Sequence[TrialResult], config: DockSimConfig) -> DockSimS
             max_heading_deg=config.max_heading_deg,
             standoff_m=c.planner.standoff,
             planner=",".join(config.planner_kinds),
-            tolerance_lateral_cm=c.tolerance_lateral * 100,
-            tolerance_longitudinal_cm=c.tolerance_longitudinal * 100,
-            tolerance_heading_deg=c.tolerance_heading_deg,
+            tolerance_lateral_cm=c.retry.tolerance_lateral * 100,
+            tolerance_longitudinal_cm=c.retry.tolerance_longitudinal * 100,
+            tolerance_heading_deg=c.retry.tolerance_heading_deg,
             camera_rate_hz=config.drive.camera_rate,
             supersample=config.supersample,
         ),

@@ -96,7 +96,7 @@ def write_dock_files(
             figures.append((case_diagram, (case, out / f"{kind}_case_{case}.png"), {"planner": planner, **scene}))
     figures.append((trajectory_overview, (results, config, out / "trajectories.png"), {}))
     c = config.mission
-    tolerances = (c.tolerance_lateral * 100, c.tolerance_longitudinal * 100, c.tolerance_heading_deg)
+    tolerances = (c.retry.tolerance_lateral * 100, c.retry.tolerance_longitudinal * 100, c.retry.tolerance_heading_deg)
     errors = [(r.method, r.lateral_cm, r.heading_deg, r.longitudinal_cm) for r in results]
     figures.append((final_error_plot, (errors, out / "final_errors.png", (tolerances[0], tolerances[2])), {}))
     if config.starts == "room":
@@ -156,9 +156,9 @@ def dock_settings(config: DockSimConfig) -> dict[str, object]:
             f"{d.contact_heading_tolerance_deg:g} deg, for {d.charge_delay:g} s",
         },
         "success (by the truth)": {
-            "lateral_cm": c.tolerance_lateral * 100,
-            "gap_cm": c.tolerance_longitudinal * 100,
-            "heading_deg": c.tolerance_heading_deg,
+            "lateral_cm": c.retry.tolerance_lateral * 100,
+            "gap_cm": c.retry.tolerance_longitudinal * 100,
+            "heading_deg": c.retry.tolerance_heading_deg,
         },
         "nuisances": plain(config.nuisances.updated(supersample=config.supersample)),
     }

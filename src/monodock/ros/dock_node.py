@@ -545,7 +545,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
             self._mission, self._stop_check, self._on_mission_tick = mission, stop_check, on_tick
             self._publish_state(mission.state.value)
             robot.watch(True)
-            track = (lambda: mission.track) if config.predicted_markers else None
+            track = (lambda: mission.track) if config.approach.predicted_markers else None
             perceive = make_perceive(estimator, estimator.method, track=track)
 
             def timed(stamp: float, image: np.ndarray) -> Any:
@@ -556,7 +556,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
 
             result = run_mission(robot, timed, mission, on_tick=self._on_tick)
             if result.failure in _LOST_MARKERS:  # did the frames come and go unseen, or never come?
-                explained = robot.camera_stats.explain(robot.now(), config.lost_timeout)
+                explained = robot.camera_stats.explain(robot.now(), config.watch.lost_timeout)
                 result = dataclasses.replace(result, reason=f"{result.reason}; {explained}")
             self._remember(result, dock_type)
             self._publish_result(task, result, "")
