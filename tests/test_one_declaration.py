@@ -2,7 +2,7 @@
 written by the file's reader and writer, is a ROS parameter with its descriptor's range and a live check in the
 parameter's words, and is a command-line flag in the node's parser.
 
-The nodes' own modules import rclpy: what needs DockOptions runs in a child process with stand-ins for it.
+The nodes' command lines (cli.ros_nodes) import rclpy: what needs them runs in a child process with stand-ins for it.
 """
 
 from __future__ import annotations
@@ -95,14 +95,14 @@ def test_a_new_node_setting_is_a_ros_parameter_with_its_range_and_a_flag() -> No
 
 
 def test_a_new_setting_of_the_docking_node_is_a_parameter_and_a_flag() -> None:
-    """The docking node's own options (DockOptions, in a module that imports rclpy): one declaration gives the
+    """The docking node's own options (DockOptions, and its flags in cli.ros_nodes): one declaration gives the
     read-only parameter with its descriptor's range and a flag after the node's others in --help."""
     got = json_with_stand_ins(
         """
         import dataclasses, json
         from monodock.cli import ros_nodes
         from monodock.core.settings import setting
-        from monodock.ros.dock_node import DockOptions
+        from monodock.ros.dock_options import DockOptions
         from monodock.ros.parameters import parameters_of
 
         @dataclasses.dataclass(frozen=True)

@@ -11,7 +11,8 @@ import sys
 
 import rclpy
 
-from monodock.ros.dock_node import DockNode, DockOptions
+from monodock.ros.dock_node import DockNode
+from monodock.ros.dock_options import DockOptions
 
 params, layout, robot = sys.argv[1:4]
 rclpy.init(

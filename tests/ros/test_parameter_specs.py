@@ -19,7 +19,7 @@ _SCRIPT = """
 import dataclasses, json
 
 from monodock.ros.detector import PARAMETERS as DETECTOR, DetectorOptions
-from monodock.ros.dock_node import PARAMETERS as DOCK, DockOptions
+from monodock.ros.dock_options import PARAMETERS as DOCK, DockOptions
 from monodock.ros.sim_node import PARAMETERS as SIM
 from monodock.ros.sim_settings import SimSettings
 

@@ -17,7 +17,8 @@ from monodock.cli.options import add_estimator_options, add_flags
 from monodock.cli.parser import Parser as _Parser
 from monodock.errors import MonodockError
 from monodock.ros.detector import DetectorOptions, non_ros_arguments, run_detector
-from monodock.ros.dock_node import DockOptions, run_dock
+from monodock.ros.dock_node import run_dock
+from monodock.ros.dock_options import DockOptions
 from monodock.ros.parameters import check_params_files
 
 __all__ = ["detector_main", "detector_parser", "dock_main", "dock_parser"]
