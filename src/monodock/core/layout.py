@@ -30,8 +30,7 @@ from numpy.typing import NDArray
 
 from monodock.core import transforms
 from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
-from monodock.core.settings import Policy, from_mapping, setting, to_mapping
-from monodock.core.settings_fields import from_fields
+from monodock.core.settings import Policy, from_fields, from_mapping, setting, to_mapping
 from monodock.errors import ConfigError
 
 __all__ = ["FACE_R_MARKER", "MAX_MARKERS", "ROLES", "DockLayout", "MarkerSpec"]

@@ -40,6 +40,7 @@ __all__ = [
     "check_fields",
     "flag_of",
     "flat",
+    "from_fields",
     "from_flat",
     "from_mapping",
     "nested",
@@ -488,6 +489,30 @@ def from_mapping(cls: type[T], data: Any, source: str) -> T:
 def from_flat(cls: type[T], values: Mapping[str, Any], source: str) -> T:
     """``from_mapping`` of flat names (ROS parameters: ``{"planner.standoff": 1.2}``)."""
     return from_mapping(cls, nested(values), source)
+
+
+def from_fields(cls: type[T], fields: Fields, **given: Any) -> T:
+    """An instance of ``cls`` read from one mapping of a larger file, some of its fields given by the file's
+    structure rather than keys in the mapping: a marker's role (``markers: {left: {...}}``), a dock's name
+    (``docks: {home: {...}}``). The ``given`` fields are taken as they are; every other field is read as
+    ``from_mapping`` reads it, from ``fields``, whose prefix names the whole key path in errors; unknown keys are
+    warned about.
+
+    Raises:
+        ConfigError: one line naming the file and the key (``layout.yaml: markers.left.y: ...``).
+    """
+    policy = policy_of(cls)
+    declared = [f for f in _fields(cls) if f.name not in given]
+    values = dict(given)
+    for f in declared:
+        key = next((k for k in (f.key, *f.meta.aliases) if fields.has(k)), None)
+        if key is None:
+            if f.meta.required or f.default is MISSING:
+                fields.raw(f.key)  # "missing field"
+            continue
+        values[f.name] = _read_value(fields, key, f, policy)
+    fields.warn_unknown([*(f.key for f in declared), *(a for f in declared for a in f.meta.aliases), *policy.ignore])
+    return cls(**values)
 
 
 # --- writing and flat names ------------------------------------------------------------------------------------

@@ -26,8 +26,7 @@ from pathlib import Path
 from monodock.core.config import Fields, load_yaml
 from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
-from monodock.core.settings import setting
-from monodock.core.settings_fields import from_fields
+from monodock.core.settings import from_fields, setting
 from monodock.dock.nav2 import DockNotInDB, DockNotValid
 from monodock.errors import ConfigError
 
