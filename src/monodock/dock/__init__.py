@@ -3,6 +3,7 @@ tracked in odometry (pose_filter) and the robot interface; what runs on the robo
 
 from monodock.dock.config import DockingConfig
 from monodock.dock.controller import DockingMission
+from monodock.dock.extensions import ArucoChargingDock, ControlLaw, Dock, PControlLaw
 from monodock.dock.interface import CameraFrame, Odometry, RobotInterface
 from monodock.dock.planner import (
     CASES,
@@ -22,8 +23,11 @@ from monodock.dock.tracking import Observation
 
 __all__ = [
     "CASES",
+    "ArucoChargingDock",
     "CameraFrame",
     "CaseSpec",
+    "ControlLaw",
+    "Dock",
     "DockingConfig",
     "DockingMission",
     "FailureReason",
@@ -31,6 +35,7 @@ __all__ = [
     "MissionResult",
     "Observation",
     "Odometry",
+    "PControlLaw",
     "PlannerConfig",
     "RobotInterface",
     "State",

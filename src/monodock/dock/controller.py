@@ -33,9 +33,9 @@ import numpy as np
 from monodock.core.pose import wrap_angle
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
-from monodock.dock import control_law as law
 from monodock.dock.config import DockingConfig
-from monodock.dock.far_approach import beyond_manoeuvre, leg_end, off_axis, staging_point
+from monodock.dock.extensions import ArucoChargingDock, ControlLaw, Dock, PControlLaw
+from monodock.dock.far_approach import beyond_manoeuvre, leg_end, off_axis
 from monodock.dock.interface import Odometry
 from monodock.dock.phases import (
     _P,
@@ -99,15 +99,27 @@ class DockingMission:
 
     Each state has one handler (``_on_<state>``), looked up in a table keyed by ``State``; a handler returns the
     desired command and moves to the next state with ``_enter`` (with the next state's data, ``phase``) or
-    ``_fail``. The control law is ``control_law``'s; what the mission knows of the dock is ``track``.
+    ``_fail``. The control law is ``law`` (``dock.control_law``'s by default), the dock's model ``dock`` (monodock's
+    ArUco charger by default: ``dock.extensions``); what the mission knows of the dock's pose is ``track``.
     """
 
-    def __init__(self, config: DockingConfig, robot: RobotConfig, blind: float, *, task: str = "dock") -> None:
+    def __init__(
+        self,
+        config: DockingConfig,
+        robot: RobotConfig,
+        blind: float,
+        *,
+        task: str = "dock",
+        dock: Dock | None = None,
+        law: ControlLaw | None = None,
+    ) -> None:
         if task not in ("dock", "undock"):
             raise ConfigError(f"a docking mission's task is dock or undock, got {task!r}")
         self.task = task
         self.config = config
         self.robot = robot
+        self.dock: Dock = ArucoChargingDock(config, robot.front_offset) if dock is None else dock  # docks onto
+        self.law: ControlLaw = PControlLaw(config) if law is None else law  # drives by
         self.blind = blind + config.watch.blind_margin
         self.max_speed = min(config.limits.cruise_speed, robot.max_linear_speed)
         self.max_turn = min(config.limits.turn_rate, robot.max_angular_speed)
@@ -240,7 +252,7 @@ class DockingMission:
             v, w = self._guard_reverse(tick, v, w)
         if self.finished:
             return (0.0, 0.0)
-        self.command = law.limit_command(v, w, self.command, self.config, self.max_speed, self.max_turn)
+        self.command = self.law.limit_command(v, w, self.command, self.max_speed, self.max_turn)
         return self.command
 
     def _guard_reverse(self, tick: _Tick, v: float, w: float) -> tuple[float, float]:
@@ -262,7 +274,7 @@ class DockingMission:
                 f"reversed {reversed_by:.2f} m in one leg (max_reverse_distance {c.reverse.max_reverse_distance:g} m)",
             )
             return 0.0, 0.0
-        if tick.rear_range is not None and tick.rear_range < law.reverse_stopping_distance(abs(tick.odom.linear), c):
+        if tick.rear_range is not None and tick.rear_range < self.law.reverse_stopping_distance(abs(tick.odom.linear)):
             if leg.blocked_since is None:
                 leg.blocked_since = tick.now
                 self.obstacle_waits += 1
@@ -304,7 +316,7 @@ class DockingMission:
         now, odom = tick.now, tick.odom
         # Stand still, then take the median of a few frames: motion blur, latency and a wild frame stay
         # out of the plan. (A base whose odometry never reads still is taken as still after settle_timeout.)
-        if not law.is_still(odom, c) and now - self.state_since < c.settle.settle_timeout:
+        if not self.law.is_still(odom) and now - self.state_since < c.settle.settle_timeout:
             calc.samples.clear()
             return (0.0, 0.0)
         n = len(calc.samples)
@@ -337,7 +349,7 @@ class DockingMission:
     def _on_center(self, tick: _Tick) -> tuple[float, float]:
         """``CENTER``: turn to face the dock, then calculate again."""
         turn = self._data(_Centring)
-        done, w = law.turn_in_place(turn.heading, tick.odom, self.config, self.max_turn)
+        done, w = self.law.turn_in_place(turn.heading, tick.odom, self.max_turn)
         if done:
             self._enter(
                 tick.now, State.CALCULATE, "dock centred", _Calculating(heading_before_center=turn.heading_before)
@@ -359,25 +371,27 @@ class DockingMission:
     def _on_far_approach(self, tick: _Tick) -> tuple[float, float]:
         """``FAR_APPROACH``: one leg towards the staging point on the dock's axis, then face the dock again."""
         leg, c, pose = self._data(_FarLeg), self.config, tick.odom.pose
-        dock = self.track.mean
+        dock = self.dock.refined_pose(self.track)
         assert dock is not None
-        stage = staging_point(dock, c)
+        stage = self.dock.staging_pose(dock)
         if leg.step == "turn":
             if pose.distance(stage) < 0.05:
                 leg.step = "face"
             else:
-                done, w = law.turn_in_place(math.atan2(stage.y - pose.y, stage.x - pose.x), tick.odom, c, self.max_turn)
+                done, w = self.law.turn_in_place(
+                    math.atan2(stage.y - pose.y, stage.x - pose.x), tick.odom, self.max_turn
+                )
                 if not done:
                     return (0.0, w)
                 leg.step, leg.origin = "drive", pose
         if leg.step == "drive":
             assert leg.origin is not None
             target = leg_end(pose, stage, c.far.far_leg - leg.origin.distance(pose))
-            v, w, arrived = law.drive_straight(target, pose, False, c, self.max_speed)
+            v, w, arrived = self.law.drive_straight(target, pose, False, self.max_speed)
             if not arrived:
                 return (v, w)
             leg.step = "face"
-        done, w = law.turn_in_place(math.atan2(dock.y - pose.y, dock.x - pose.x), tick.odom, c, self.max_turn)
+        done, w = self.law.turn_in_place(math.atan2(dock.y - pose.y, dock.x - pose.x), tick.odom, self.max_turn)
         if done:
             self._enter(tick.now, State.CALCULATE, "facing the dock")
         return (0.0, w)
@@ -393,7 +407,7 @@ class DockingMission:
     def _on_moving1_turn(self, tick: _Tick) -> tuple[float, float]:
         """``MOVING1_TURN``: turn to the heading of the straight leg to Point A."""
         self._refine(tick.odom.pose, aim=True)
-        done, w = law.turn_in_place(self._targets.drive_heading, tick.odom, self.config, self.max_turn)
+        done, w = self.law.turn_in_place(self._targets.drive_heading, tick.odom, self.max_turn)
         if done:
             self._enter(tick.now, State.MOVING1_DRIVE)
         return (0.0, w)
@@ -402,7 +416,7 @@ class DockingMission:
         """``MOVING1_DRIVE``: drive straight to Point A, backwards when the plan says so."""
         self._refine(tick.odom.pose)
         t = self._targets
-        v, w, arrived = law.drive_straight(t.a, tick.odom.pose, t.reverse, self.config, self.max_speed)
+        v, w, arrived = self.law.drive_straight(t.a, tick.odom.pose, t.reverse, self.max_speed)
         if arrived:
             self._enter(tick.now, State.MOVING2)
             return (0.0, 0.0)
@@ -411,7 +425,7 @@ class DockingMission:
     def _on_moving2(self, tick: _Tick) -> tuple[float, float]:
         """``MOVING2``: turn to face the charger square, then start the approach."""
         self._refine(tick.odom.pose)
-        done, w = law.turn_in_place(self._targets.final_heading, tick.odom, self.config, self.max_turn)
+        done, w = self.law.turn_in_place(self._targets.final_heading, tick.odom, self.max_turn)
         if done:
             self.last_seen = max(self.last_seen, tick.now)  # the lost-markers clock starts when Moving₃ does
             self._enter(tick.now, State.MOVING3, phase=_Approaching(checked=False))
@@ -442,7 +456,7 @@ class DockingMission:
                 self.impact_speed = abs(odom.linear)
             self._enter(now, State.SETTLE, "contact" if tick.contact else "at the face by the estimate")
             return (0.0, 0.0)
-        ref = law.heading_reference(lateral, gap, c)
+        ref = self.law.heading_reference(lateral, gap)
         if not approach.checked and gap <= c.retry.checkpoint_gap:
             # The end of the early part: too far off the axis, or not following the reference, to finish well.
             approach.checked = True
@@ -451,7 +465,7 @@ class DockingMission:
             )
             if off and self.retries < c.retry.max_retries:
                 return self._retry(now, f"lateral {lateral * 100:+.1f} cm, heading {math.degrees(heading):+.1f} deg")
-        return law.approach_command(heading, ref, gap, c)
+        return self.law.approach_command(heading, ref, gap)
 
     def _on_recover(self, tick: _Tick) -> tuple[float, float]:
         """``RECOVER``: back off straight, then look again (Calculate, which re-acquires if nothing comes)."""
@@ -464,7 +478,7 @@ class DockingMission:
 
     def _on_settle(self, tick: _Tick) -> tuple[float, float]:
         """``SETTLE``: stand still at the face, then judge the final pose."""
-        if not law.is_still(tick.odom, self.config) and tick.now - self.state_since < self.config.settle.settle_timeout:
+        if not self.law.is_still(tick.odom) and tick.now - self.state_since < self.config.settle.settle_timeout:
             return (0.0, 0.0)
         return self._judge(tick.now, tick.odom.pose, tick.charging)
 
@@ -512,7 +526,7 @@ class DockingMission:
                     f"{self.config.reverse.max_reverse_distance:g} m",
                 )
             leg.target = tick.odom.pose.compose(Pose2D(-distance, 0.0, 0.0))
-        v, w, arrived = law.drive_straight(leg.target, tick.odom.pose, True, self.config, self.max_speed)
+        v, w, arrived = self.law.drive_straight(leg.target, tick.odom.pose, True, self.max_speed)
         if arrived:
             self._enter(tick.now, State.UNDOCKED, "at the staging pose")
             return (0.0, 0.0)
@@ -576,7 +590,7 @@ class DockingMission:
     def _reverse_leg(self, tick: _Tick) -> tuple[float, float] | None:
         """A straight reverse leg to the state's ``_Reversing`` target: the command, or None on arrival."""
         target = self._data(_Reversing).target
-        v, w, arrived = law.drive_straight(target, tick.odom.pose, True, self.config, self.max_speed)
+        v, w, arrived = self.law.drive_straight(target, tick.odom.pose, True, self.max_speed)
         return None if arrived else (v, w)
 
     def _refine(self, pose: Pose2D, *, aim: bool = False) -> None:
@@ -613,11 +627,7 @@ class DockingMission:
         c = self.config
         robot = self.track.robot_in_dock(pose)
         gap = -robot.x - self.robot.front_offset
-        ok = (
-            abs(robot.y) <= c.retry.tolerance_lateral
-            and abs(gap) <= c.retry.tolerance_longitudinal
-            and abs(robot.theta) <= math.radians(c.retry.tolerance_heading_deg)
-        )
+        ok = self.dock.is_docked(robot)
         summary = (
             f"lateral {robot.y * 100:+.1f} cm, gap {gap * 100:+.1f} cm, heading {math.degrees(robot.theta):+.1f} deg"
         )

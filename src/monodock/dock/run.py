@@ -64,7 +64,12 @@ def run_mission(
                 last_stamp = frame.stamp
                 observation = perceive(frame.stamp, frame.image)
         v, w = mission.step(
-            robot.now(), odom, observation, robot.contact(), charging=robot.charging(), rear_range=robot.rear_range()
+            robot.now(),
+            odom,
+            observation,
+            robot.contact(),
+            charging=mission.dock.is_charging(robot),
+            rear_range=robot.rear_range(),
         )
         robot.send_velocity(v, w)
         if on_tick is not None:

@@ -493,7 +493,7 @@ class DockActions:
                 if not mission.succeeded:
                     raise mission_error(mission, "undock")
                 log.info("Robot has reached staging pose")
-                if self.node.robot.charging():
+                if self.node.dock_for(dock_type).is_charging(self.node.robot):
                     raise FailedToControl("Failed to control off dock")
                 log.info("Robot has undocked!")
                 result.success = True

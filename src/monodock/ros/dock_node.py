@@ -47,6 +47,7 @@ from monodock.core.robot import RobotConfig
 from monodock.dock.config import DockingConfig, load_docking_config
 from monodock.dock.controller import DockingMission
 from monodock.dock.database import DockDatabase, DockType
+from monodock.dock.extensions import Dock
 from monodock.dock.interface import Odometry
 from monodock.dock.pose_filter import MeasurementNoise
 from monodock.dock.run import MissionResult, run_mission
@@ -56,6 +57,7 @@ from monodock.errors import ConfigError, InputError, MonodockError
 from monodock.estimation.estimator import Estimator
 from monodock.recording import messages as m
 from monodock.ros._rclpy import LifecycleNode, rclpy
+from monodock.ros.charging_dock import DockModel, already_docked, simple_charging_dock
 from monodock.ros.dock_actions import DOCK_ACTION, UNDOCK_ACTION, DockActions
 from monodock.ros.dock_database import declare_database, read_database
 from monodock.ros.dock_options import DockOptions
@@ -127,6 +129,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         self._on_mission_tick: Callable[[DockingMission], None] | None = None
         self.docked_at: Pose2D | None = None  # where (odometry) the last successful docking ended
         self.docked_type: DockType | None = None
+        self.dock_model: DockModel = simple_charging_dock  # another Dock plugs in here
         self._state = ""
         self._publish_state("idle")
         self.bond = ManagerBond(self, self.options.bond_heartbeat_period)
@@ -336,16 +339,14 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
     # --- the robot on its dock --------------------------------------------------------------
 
     def is_docked(self, dock_type: DockType) -> bool:
-        """Whether the robot stands on a dock of ``dock_type`` (SimpleChargingDock's ``isDocked() ||
-        isCharging()``): charging by the battery, the contact switch closed, or within ``docking_threshold`` (by
-        odometry) of where the last docking ended."""
-        signal = ChargingSignal(dock_type.charging_threshold, dock_type.use_battery_status)
-        if self.robot.charging(signal) or self.robot.contact():
-            return True
-        if self.docked_at is None or self.robot.odom.value is None:
-            return False
-        here = self.robot.odometry().pose
-        return math.hypot(here.x - self.docked_at.x, here.y - self.docked_at.y) < dock_type.docking_threshold
+        """Whether the robot stands on a dock of ``dock_type`` (``already_docked``: charging by ``dock_for``'s dock,
+        the contact switch closed, or within ``docking_threshold`` of where the last docking ended)."""
+        return already_docked(self.dock_for(dock_type), self.robot, self.docked_at, dock_type.docking_threshold)
+
+    def dock_for(self, dock_type: DockType, config: DockingConfig | None = None) -> Dock:
+        """The model of a dock of ``dock_type`` by ``dock_model`` (Nav2's dock plugin; ``SimpleChargingDock``)."""
+        robot = self.estimator.robot if self.estimator is not None else RobotConfig()
+        return self.dock_model(dock_type, config or self.docking_config(), robot.front_offset)
 
     def now(self) -> float:
         """The node's clock (ROS time), in seconds."""
@@ -442,7 +443,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
                 raise InputError(f"no odometry on {self.options.odom_topic}")
             robot.charging_signal = ChargingSignal(dock_type.charging_threshold, dock_type.use_battery_status)
             blind = blind_gap(estimator.camera, estimator.layout, estimator.robot)
-            mission = DockingMission(config, estimator.robot, blind, task=task)
+            mission = DockingMission(config, estimator.robot, blind, task=task, dock=self.dock_for(dock_type, config))
             self._stale_at_spin = None
             self._mission, self._stop_check, self._on_mission_tick = mission, stop_check, on_tick
             self._publish_state(mission.state.value)
