@@ -68,6 +68,6 @@ def test_half_the_p_gains_still_dock_within_the_tolerances(monkeypatch: pytest.M
     assert r.success, r.log
     assert r.charging is True
     assert not r.collided
-    assert abs(r.lateral_cm) <= 100 * c.tolerance_lateral
-    assert abs(r.longitudinal_cm) <= 100 * c.tolerance_longitudinal
-    assert abs(r.heading_deg) <= c.tolerance_heading_deg
+    assert abs(r.lateral_cm) <= 100 * c.retry.tolerance_lateral
+    assert abs(r.longitudinal_cm) <= 100 * c.retry.tolerance_longitudinal
+    assert abs(r.heading_deg) <= c.retry.tolerance_heading_deg
