@@ -294,7 +294,7 @@ class DockingMission:
     def _on_acquire(self, tick: _Tick) -> tuple[float, float]:
         """``ACQUIRE``: stand while the first frames arrive, then turn on the spot until a frame gives the dock."""
         c, looking = self.config, self._data(_Acquiring)
-        if self.track.mean is not None:
+        if self.dock.refined_pose(self.track) is not None:
             self._enter(tick.now, State.CALCULATE, "markers in view")
             self.track.reset()
             return (0.0, 0.0)
@@ -564,7 +564,8 @@ class DockingMission:
                 f"case {m.case} would reverse {longest:.2f} m in one leg "
                 f"(max_reverse_distance {self.config.reverse.max_reverse_distance:g} m)",
             )
-        dock = self.track.mean
+        dock = self.dock.refined_pose(self.track)
+        assert dock is not None
         self.manoeuvre = m
         if self.case is None:
             self.case = m.case
@@ -597,7 +598,7 @@ class DockingMission:
         """Moving₁ and Moving₂ follow the dock filter, which frames that see the dock keep refining: Point A and the
         last turn move with it; with ``aim`` (before the leg), monodock's and the turn-first plan's leg heading is
         aimed at the refined A again (the papers' leg keeps its heading: Moving₁ has no turn)."""
-        m, dock = self.manoeuvre, self.track.mean
+        m, dock = self.manoeuvre, self.dock.refined_pose(self.track)
         if not self.config.approach.refine_while_moving or m is None or dock is None:
             return
         a = dock.compose(m.point_a)
@@ -609,11 +610,11 @@ class DockingMission:
 
     def _retry(self, now: float, why: str) -> tuple[float, float]:
         """Start a retry: ``BACK_OFF`` to Point A, placed again from the filter's current dock pose."""
-        assert self.track.mean is not None
-        here = self.track.last_pose
+        dock, here = self.dock.refined_pose(self.track), self.track.last_pose
+        assert dock is not None
         assert here is not None
         self.retries += 1
-        a = self.track.mean.compose(point_a(self.config.planner, self.robot.front_offset))
+        a = dock.compose(point_a(self.config.planner, self.robot.front_offset))
         limit = self.config.reverse.max_reverse_distance
         if here.distance(a) > limit:  # no farther than a reverse leg may go: Calculate works from anywhere
             w = limit / here.distance(a)

@@ -33,7 +33,8 @@ class Dock(Protocol):
 
     def refined_pose(self, track: DockTrack) -> Pose2D | None:
         """The dock's pose in odometry as the sensors have refined it so far (``getRefinedPose``); None before any
-        frame has given it."""
+        frame has given it. The mission finds the dock by it (ACQUIRE), places Point A, the staging point and a
+        retry's back-off on it; the per-step errors of Moving₃ are the dock filter's own (``DockTrack``)."""
         ...
 
     def is_docked(self, pose: Pose2D) -> bool:
