@@ -64,6 +64,7 @@ def end_nodes(processes: Mapping[str, subprocess.Popen[str]], timeout: float) ->
             abort(process)
     for reader in readers:
         reader.join(timeout=10)
+    logs = {name: logs.get(name, "(its log was still being read 10 s after it ended)") for name in processes}
     for name, stacks in hung.items():
         logs[name] = f"{logs.get(name, '')}\nstill running {timeout:g} s after SIGTERM; its native stacks:\n{stacks}"
     return logs
