@@ -154,7 +154,9 @@ class SearchSettings:
         unit="°",
         help="give up searching after turning this far (`not-found`; `dock-lost` when it had seen the dock)",
     )
-    calculate_frames: int = setting(9, unit="frames", help="Calculate's median is over this many frames")
+    calculate_frames: int = setting(
+        9, range=(1, MAX_COUNT), unit="frames", help="Calculate's median is over this many frames"
+    )
     center_tolerance_deg: float = setting(
         5.0, unit="°", help="fewer than three markers and the dock this far off the heading: face it first"
     )

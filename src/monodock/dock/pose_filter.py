@@ -145,11 +145,13 @@ class OdometryNoise:
             standard deviation of each wheel's distance after one metre of random walk.
     """
 
-    track_width: float = setting(0.40, unit="m", help="the base's wheel track, for the odometry noise")
+    track_width: float = setting(0.40, unit="m", positive=True, help="the base's wheel track, for the odometry noise")
     wheel_scale_sd: float = setting(0.005, help="per-run relative error of a wheel's distance")
-    scale_correlation: float = setting(1.0, unit="m", help="distance over which that error is one random-walk step")
+    scale_correlation: float = setting(
+        1.0, unit="m", positive=True, help="distance over which that error is one random-walk step"
+    )
     wheel_noise_sd: float = setting(0.05, help="per-step relative noise of a wheel's speed")
-    noise_period: float = setting(0.005, unit="s", help="seconds between those noise draws")
+    noise_period: float = setting(0.005, unit="s", positive=True, help="seconds between those noise draws")
     floor_per_metre: float = setting(0.001, unit="m", help="unmodelled drift per metre driven, per wheel")
 
     def wheel_variance(self, distance: float, dt: float) -> float:
@@ -189,7 +191,7 @@ class FilterConfig:
     """The dock filter's odometry noise, outlier gate and reset rule."""
 
     odometry: OdometryNoise = section(OdometryNoise, help="the odometry noise of the dock filter")
-    gate_chi2: float = setting(GATE_CHI2_3DOF, help="the dock track's outlier gate (χ², 3 dof)")
+    gate_chi2: float = setting(GATE_CHI2_3DOF, positive=True, help="the dock track's outlier gate (χ², 3 dof)")
     reset_after_rejections: int = setting(8, unit="frames", help="that many gated frames in a row reset the track")
 
 
