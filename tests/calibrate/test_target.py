@@ -113,3 +113,27 @@ def test_cli_target_recording(tmp_path: pytest.TempPathFactory) -> None:
     assert abs(got["y"] - TRUE_LASER.y) < 0.01
     assert abs(got["z"] - TRUE_LASER.z) < 0.01
     assert abs(math.degrees(got["yaw"] - TRUE_LASER.yaw)) < 0.5
+
+
+@pytest.mark.parametrize(
+    ("text", "said"),
+    [
+        (
+            "dictionary: getPredefinedDictionary\n",
+            "dictionary: unknown ArUco dictionary 'getPredefinedDictionary' (e.g. DICT_4X4_50)",
+        ),
+        (
+            "markers: [{id: 20, s: 0.13, t: 0.13}, {id: 20, s: 0.37, t: 0.13}]\n",
+            "markers: marker ids must be distinct, got 20 more than once",
+        ),
+    ],
+)
+def test_a_target_file_with_a_bad_dictionary_or_a_repeated_id_is_one_line(
+    tmp_path: pytest.TempPathFactory, text: str, said: str
+) -> None:
+    """Not a traceback from OpenCV, and not a second marker silently found at the first one's corners."""
+    path = tmp_path / "target.yaml"  # type: ignore[operator]
+    path.write_text(text)
+    with pytest.raises(InputError) as caught:
+        DiamondTarget.load(path)
+    assert str(caught.value) == f"{path}: {said}"

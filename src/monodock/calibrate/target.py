@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from monodock.core.config import Fields, load_yaml
 from monodock.core.images import encode_png
+from monodock.core.layout import dictionary_problem
 from monodock.core.scan import LaserScan
 from monodock.core.settings import Policy, from_mapping, setting
 from monodock.errors import ConfigError, InputError
@@ -60,6 +61,9 @@ class _MarkerList:
             raise fields.error(key, "expected a list of {id, s, t}")
         items = [Fields(m, fields.source, f"{fields.prefix}{key}[{k}].") for k, m in enumerate(markers)]
         ids = [m.integer("id", minimum=0) for m in items]
+        repeated = sorted({i for i in ids if ids.count(i) > 1})
+        if repeated:  # each id places one marker: a second would be found at the first one's corners
+            raise fields.error(key, f"marker ids must be distinct, got {repeated[0]} more than once")
         within = (0.0, float(fields.data.get("side", _SIDE)))
         centres = [(m.number("s", within=within, unit="m"), m.number("t", within=within, unit="m")) for m in items]
         return tuple(TargetMarker(i, s, t) for i, (s, t) in zip(ids, centres, strict=True))
@@ -90,7 +94,7 @@ class DiamondTarget:
     # Big markers: the board's pose from the camera is what locates the edges, and 10 cm markers left the
     # laser's z and pitch 3-4 cm / 2-3 deg off; 16 cm ones (views within 1.3 m) bring them under 0.5 cm / 0.4 deg.
     marker_size: float = setting(0.16, range=(0.005, 2.0), unit="m")
-    dictionary: str = "DICT_4X4_50"
+    dictionary: str = setting("DICT_4X4_50", check=dictionary_problem)
     markers: tuple[TargetMarker, ...] = setting(
         (
             TargetMarker(20, 0.13, 0.13),

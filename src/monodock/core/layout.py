@@ -33,7 +33,7 @@ from monodock.core.config import Fields, load_yaml, write_text_atomic, yaml_text
 from monodock.core.settings import Policy, from_fields, from_mapping, setting, to_mapping
 from monodock.errors import ConfigError
 
-__all__ = ["FACE_R_MARKER", "MAX_MARKERS", "ROLES", "DockLayout", "MarkerSpec"]
+__all__ = ["FACE_R_MARKER", "MAX_MARKERS", "ROLES", "DockLayout", "MarkerSpec", "dictionary_problem"]
 
 # The papers' markers 1, 2, 3 from the robot's left to its right; marker 2 marks the docking point.
 ROLES: tuple[str, str, str] = ("left", "center", "right")
@@ -71,7 +71,8 @@ def _id_problem(marker_id: int) -> str | None:
     return f"must be at least 0, got {marker_id!r}" if marker_id < 0 else None
 
 
-def _dictionary_problem(name: str) -> str | None:
+def dictionary_problem(name: str) -> str | None:
+    """Why ``name`` is not an OpenCV predefined ArUco dictionary, or None (a settings ``check``)."""
     if name.startswith("DICT_") and hasattr(cv2.aruco, name):
         return None
     return f"unknown ArUco dictionary '{name}' (e.g. DICT_4X4_50)"
@@ -157,7 +158,7 @@ class DockLayout:
 
     SETTINGS: ClassVar[Policy] = Policy(what="layout", ignore=("survey",))
 
-    dictionary: str = setting(check=_dictionary_problem)
+    dictionary: str = setting(check=dictionary_problem)
     marker_size: float = setting(range=MARKER_SIZE_RANGE, unit="m")
     markers: tuple[MarkerSpec, ...] = setting(codec=_ByRole())
     # How far this print's black/white edges look moved towards the white in this camera's images, px (< 0: black
