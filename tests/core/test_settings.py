@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -207,16 +208,17 @@ def test_a_construct_time_rule_holds_for_code_and_files_alike_and_the_file_names
         Gadget(speed=0.0)
     with pytest.raises(ConfigError, match=r"^gadget: k_lateral must be positive, got -1.0$"):
         Gains(k_lateral=-1.0)
-    assert error_of(Gadget, {"speed": 0.0}) == "g.yaml: speed: speed must be positive, got 0.0"
-    assert error_of(Gadget, {"k_lateral": 0}) == "g.yaml: k_lateral: k_lateral must be positive, got 0.0"
+    # A declared rule broken in a file: its key and the rule, as a read-time error says them.
+    assert error_of(Gadget, {"speed": 0.0}) == "g.yaml: speed: must be positive, got 0.0"
+    assert error_of(Gadget, {"k_lateral": 0}) == "g.yaml: k_lateral: must be positive, got 0.0"
     with pytest.raises(ConfigError, match=r"^gadget: k_heading must not be negative, got -0.5$"):
         Gains(k_heading=-0.5)
     # A rule across fields: the key is the one value that breaks it among the defaults.
     assert error_of(Gadget, {"offset": 0.5}) == "g.yaml: offset: offset must not exceed speed"
     # ... and none when no single value does.
     assert error_of(Gadget, {"offset": 0.15, "speed": 0.1}) == "g.yaml: offset must not exceed speed"
-    # A nested section's own rule: its key under the section's.
-    assert error_of(Gadget, {"planner": {"legs": 7}}) == "g.yaml: planner.legs: planner: seven legs is unlucky"
+    # A nested section's own rule: its key under the section's, the section's name not said twice.
+    assert error_of(Gadget, {"planner": {"legs": 7}}) == "g.yaml: planner.legs: seven legs is unlucky"
 
 
 def test_check_fields_walks_the_sections_and_names_their_flat_keys() -> None:
@@ -238,6 +240,52 @@ def test_check_fields_walks_the_sections_and_names_their_flat_keys() -> None:
         Base(wheel=Wheel(width=0.0))
     with pytest.raises(ConfigError, match=r"^base: x.turns must be within 1 to 4, got 5$"):
         Base(spread=Wheel(turns=5))
+
+
+def test_a_spread_sections_name_as_a_key_says_where_its_keys_go() -> None:
+    assert error_of(Gadget, {"gains": {"k_lateral": 1.0}}) == (
+        "g.yaml: gains: not a key of this file: write its keys (k_lateral, k_heading) at the top level"
+    )
+
+
+def test_a_section_checked_by_its_parent_names_the_file_key_of_the_broken_rule() -> None:
+    @dataclass(frozen=True)
+    class Wheel:
+        width: float = setting(0.3, positive=True)
+
+    @dataclass(frozen=True)
+    class Base:
+        SETTINGS: ClassVar[Policy] = Policy(what="base", checks="construct", culprit=True)
+        wheel: Wheel = section(Wheel)
+
+        def __post_init__(self) -> None:
+            check_fields(self)
+
+    assert error_of(Base, {"wheel": {"width": 0.0}}, "b.yaml") == "b.yaml: wheel.width: must be positive, got 0.0"
+
+
+def test_integer_rules_hold_when_a_file_is_read() -> None:
+    @dataclass(frozen=True)
+    class Counts:
+        tries: int = setting(3, positive=True)
+        spare: int = setting(0, non_negative=True)
+
+    assert error_of(Counts, {"tries": 0}, "c.yaml") == "c.yaml: tries: must be positive, got 0"
+    assert error_of(Counts, {"spare": -1}, "c.yaml") == "c.yaml: spare: must not be negative, got -1"
+    assert from_mapping(Counts, {"tries": 1, "spare": 0}, "c.yaml") == Counts(1, 0)
+
+
+def test_settings_of_a_class_whose_section_has_no_default_uses_the_sections_own_defaults() -> None:
+    @dataclass(frozen=True)
+    class Arm:
+        name: str
+        mount: Noise
+
+    assert [(s.key, s.default) for s in settings_of(Arm)] == [
+        ("name", dataclasses.MISSING),
+        ("mount.sigma", 0.01),
+        ("mount.seeded", False),
+    ]
 
 
 def test_read_time_rules_ranges_with_units_required_keys_and_aliases() -> None:

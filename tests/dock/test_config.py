@@ -53,7 +53,7 @@ def test_a_partial_file_sets_only_its_keys_nested_ones_included(tmp_path: Path) 
         ({"cruise_speed": "fast"}, r"docking.yaml: cruise_speed: expected a number, got 'fast'"),
         ({"cruise_speed": float("nan")}, r"docking.yaml: cruise_speed: expected a finite number"),
         ({"cruise_speed": -0.1}, r"docking.yaml: cruise_speed: must be within 0 to 10000, got -0.1"),
-        ({"cruise_speed": 0.0}, r"docking.yaml: cruise_speed: cruise_speed must be positive, got 0.0"),
+        ({"cruise_speed": 0.0}, r"docking.yaml: cruise_speed: must be positive, got 0.0"),
         ({"cruise_speed": 1e300}, r"docking.yaml: cruise_speed: must be within 0 to 10000, got 1e\+300"),
         (
             {"max_retries": 10**40},

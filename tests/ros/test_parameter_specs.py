@@ -11,6 +11,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from shared import json_with_stand_ins
 
 GOLDEN = Path(__file__).parents[1] / "data" / "settings" / "ros_parameters.json"
@@ -45,3 +47,15 @@ def tables() -> dict[str, Any]:
 
 def test_every_node_parameter_is_declared_as_before() -> None:
     assert tables() == json.loads(GOLDEN.read_text(encoding="utf-8"))
+
+
+def test_an_integer_parameter_is_held_to_its_range_and_sign() -> None:
+    from monodock.errors import InputError
+    from monodock.ros.parameters import Parameter, checked
+
+    spec = Parameter("tries", bounds=(1.0, 10.0))
+    assert checked("tries", spec, 3, 1) == 3
+    with pytest.raises(InputError, match=r"^parameter tries must be from 1 to 10, got 0$"):
+        checked("tries", spec, 0, 1)
+    with pytest.raises(InputError, match=r"^parameter gap must be a finite number above 0, got -2$"):
+        checked("gap", Parameter("gap", positive=True), -2, 1)

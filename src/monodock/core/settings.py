@@ -274,8 +274,9 @@ def _settings(cls: type[Any]) -> tuple[Setting, ...]:
     def walk(c: type[Any], defaults: Any, path: tuple[str, ...], prefix: str) -> None:
         for f in _fields(c):
             value = getattr(defaults, f.name) if defaults is not None else f.default
-            if f.section is not None:
-                walk(f.section, value, (*path, f.name), f"{prefix}{f.key}." if f.key else prefix)
+            if f.section is not None:  # a section with no default: its fields' own defaults
+                below = None if value is MISSING else value
+                walk(f.section, below, (*path, f.name), f"{prefix}{f.key}." if f.key else prefix)
                 continue
             live = policy.live if f.meta.live is None else f.meta.live
             out.append(Setting((*path, f.name), f"{prefix}{f.key}", f.hint, value, f.meta, live))
@@ -364,7 +365,9 @@ def _read_value(f: Fields, key: str, fld: _Field, policy: Policy) -> Any:
             value = _strings(f, key)
         else:
             raise TypeError(f"{fld.name}: a {fld.hint!r} setting needs a codec")
-        if policy.checks == "read" and meta.non_negative and isinstance(value, float) and value < 0:
+        if policy.checks == "read" and kind == "int" and meta.positive and value <= 0:
+            raise f.error(key, f"must be positive, got {value!r}")
+        if policy.checks == "read" and meta.non_negative and kind in ("int", "float") and value < 0:
             raise f.error(key, f"must not be negative, got {value!r}")
     if meta.check is not None:
         problem = meta.check(value)
@@ -386,6 +389,16 @@ def _known(cls: type[Any]) -> list[str]:
             out.extend(_known(fld.section))
         else:
             out.append(fld.key)
+    return out
+
+
+def _spread_sections(cls: type[Any]) -> dict[str, type[Any]]:
+    """The sections whose keys stand in ``cls``'s own mapping, by attribute name (``limits``), nested ones too."""
+    out: dict[str, type[Any]] = {}
+    for fld in _fields(cls):
+        if fld.section is not None and fld.key == "":
+            out[fld.name] = fld.section
+            out.update(_spread_sections(fld.section))
     return out
 
 
@@ -432,6 +445,12 @@ def _check_unknown(cls: type[Any], f: Fields, policy: Policy) -> None:
     allowed = list(dict.fromkeys([*known, *_aliases(cls), *policy.ignore]))  # the keys, then the others read past
     if policy.unknown == "refuse":
         unknown = sorted(str(k) for k in f.data if k not in allowed)
+        spread = _spread_sections(cls)
+        if unknown and unknown[0] in spread:  # e.g. ``limits:``: its keys belong in this mapping itself
+            keys = _known(spread[unknown[0]])
+            where = f"under {f.prefix.rstrip('.')}" if f.prefix else "at the top level"
+            some = ", ".join(keys[:3]) + (", ..." if len(keys) > 3 else "")
+            raise f.error(unknown[0], f"not a key of this file: write its keys ({some}) {where}")
         if unknown:
             raise f.error(unknown[0], f"unknown key (known: {', '.join(known)})")
     else:
@@ -447,10 +466,14 @@ def _read(cls: type[Any], f: Fields, policy: Policy) -> Any:
 def _build(cls: type[Any], values: dict[str, Any], leaves: list[tuple[str, Any]], f: Fields, policy: Policy) -> Any:
     try:
         return cls(**values)
+    except RuleError as exc:  # the rule's own key, below this mapping's
+        raise ConfigError(f"{f.source}: {f.prefix}{exc.key}: {exc.problem}") from None
     except ConfigError as exc:
         text = str(exc)
         if policy.culprit:
             text = text.removeprefix(f"{policy.what}: ")
+            if f.prefix:  # a nested section's own name (``planner: ``): the culprit's key says it
+                text = text.removeprefix(f"{f.prefix.rstrip('.')}: ")
             raise ConfigError(f"{f.source}: {_culprit(cls, leaves, f.prefix)}{text}") from None
         if text.startswith(f"{f.source}:"):
             raise
@@ -700,19 +723,35 @@ def check_fields(obj: Any, what: str | None = None) -> None:
     _check(obj, what, "")
 
 
+class RuleError(ConfigError):
+    """A declared rule broken, from ``check_fields``: ``"{what}: {key} {problem}"``, with the key and the problem
+    apart, so that a file's reader can say ``source: key: problem`` as its read-time errors do."""
+
+    def __init__(self, what: str, key: str, problem: str) -> None:
+        super().__init__(f"{what}: {key} {problem}")
+        self.key = key
+        self.problem = problem
+
+
+def _rule_problem(meta: Meta, value: Any) -> str | None:
+    """What a number breaks of its field's ``positive``, ``non_negative`` and ``range``, else None."""
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return None
+    if meta.positive and not value > 0:
+        return f"must be positive, got {value}"
+    if meta.non_negative and not value >= 0:
+        return f"must not be negative, got {value}"
+    if meta.range is not None and not meta.range[0] <= value <= meta.range[1]:
+        return f"must be within {meta.range[0]:g} to {meta.range[1]:g}, got {value}"
+    return None
+
+
 def _check(obj: Any, what: str, prefix: str) -> None:
     for fld in _fields(type(obj)):
         value = getattr(obj, fld.name)
         if fld.section is not None:
             _check(value, what, f"{prefix}{fld.key}." if fld.key else prefix)
             continue
-        if not isinstance(value, int | float) or isinstance(value, bool):
-            continue
-        key = f"{prefix}{fld.key}"
-        if fld.meta.positive and not value > 0:
-            raise ConfigError(f"{what}: {key} must be positive, got {value}")
-        if fld.meta.non_negative and not value >= 0:
-            raise ConfigError(f"{what}: {key} must not be negative, got {value}")
-        if fld.meta.range is not None and not fld.meta.range[0] <= value <= fld.meta.range[1]:
-            low, high = fld.meta.range
-            raise ConfigError(f"{what}: {key} must be within {low:g} to {high:g}, got {value}")
+        problem = _rule_problem(fld.meta, value)
+        if problem:
+            raise RuleError(what, f"{prefix}{fld.key}", problem)

@@ -172,6 +172,7 @@ def checked(name: str, spec: Parameter, value: Any, default: Any) -> Any:
     if isinstance(default, int):
         if isinstance(value, bool) or not isinstance(value, int):
             raise InputError(f"parameter {name} is an integer, got {value!r}")
+        _number(name, spec, value)  # its range and sign, as a real's
         return value
     if spec.strings:
         items = list(value) if isinstance(value, list | tuple) else None
