@@ -37,7 +37,7 @@ from monodock.compute import active_client
 from monodock.core.interrupt import sigint_blocked
 from monodock.errors import InputError
 from monodock.learning.regressors import SEARCH_SPACES, make_regressor, resolve_draw
-from monodock.learning.tasks import Task, TrainConfig, TrainingSet, make_tasks, stable_seed
+from monodock.learning.tasks import Task, TaskIdentity, TrainConfig, TrainingSet, make_tasks, stable_seed
 from monodock.learning.treefit import lean_predict
 
 __all__ = [
@@ -73,17 +73,12 @@ class ModelScore:
 
 
 @dataclass(frozen=True)
-class TaskResult:
+class TaskResult(TaskIdentity):
     """One training task's outcome: the global depth model or one segment's angle model of one set.
 
+    Its TaskIdentity fields are its task's.
+
     Attributes:
-        set_name: The TrainingSet's name.
-        target: "depth" (metres) or "yaw_deg" (degrees).
-        segment: The segment index for angle models, None for the depth model.
-        n_own: Rows of the segment itself (all rows for depth).
-        borrowed: (first, last) segment of the window whose rows were used, inclusive, when the segment had to
-            borrow from its neighbours; else None.
-        sources: The segments that actually contributed rows (empty for the depth model, which uses every row).
         n_rows: Rows used after borrowing (the paper's N).
         n_train: Rows of the training split.
         n_test: Rows of the test split.
@@ -96,12 +91,6 @@ class TaskResult:
         reason: Why there is no model (None when there is one).
     """
 
-    set_name: str
-    target: str
-    segment: int | None
-    n_own: int
-    borrowed: tuple[int, int] | None
-    sources: tuple[int, ...]
     n_rows: int
     n_train: int
     n_test: int
