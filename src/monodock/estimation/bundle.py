@@ -17,18 +17,15 @@ import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Final, Literal, cast
+from typing import Any, Final, cast
 
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.core.camera import CameraModel
 from monodock.core.config import load_json
-from monodock.core.layout import DockLayout
-from monodock.core.robot import RobotConfig
-from monodock.core.settings import from_mapping
 from monodock.errors import ConfigError, InputError
 from monodock.estimation.bundle_format import BundleMetadata, Manifest, ModelEntry, SetEntry
+from monodock.estimation.calibration_records import CalibrationRecords, RecordKey
 from monodock.estimation.fused import FusionTables
 from monodock.estimation.segments import SegmentTable
 from monodock.perception.features import MARKER_SETS, MODEL_FEATURE_SCHEMA, model_feature_names
@@ -207,7 +204,7 @@ def _open_models(
     return depth, yaw
 
 
-class Bundle:
+class Bundle(CalibrationRecords):
     """A loaded model bundle: predicts depth (m) and per-segment yaw (deg) with ONNX Runtime, one thread."""
 
     manifest: Manifest
@@ -274,22 +271,14 @@ class Bundle:
         """``bundle.json``'s metadata: the calibration, feature schema, labels and the fused method's tables."""
         return self.manifest["metadata"]
 
-    def _meta(self, key: Literal["camera", "layout", "robot"]) -> dict[str, Any]:
+    # camera(), layout() and robot(): CalibrationRecords, from these two.
+    def _meta(self, key: RecordKey) -> dict[str, Any]:
         if key not in self.metadata:
             raise InputError(f"{self.path}: {BUNDLE_FILE} has no '{key}' in its metadata")
         return self.metadata[key]
 
-    def camera(self) -> CameraModel:
-        """The camera the models were trained with (its camera_info)."""
-        return CameraModel.from_ros_dict(self._meta("camera"), f"{self.path}: camera")
-
-    def layout(self) -> DockLayout:
-        """The dock layout the models were trained for."""
-        return from_mapping(DockLayout, self._meta("layout"), f"{self.path}: layout")
-
-    def robot(self) -> RobotConfig:
-        """The robot (camera and LiDAR mounts) the training drive was recorded with."""
-        return from_mapping(RobotConfig, self._meta("robot"), f"{self.path}: robot")
+    def _record_name(self, key: RecordKey) -> str:
+        return f"{self.path}: {key}"
 
     @property
     def has_fusion_tables(self) -> bool:

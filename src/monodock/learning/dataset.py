@@ -42,8 +42,9 @@ from monodock.core.frame import Frame
 from monodock.core.layout import DockLayout
 from monodock.core.records import to_record
 from monodock.core.robot import RobotConfig
-from monodock.core.settings import from_mapping, to_mapping
+from monodock.core.settings import to_mapping
 from monodock.errors import ConfigError, InputError
+from monodock.estimation.calibration_records import CalibrationRecords
 from monodock.learning.label import LABEL_COLUMNS, LidarLabel, label_frame
 from monodock.perception.detect import MarkerDetector, as_gray
 from monodock.perception.features import FEATURE_NAMES, REFINED_CORNER_NAMES, feature_vector, refined_vector
@@ -98,7 +99,7 @@ def _arrow_type(name: str) -> pa.DataType:
 
 
 @dataclass
-class Dataset:
+class Dataset(CalibrationRecords):
     """A dataset in memory: columns by name (numpy arrays) and the metadata of its labelling run."""
 
     columns: dict[str, NDArray[Any]]
@@ -123,22 +124,14 @@ class Dataset:
         """The dataset of some rows (a boolean mask or indices), with the same metadata."""
         return Dataset({n: np.asarray(v)[rows] for n, v in self.columns.items()}, dict(self.metadata), self.source)
 
-    def camera(self) -> CameraModel:
-        """The camera the features were measured with (validated like a camera file)."""
-        return CameraModel.from_ros_dict(self._meta("camera"), f"{self.source}: metadata camera")
-
-    def robot(self) -> RobotConfig:
-        """The robot's mounts the labels were made with."""
-        return from_mapping(RobotConfig, self._meta("robot"), f"{self.source}: metadata robot")
-
-    def layout(self) -> DockLayout:
-        """The dock layout the features were measured on."""
-        return from_mapping(DockLayout, self._meta("layout"), f"{self.source}: metadata layout")
-
+    # camera(), layout() and robot(): CalibrationRecords, from these two.
     def _meta(self, key: str) -> Any:
         if key not in self.metadata:
             raise InputError(f"{self.source}: its metadata has no '{key}'")
         return self.metadata[key]
+
+    def _record_name(self, key: str) -> str:
+        return f"{self.source}: metadata {key}"
 
 
 def write_dataset(path: str | os.PathLike[str], dataset: Dataset, *, force: bool = False) -> None:

@@ -21,7 +21,7 @@ from monodock.errors import ConfigError, InputError
 from monodock.estimation.segments import SegmentTable
 from monodock.learning.regressors import LEAF_BUDGET_ANGLE, LEAF_BUDGET_DEPTH, MODEL_NAMES
 
-__all__ = ["Task", "TrainConfig", "TrainingSet", "make_tasks", "segment_quota", "stable_seed"]
+__all__ = ["Task", "TaskIdentity", "TrainConfig", "TrainingSet", "make_tasks", "segment_quota", "stable_seed"]
 
 _SET_NAME = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
@@ -124,16 +124,32 @@ def stable_seed(*parts: int | str) -> int:
 
 
 @dataclass(frozen=True)
-class Task:
-    """One (set, target, segment) problem with its rows and split, before any fit."""
+class TaskIdentity:
+    """Which (set, target, segment) problem a task is and where its rows come from; its result carries the same.
 
-    set_index: int
+    Attributes:
+        set_name: The TrainingSet's name.
+        target: "depth" (metres) or "yaw_deg" (degrees).
+        segment: The segment index for angle models, None for the depth model.
+        n_own: Rows of the segment itself (all rows for depth).
+        borrowed: (first, last) segment of the window whose rows were used, inclusive, when the segment had to
+            borrow from its neighbours; else None.
+        sources: The segments that actually contributed rows (empty for the depth model, which uses every row).
+    """
+
     set_name: str
     target: str
     segment: int | None
     n_own: int
     borrowed: tuple[int, int] | None
     sources: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Task(TaskIdentity):
+    """One (set, target, segment) problem with its rows and split, before any fit."""
+
+    set_index: int
     rows: NDArray[np.int64]
     leaf_budget: int
     train_rows: NDArray[np.int64]

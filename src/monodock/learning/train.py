@@ -37,7 +37,7 @@ from monodock.compute import active_client
 from monodock.core.interrupt import sigint_blocked
 from monodock.errors import InputError
 from monodock.learning.regressors import SEARCH_SPACES, make_regressor, resolve_draw
-from monodock.learning.tasks import Task, TrainConfig, TrainingSet, make_tasks, stable_seed
+from monodock.learning.tasks import Task, TaskIdentity, TrainConfig, TrainingSet, make_tasks, stable_seed
 from monodock.learning.treefit import lean_predict
 
 __all__ = [
@@ -73,17 +73,12 @@ class ModelScore:
 
 
 @dataclass(frozen=True)
-class TaskResult:
+class TaskResult(TaskIdentity):
     """One training task's outcome: the global depth model or one segment's angle model of one set.
 
+    Its TaskIdentity fields are its task's.
+
     Attributes:
-        set_name: The TrainingSet's name.
-        target: "depth" (metres) or "yaw_deg" (degrees).
-        segment: The segment index for angle models, None for the depth model.
-        n_own: Rows of the segment itself (all rows for depth).
-        borrowed: (first, last) segment of the window whose rows were used, inclusive, when the segment had to
-            borrow from its neighbours; else None.
-        sources: The segments that actually contributed rows (empty for the depth model, which uses every row).
         n_rows: Rows used after borrowing (the paper's N).
         n_train: Rows of the training split.
         n_test: Rows of the test split.
@@ -96,12 +91,6 @@ class TaskResult:
         reason: Why there is no model (None when there is one).
     """
 
-    set_name: str
-    target: str
-    segment: int | None
-    n_own: int
-    borrowed: tuple[int, int] | None
-    sources: tuple[int, ...]
     n_rows: int
     n_train: int
     n_test: int
@@ -254,17 +243,11 @@ def _rank(s: _Score, models: Sequence[str]) -> tuple[float, int, int]:
     return mse, models.index(s.model), s.trial
 
 
-def _fit_task(
-    batch: _Batch,
-    X_train: NDArray[np.float64],
-    y_train: NDArray[np.float64],
-    X_svr: NDArray[np.float64],
-    y_svr: NDArray[np.float64],
-    X_test: NDArray[np.float64],
-    y_test: NDArray[np.float64],
-    *,
-    lean: bool = True,
-) -> _TaskOutcome:
+# (X, y) of some of a task's rows: its training split, SVR's (a subsample of that on large tasks) or its test split.
+_Rows = tuple[NDArray[np.float64], NDArray[np.float64]]
+
+
+def _fit_task(batch: _Batch, train: _Rows, svr: _Rows, test: _Rows, *, lean: bool = True) -> _TaskOutcome:
     """Fit every draw of one task and score each on the test split (runs in a worker process).
 
     Forest and boosting draws are scored through ``learning.treefit`` (the same predictions for less). The best
@@ -277,6 +260,7 @@ def _fit_task(
     from sklearn.exceptions import ConvergenceWarning, UndefinedMetricWarning
     from sklearn.metrics import mean_squared_error, r2_score
 
+    (X_train, y_train), (X_test, y_test) = train, test
     scores: list[_Score] = []
     best: tuple[_Score, _Draw, Any, NDArray[np.float64]] | None = None
     best_lean: tuple[_Score, _Draw, Any, NDArray[np.float64]] | None = None
@@ -292,7 +276,7 @@ def _fit_task(
         warnings.simplefilter("ignore", ConvergenceWarning)
         warnings.simplefilter("ignore", UndefinedMetricWarning)
         for draw in batch.draws:
-            X, y = (X_svr, y_svr) if draw.model == "svr" else (X_train, y_train)
+            X, y = svr if draw.model == "svr" else train
             t0, c0 = time.perf_counter(), time.process_time()
             est: Any = None
             found = lean_predict(draw.model, draw.params, draw.random_state, X, y, X_test) if lean else None
@@ -319,7 +303,7 @@ def _fit_task(
             _, draw, _, pred = best_lean
             check = make_regressor(draw.model, draw.params, draw.random_state).fit(X_train, y_train)
             if not np.array_equal(np.asarray(check.predict(X_test), dtype=np.float64), pred):
-                again = _fit_task(batch, X_train, y_train, X_svr, y_svr, X_test, y_test, lean=False)
+                again = _fit_task(batch, train, svr, test, lean=False)
                 return replace(again, rescored=True)
             if best[0] is best_lean[0]:
                 best = (best[0], draw, check, pred)
@@ -342,14 +326,14 @@ def _run(
     progress: bool,
 ) -> Generator[_TaskOutcome, None, None]:
 
-    def args(batch: _Batch) -> tuple[Any, ...]:
+    def args(batch: _Batch) -> tuple[_Batch, _Rows, _Rows, _Rows]:
         t = tasks[batch.task]
         X32, s = data[t.set_index]
         y = s.depth if t.target == "depth" else s.yaw_deg
-        X_train, y_train = X32[t.train_rows], y[t.train_rows]
+        train = X32[t.train_rows], y[t.train_rows]
         # The same arrays when SVR sees every training row: pickled once.
-        X_svr, y_svr = (X_train, y_train) if t.svr_rows is t.train_rows else (X32[t.svr_rows], y[t.svr_rows])
-        return batch, X_train, y_train, X_svr, y_svr, X32[t.test_rows], y[t.test_rows]
+        svr = train if t.svr_rows is t.train_rows else (X32[t.svr_rows], y[t.svr_rows])
+        return batch, train, svr, (X32[t.test_rows], y[t.test_rows])
 
     order = sorted(batches, key=lambda b: -b.cost)
     with tqdm(
