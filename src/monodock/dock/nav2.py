@@ -11,6 +11,7 @@ node reports a goal the server refused or never got. The exception types are tho
 from __future__ import annotations
 
 from enum import IntEnum
+from typing import Any
 
 from monodock.errors import MonodockError
 
@@ -70,51 +71,48 @@ class FeedbackState(IntEnum):
 
 
 class DockingError(MonodockError):
-    """A docking goal that failed, with the result code it ends with (``opennav_docking_core::DockingException``)."""
+    """A docking goal that failed, with the result code it ends with (``opennav_docking_core::DockingException``).
+
+    A subclass names its code in its header (``class FailedToStage(DockingError, code=Nav2Code.FAILED_TO_STAGE)``),
+    which makes it the exception type of that code for ``docking_error``.
+    """
 
     code = Nav2Code.UNKNOWN
 
+    def __init_subclass__(cls, code: Nav2Code | None = None, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if code is not None:
+            cls.code = code
+            _BY_CODE[code] = cls
 
-class DockNotInDB(DockingError):  # noqa: N818 - opennav_docking_core's name
+
+# Each code's exception type, filled as the types are declared: the one table is Nav2Code and each type's ``code``.
+_BY_CODE: dict[Nav2Code, type[DockingError]] = {}
+
+
+# opennav_docking_core's names, which do not end in Error (hence the noqa: N818).
+class DockNotInDB(DockingError, code=Nav2Code.DOCK_NOT_IN_DB):  # noqa: N818
     """The goal's ``dock_id`` is not in the dock database."""
 
-    code = Nav2Code.DOCK_NOT_IN_DB
 
-
-class DockNotValid(DockingError):  # noqa: N818 - opennav_docking_core's name
+class DockNotValid(DockingError, code=Nav2Code.DOCK_NOT_VALID):  # noqa: N818
     """The dock's type has no plugin (no dock type of that name), or there is nothing to undock from."""
 
-    code = Nav2Code.DOCK_NOT_VALID
 
-
-class FailedToStage(DockingError):  # noqa: N818 - opennav_docking_core's name
+class FailedToStage(DockingError, code=Nav2Code.FAILED_TO_STAGE):  # noqa: N818
     """The staging pose was not reached: navigation failed, timed out (``max_staging_time``) or was preempted."""
 
-    code = Nav2Code.FAILED_TO_STAGE
 
-
-class FailedToDetectDock(DockingError):  # noqa: N818 - opennav_docking_core's name
+class FailedToDetectDock(DockingError, code=Nav2Code.FAILED_TO_DETECT_DOCK):  # noqa: N818
     """The dock was not seen (initial perception) or was lost on the way in."""
 
-    code = Nav2Code.FAILED_TO_DETECT_DOCK
 
-
-class FailedToControl(DockingError):  # noqa: N818 - opennav_docking_core's name
+class FailedToControl(DockingError, code=Nav2Code.FAILED_TO_CONTROL):  # noqa: N818
     """The robot could not be driven onto (or off) the dock: time-outs, tolerances, obstacles."""
 
-    code = Nav2Code.FAILED_TO_CONTROL
 
-
-class FailedToCharge(DockingError):  # noqa: N818 - opennav_docking_core's name
+class FailedToCharge(DockingError, code=Nav2Code.FAILED_TO_CHARGE):  # noqa: N818
     """On the contacts, charging never started."""
-
-    code = Nav2Code.FAILED_TO_CHARGE
-
-
-# Each code's exception type, from the types themselves: the one table is Nav2Code and each type's ``code``.
-_BY_CODE: dict[Nav2Code, type[DockingError]] = {
-    t.code: t for t in (DockNotInDB, DockNotValid, FailedToStage, FailedToDetectDock, FailedToControl, FailedToCharge)
-}
 
 
 def docking_error(code: Nav2Code, message: str) -> DockingError:

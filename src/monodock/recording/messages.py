@@ -494,18 +494,21 @@ def encode_image(image: NDArray[np.uint8], encoding: str, stamp: float, frame_id
 # --- LiDAR ----------------------------------------------------------------------------------------
 
 
+# The real-valued fields of a scan's geometry and timing, of the same names in LaserScan and sensor_msgs/LaserScan.
+_SCAN_REALS = ("angle_min", "angle_max", "angle_increment", "time_increment", "scan_time", "range_min", "range_max")
+
+
+def _scan_reals(scan: Any) -> dict[str, float]:
+    """``_SCAN_REALS`` of a LaserScan or a sensor_msgs/LaserScan, as floats."""
+    return {name: float(getattr(scan, name)) for name in _SCAN_REALS}
+
+
 def scan_msg(scan: LaserScan) -> Any:
     """sensor_msgs/LaserScan of a scan; NaN and +-inf ranges kept as they are (REP 117)."""
     ts = humble_typestore()
     return ts.types[LASER_SCAN](
         header=_header(ts, scan.stamp, scan.frame_id),
-        angle_min=float(scan.angle_min),
-        angle_max=float(scan.angle_max),
-        angle_increment=float(scan.angle_increment),
-        time_increment=float(scan.time_increment),
-        scan_time=float(scan.scan_time),
-        range_min=float(scan.range_min),
-        range_max=float(scan.range_max),
+        **_scan_reals(scan),
         ranges=np.asarray(scan.ranges, dtype=np.float32),
         intensities=np.zeros(0, dtype=np.float32),
     )
@@ -516,12 +519,6 @@ def scan_from_msg(msg: Any) -> LaserScan:
     return LaserScan(
         stamp=header_stamp(msg),
         frame_id=str(msg.header.frame_id),
-        angle_min=float(msg.angle_min),
-        angle_max=float(msg.angle_max),
-        angle_increment=float(msg.angle_increment),
-        time_increment=float(msg.time_increment),
-        scan_time=float(msg.scan_time),
-        range_min=float(msg.range_min),
-        range_max=float(msg.range_max),
+        **_scan_reals(msg),
         ranges=np.array(msg.ranges, dtype=np.float32),
     )

@@ -99,7 +99,7 @@ class Bond:
         """Start publishing and listening; the connect time-out runs from here (``Bond::start``)."""
         with self._lock:
             self._started = True
-            self._timer("connect", self.connect_timeout, self._on_connect_timeout)
+            self._timeout("connect", self.connect_timeout)
             self._timer("publishing", self.heartbeat_period, self._do_publishing)
 
     def break_bond(self) -> None:
@@ -146,21 +146,14 @@ class Bond:
         if answer_death:
             self._publish(False)
 
-    def _on_connect_timeout(self) -> None:
-        self._cancel("connect")
-        with self._lock:
-            self._event("connect_timeout")
-
-    def _on_heartbeat_timeout(self) -> None:
-        if self.disable_heartbeat_timeout:
+    def _on_timeout(self, name: str) -> None:
+        """The ``name`` time-out (connect, heartbeat, disconnect) expired: BondSM's ``<name>_timeout`` event. Each
+        fires once: its event ends the wait it times (a heartbeat restarts the heartbeat time-out afresh)."""
+        if name == "heartbeat" and self.disable_heartbeat_timeout:
             return
         with self._lock:
-            self._event("heartbeat_timeout")
-
-    def _on_disconnect_timeout(self) -> None:
-        self._cancel("disconnect")
-        with self._lock:
-            self._event("disconnect_timeout")
+            self._cancel(name)
+            self._event(f"{name}_timeout")
 
     def _do_publishing(self) -> None:
         """``Bond::doPublishing``: alive (or waiting) says so, a dying side says it is not, a dead one stops."""
@@ -190,7 +183,7 @@ class Bond:
                 self._death()
         elif state is alive:
             if event == "sister_alive":
-                self._timer("heartbeat", self.heartbeat_timeout, self._on_heartbeat_timeout)  # Heartbeat()
+                self._timeout("heartbeat", self.heartbeat_timeout)  # Heartbeat()
             elif event in ("sister_dead", "heartbeat_timeout"):
                 self.state = BondState.DEAD
                 self.sister_died_first = self.sister_died_first or event == "sister_dead"
@@ -198,7 +191,7 @@ class Bond:
             elif event == "die":
                 self.state = BondState.AWAIT_SISTER_DEATH  # StartDying()
                 self._cancel("heartbeat")
-                self._timer("disconnect", self.disconnect_timeout, self._on_disconnect_timeout)
+                self._timeout("disconnect", self.disconnect_timeout)
                 self._timer("dead_publishing", self.dead_publish_period, self._do_publishing)
         elif state is BondState.AWAIT_SISTER_DEATH and event in ("sister_dead", "disconnect_timeout"):
             self.state = BondState.DEAD
@@ -229,6 +222,10 @@ class Bond:
         """(Re)start a steady-clock timer, as bondcpp's wall timers."""
         self._cancel(name)
         self._timers[name] = self.node.create_timer(period, callback, clock=self._steady)
+
+    def _timeout(self, name: str, period: float) -> None:
+        """(Re)start the ``name`` time-out: ``_on_timeout(name)`` after ``period``."""
+        self._timer(name, period, lambda: self._on_timeout(name))
 
     def _cancel(self, name: str) -> None:
         timer = self._timers.pop(name, None)

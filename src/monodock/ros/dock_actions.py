@@ -47,6 +47,7 @@ import contextlib
 import math
 import threading
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from monodock.core.pose2d import Pose2D
@@ -284,68 +285,80 @@ class DockActions:
             self.mutex.release()
         return response
 
+    # --- a goal of either action -------------------------------------------------------------
+
+    def _execute(
+        self, task: str, handle: Any, run: Callable[[Any, Any], Any], before: Callable[[], None] | None = None
+    ) -> Any:
+        """One goal of ``task``'s server, start to end, in one of the actions' executor threads, under the lock that
+        keeps the other server's goals out: ``before()``, the server's checks (inactive, cancelled, preempted), then
+        ``run(handle, result)``, which returns the result; a DockingError it raises ends the goal with its code (any
+        other monodock error with UNKNOWN). Then the pending goal, if any, executes."""
+        slots, Result = self.slots[task], self._types[task].Result
+        try:
+            result = Result()
+            result.success = False
+            with self.mutex:
+                if before is not None:
+                    before()
+                if not self.node.active:
+                    return result
+                if slots.cancel_requested():
+                    slots.terminate_all(handle, result)
+                    return result
+                if slots.preempt_requested():  # a newer goal came before this one started: it runs instead
+                    handle.abort()
+                    return Result()
+                try:
+                    return run(handle, result)
+                except DockingError as exc:
+                    result.error_code, result.error_msg = int(exc.code), str(exc)
+                except MonodockError as exc:
+                    result.error_code, result.error_msg = int(Nav2Code.UNKNOWN), str(exc)
+                self.node.get_logger().error(result.error_msg)
+                _settle(handle)  # terminate_current
+                return result
+        finally:
+            slots.finished()
+
     # --- DockRobot --------------------------------------------------------------------------
 
     def _execute_dock(self, handle: Any) -> Any:
-        try:
-            return self._dock(handle)
-        finally:
-            self.slots["dock"].finished()
+        return self._execute("dock", handle, self._dock, self._start_feedback)
 
-    def _dock(self, handle: Any) -> Any:
-        """``dockRobot``: one goal, start to end, in one of the actions' executor threads."""
-        slots, Result = self.slots["dock"], self._types["dock"].Result
-        result = Result()
-        result.success = False
-        with self.mutex:
-            self._goal_start = self._clock_now()
-            self._feedback_at = (-math.inf, -1)
-            if not self.node.active:
-                return result
-            if slots.cancel_requested():
-                slots.terminate_all(handle, Result())
-                return Result()
-            if slots.preempt_requested():  # a newer goal came before this one started: it runs instead
-                handle.abort()
-                return Result()
-            goal = handle.request
-            retries = [0]
-            try:
-                dock, dock_type = self._find_dock(goal)
-                if self.node.is_docked(dock_type):
-                    self.node.get_logger().info(
-                        "Robot is already docked and/or charging (if applicable), no need to dock"
-                    )
-                    result.success = True
-                    handle.succeed()
-                    return result
-                self._feedback(handle, FeedbackState.NAV_TO_STAGING_POSE, 0)
-                self._stage(goal, dock, dock_type)
-                mission = self.node.run_mission(
-                    "dock",
-                    dock_type,
-                    dock.layout,
-                    stop_check=self._dock_stop_check(goal),
-                    on_tick=lambda ms: self._on_dock_tick(handle, ms, retries),
-                )
-                result.num_retries = mission.retries
-                if mission.succeeded:
-                    self.node.get_logger().info("Robot is charging!" if mission.charging else "Docking was successful!")
-                    result.success = True
-                    handle.succeed()
-                    return result
-                if mission.failure is FailureReason.CANCELLED:  # cancelled, preempted, or shutting down
-                    slots.terminate_all(handle, result)
-                    return result
-                raise mission_error(mission, "dock")
-            except DockingError as exc:
-                result.error_code, result.error_msg = int(exc.code), str(exc)
-            except MonodockError as exc:
-                result.error_code, result.error_msg = int(Nav2Code.UNKNOWN), str(exc)
-            self.node.get_logger().error(result.error_msg)
-            result.num_retries = max(result.num_retries, retries[0])
-            _settle(handle)  # terminate_current
+    def _start_feedback(self) -> None:
+        """A dock goal's ``docking_time`` runs from here, and its first feedback is sent whatever its state."""
+        self._goal_start = self._clock_now()
+        self._feedback_at = (-math.inf, -1)
+
+    def _dock(self, handle: Any, result: Any) -> Any:
+        """``dockRobot``: the goal's dock, staging, and the mission (its retries in the result as they happen)."""
+        goal = handle.request
+        dock, dock_type = self._find_dock(goal)
+        if self.node.is_docked(dock_type):
+            self.node.get_logger().info("Robot is already docked and/or charging (if applicable), no need to dock")
+            result.success = True
+            handle.succeed()
             return result
+        self._feedback(handle, FeedbackState.NAV_TO_STAGING_POSE, 0)
+        self._stage(goal, dock, dock_type)
+        mission = self.node.run_mission(
+            "dock",
+            dock_type,
+            dock.layout,
+            stop_check=self._dock_stop_check(goal),
+            on_tick=lambda ms: self._on_dock_tick(handle, ms, result),
+        )
+        result.num_retries = mission.retries
+        if mission.succeeded:
+            self.node.get_logger().info("Robot is charging!" if mission.charging else "Docking was successful!")
+            result.success = True
+            handle.succeed()
+            return result
+        if mission.failure is FailureReason.CANCELLED:  # cancelled, preempted, or shutting down
+            self.slots["dock"].terminate_all(handle, result)
+            return result
+        raise mission_error(mission, "dock")
 
     def _find_dock(self, goal: Any) -> tuple[DockInstance, DockType]:
         """The goal's dock: by id from the database, or at the goal's pose (234-247)."""
@@ -423,8 +436,8 @@ class DockActions:
 
         return check
 
-    def _on_dock_tick(self, handle: Any, mission: DockingMission, retries: list[int]) -> None:
-        retries[0] = mission.retries
+    def _on_dock_tick(self, handle: Any, mission: DockingMission, result: Any) -> None:
+        result.num_retries = mission.retries  # a mission that fails by raising has counted its retries so far
         if not mission.finished:  # the result says how it ended
             self._feedback(handle, feedback_state(mission.state), mission.retries)
 
@@ -446,66 +459,42 @@ class DockActions:
     # --- UndockRobot ------------------------------------------------------------------------
 
     def _execute_undock(self, handle: Any) -> Any:
-        try:
-            return self._undock(handle)
-        finally:
-            self.slots["undock"].finished()
+        return self._execute("undock", handle, self._undock)
 
-    def _undock(self, handle: Any) -> Any:
-        """``undockRobot``: one goal, start to end."""
-        slots, Result = self.slots["undock"], self._types["undock"].Result
-        result = Result()
-        result.success = False
-        with self.mutex:
-            if not self.node.active:
-                return result
-            if slots.cancel_requested():
-                slots.terminate_all(handle, result)
-                return result
-            if slots.preempt_requested():
-                handle.abort()
-                return Result()
-            goal = handle.request
-            log = self.node.get_logger()
-            try:
-                docked = self.node.docked_type.name if self.node.docked_type is not None else ""
-                dock_type = self.node.database.find_type(goal.dock_type or docked)
-                if dock_type is None:
-                    raise DockNotValid("No dock information to undock from!")
-                log.info(f"Attempting to undock robot of dock type {dock_type.name}.")
-                if not self.node.is_docked(dock_type):
-                    log.info("Robot is not in the dock, no need to undock")
-                    return Result()  # no result state: the server ends it ABORTED with a default result
-                start, budget = self._clock_now(), float(goal.max_undocking_time)
+    def _undock(self, handle: Any, result: Any) -> Any:
+        """``undockRobot``: the dock type to leave, and the undock mission within ``max_undocking_time``."""
+        slots, goal, log = self.slots["undock"], handle.request, self.node.get_logger()
+        docked = self.node.docked_type.name if self.node.docked_type is not None else ""
+        dock_type = self.node.database.find_type(goal.dock_type or docked)
+        if dock_type is None:
+            raise DockNotValid("No dock information to undock from!")
+        log.info(f"Attempting to undock robot of dock type {dock_type.name}.")
+        if not self.node.is_docked(dock_type):
+            log.info("Robot is not in the dock, no need to undock")
+            return self._types["undock"].Result()  # no result state: the server ends it ABORTED with a default result
+        start, budget = self._clock_now(), float(goal.max_undocking_time)
 
-                def check(_mission: DockingMission) -> tuple[FailureReason, str] | None:
-                    stop = slots.stop_reason(UNDOCK_ACTION)
-                    if stop is None and self.node.now() - start > budget:
-                        return FailureReason.TIMEOUT, "Undocking timed out"
-                    return stop
+        def check(_mission: DockingMission) -> tuple[FailureReason, str] | None:
+            stop = slots.stop_reason(UNDOCK_ACTION)
+            if stop is None and self.node.now() - start > budget:
+                return FailureReason.TIMEOUT, "Undocking timed out"
+            return stop
 
-                mission = self.node.run_mission("undock", dock_type, stop_check=check)
-                if mission.failure is FailureReason.CANCELLED:
-                    slots.terminate_all(handle, result)
-                    return result
-                if mission.failure is FailureReason.TIMEOUT and mission.reason == "Undocking timed out":
-                    raise FailedToControl("Undocking timed out")
-                if not mission.succeeded:
-                    raise mission_error(mission, "undock")
-                log.info("Robot has reached staging pose")
-                if self.node.dock_for(dock_type).is_charging(self.node.robot):
-                    raise FailedToControl("Failed to control off dock")
-                log.info("Robot has undocked!")
-                result.success = True
-                handle.succeed()
-                return result
-            except DockingError as exc:
-                result.error_code, result.error_msg = int(exc.code), str(exc)
-            except MonodockError as exc:
-                result.error_code, result.error_msg = int(Nav2Code.UNKNOWN), str(exc)
-            log.error(result.error_msg)
-            _settle(handle)
+        mission = self.node.run_mission("undock", dock_type, stop_check=check)
+        if mission.failure is FailureReason.CANCELLED:
+            slots.terminate_all(handle, result)
             return result
+        if mission.failure is FailureReason.TIMEOUT and mission.reason == "Undocking timed out":
+            raise FailedToControl("Undocking timed out")
+        if not mission.succeeded:
+            raise mission_error(mission, "undock")
+        log.info("Robot has reached staging pose")
+        if self.node.dock_for(dock_type).is_charging(self.node.robot):
+            raise FailedToControl("Failed to control off dock")
+        log.info("Robot has undocked!")
+        result.success = True
+        handle.succeed()
+        return result
 
     def _clock_now(self, wait: float = 5.0) -> float:
         """The node's clock, once it runs: under ``use_sim_time`` it reads 0 until the first /clock message, and a

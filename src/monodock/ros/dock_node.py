@@ -226,13 +226,7 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         return TransitionCallbackReturn.SUCCESS
 
     def on_deactivate(self, _state: Any) -> Any:
-        """Stop serving: a running mission is cancelled (the robot stops) before the node is inactive."""
-        from rclpy.lifecycle import TransitionCallbackReturn  # type: ignore[import-not-found, unused-ignore]
-
-        self.active = False
-        self.halt("cancelled: the node is being deactivated")
-        self.bond.destroy()
-        return TransitionCallbackReturn.SUCCESS
+        return self._stand_down("cancelled: the node is being deactivated")
 
     def on_cleanup(self, _state: Any) -> Any:
         from rclpy.lifecycle import TransitionCallbackReturn  # type: ignore[import-not-found, unused-ignore]
@@ -240,10 +234,15 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, _state: Any) -> Any:
+        return self._stand_down("cancelled: the node is shutting down")
+
+    def _stand_down(self, why: str) -> Any:
+        """Deactivation and shutdown alike: stop serving, a running mission cancelled with ``why`` (the robot stops)
+        before the node is inactive, and the bond to the lifecycle manager ended."""
         from rclpy.lifecycle import TransitionCallbackReturn  # type: ignore[import-not-found, unused-ignore]
 
         self.active = False
-        self.halt("cancelled: the node is shutting down")
+        self.halt(why)
         self.bond.destroy()
         return TransitionCallbackReturn.SUCCESS
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from monodock.core.settings import setting
+from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC
 from monodock.ros.lifecycle import autostart_setting, bond_heartbeat_setting
 from monodock.ros.options import EstimatorOptions
 from monodock.ros.parameters import Parameter, parameters_of
@@ -45,12 +46,12 @@ class DockOptions(EstimatorOptions):
         cli_help="sensor_msgs/Range behind; empty: none",
     )
     pose_topic: str = setting(
-        "detected_dock_pose",
+        DOCK_POSE_TOPIC,
         help="PoseStamped of the dock filter's estimate in base_link (for Nav2's docking server)",
         cli_help="",
     )
     pose_covariance_topic: str = setting(
-        "detected_dock_pose_with_covariance",
+        DOCK_POSE_COVARIANCE_TOPIC,
         help="the same with its covariance (PoseWithCovarianceStamped)",
         cli_help="",
     )
