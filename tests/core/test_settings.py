@@ -17,6 +17,7 @@ from monodock.core.settings import (
     flat,
     from_flat,
     from_mapping,
+    inherited,
     nested,
     replace,
     section,
@@ -262,6 +263,23 @@ def test_a_section_checked_by_its_parent_names_the_file_key_of_the_broken_rule()
             check_fields(self)
 
     assert error_of(Base, {"wheel": {"width": 0.0}}, "b.yaml") == "b.yaml: wheel.width: must be positive, got 0.0"
+
+
+def test_an_inherited_setting_keeps_every_rule_of_the_base_but_what_it_changes() -> None:
+    @dataclass(frozen=True)
+    class Base:
+        rate: float = setting(10.0, range=(1.0, 50.0), unit="Hz", help="frames a second")
+
+    @dataclass(frozen=True)
+    class Node(Base):
+        rate: float = inherited(Base, "rate", help="detections a second")
+
+    (base,), (node,) = settings_of(Base), settings_of(Node)
+    assert node.meta == dataclasses.replace(base.meta, help="detections a second")
+    assert node.default == 10.0
+    assert error_of(Node, {"rate": 60.0}, "n.yaml") == "n.yaml: rate: must be within 1 to 50 Hz, got 60.0"
+    with pytest.raises(TypeError, match="has no setting 'speed'"):
+        inherited(Base, "speed")
 
 
 def test_integer_rules_hold_when_a_file_is_read() -> None:

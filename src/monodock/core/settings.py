@@ -43,6 +43,7 @@ __all__ = [
     "from_fields",
     "from_flat",
     "from_mapping",
+    "inherited",
     "nested",
     "policy_of",
     "replace",
@@ -122,6 +123,16 @@ class Meta:
 def setting(default: Any = MISSING, *, default_factory: Any = MISSING, **meta: Any) -> Any:
     """A settings field: ``x: float = setting(0.2, unit="m/s", positive=True, help="...")`` (``Meta``'s keywords)."""
     return dataclasses.field(default=default, default_factory=default_factory, metadata={_META: Meta(**meta)})
+
+
+def inherited(base: type[Any], name: str, **changes: Any) -> Any:
+    """``base``'s setting ``name`` again in a subclass, with ``changes`` to its declaration (``help="..."``): every
+    other rule of it (range, flag, choices, ...) stays the base's, so a rule added there reaches the subclass too."""
+    field = next((f for f in dataclasses.fields(base) if f.name == name), None)
+    if field is None or not isinstance(field.metadata.get(_META), Meta):
+        raise TypeError(f"{base.__name__} has no setting {name!r}")
+    meta = dataclasses.replace(_meta(field), **changes)
+    return dataclasses.field(default=field.default, default_factory=field.default_factory, metadata={_META: meta})
 
 
 def section(cls: type[Any], *, key: str | None = None, **meta: Any) -> Any:

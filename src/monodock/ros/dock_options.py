@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from monodock.core.settings import setting
+from monodock.core.settings import inherited, setting
 from monodock.io.nav2 import DOCK_POSE_COVARIANCE_TOPIC, DOCK_POSE_TOPIC
 from monodock.ros.lifecycle import autostart_setting, bond_heartbeat_setting
 from monodock.ros.options import EstimatorOptions
@@ -18,8 +18,9 @@ __all__ = ["PARAMETERS", "DockOptions"]
 class DockOptions(EstimatorOptions):
     """The node's fixed settings (its command-line flags, which set the parameters' defaults)."""
 
-    robot: str | None = setting(
-        None,
+    robot: str | None = inherited(
+        EstimatorOptions,
+        "robot",
         help="robot YAML: mounts, front_offset, speed limits (needed without a model; overrides the model's)",
     )
     camera_info_topic: str = setting(
