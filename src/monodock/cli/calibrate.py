@@ -15,7 +15,6 @@ from numpy.typing import NDArray
 
 from monodock.calibrate.extrinsics import (
     FACE_GATE_M,
-    PAIRING_TOLERANCE_S,
     DockView,
     ExtrinsicsResult,
     extrinsics_from_pairs,
@@ -37,7 +36,7 @@ from monodock.calibrate.intrinsics import (
 )
 from monodock.calibrate.target import DiamondTarget, read_target_views
 from monodock.cli.calibrate_dock import add_layout_parser, add_mount_parser
-from monodock.cli.options import SubParsers, float_in
+from monodock.cli.options import SubParsers, add_pairing_tolerance
 from monodock.core import transforms
 from monodock.core.atomic import check_writable, resolved, write_bytes_atomic, write_text_atomic
 from monodock.core.camera import CameraModel
@@ -178,12 +177,7 @@ def _add_extrinsics(calibrate_subparsers: SubParsers) -> None:
     p.add_argument(
         "--image", help="with --pairs and --overlay: a frame the pairs were clicked in (points: magenta, clicks: blue)"
     )
-    p.add_argument(
-        "--tolerance",
-        type=float_in(0.0, 10.0, low_open=True),
-        default=PAIRING_TOLERANCE_S,
-        help="image/scan pairing tolerance, s, in (0, 10] (default 0.05)",
-    )
+    add_pairing_tolerance(p, "image/scan pairing tolerance, s, in (0, 10] (default 0.05)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.set_defaults(func=run_extrinsics)
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from monodock.calibrate.mount import calibrate_mount_of, frames_from_recording
 from monodock.calibrate.survey import SurveyLimits, survey_layout, surveyed_layout_text
 from monodock.calibrate.survey_views import views_from_inputs
-from monodock.cli.options import SubParsers, float_in, int_in
+from monodock.cli.options import SubParsers, add_recording_inputs, float_in, int_in, recording_inputs
 from monodock.core.atomic import check_writable, write_text_atomic
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -21,9 +21,29 @@ from monodock.errors import InputError
 __all__ = [
     "add_layout_parser",
     "add_mount_parser",
+    "add_survey_limits",
     "run_layout",
     "run_mount",
+    "survey_limits",
 ]
+
+# How uncertain a surveyed marker may be (one standard deviation) before the survey refuses it: the flag, its unit,
+# the most it may be set to, its default.
+_SD_LIMITS = (("--max-position-sd", "mm", 100.0, 0.3), ("--max-angle-sd", "degrees", 45.0, 0.15))
+
+
+def add_survey_limits(p: argparse.ArgumentParser, *, views: str, position: str, tilt: str) -> None:
+    """``--max-views`` and the survey's limits, ``--max-position-sd`` and ``--max-angle-sd`` (``survey_limits``), for
+    ``calibrate layout`` and ``commission``; ``views``, ``position``, ``tilt``: each help's words before its range."""
+    p.add_argument("--max-views", type=int_in(6, 1000), default=40, help=f"{views}, 6-1000 (default 40)")
+    for (flag, unit, most, default), what in zip(_SD_LIMITS, (position, tilt), strict=True):
+        text = f"{what}, {unit}, in (0, {most:g}] (default {default:g})"
+        p.add_argument(flag, type=float_in(0.0, most, low_open=True), default=default, help=text)
+
+
+def survey_limits(args: argparse.Namespace) -> SurveyLimits:
+    """The SurveyLimits of ``add_survey_limits``' options; a printed side is held to the position's limit."""
+    return SurveyLimits(args.max_position_sd / 1e3, math.radians(args.max_angle_sd), args.max_position_sd / 1e3)
 
 
 def add_layout_parser(calibrate_subparsers: SubParsers) -> None:
@@ -41,18 +61,11 @@ def add_layout_parser(calibrate_subparsers: SubParsers) -> None:
     p.add_argument("--layout", required=True, help="the nominal layout YAML (dictionary, ids, where you put them)")
     p.add_argument("--robot", help="robot YAML: the views are its camera on the floor, with this mount")
     p.add_argument("--out", required=True, help="the surveyed layout YAML to write")
-    p.add_argument("--max-views", type=int_in(6, 1000), default=40, help="views used, 6-1000 (default 40)")
-    p.add_argument(
-        "--max-position-sd",
-        type=float_in(0.0, 100.0, low_open=True),
-        default=0.3,
-        help="refuse when a marker's position is more uncertain than this, mm, in (0, 100] (default 0.3)",
-    )
-    p.add_argument(
-        "--max-angle-sd",
-        type=float_in(0.0, 45.0, low_open=True),
-        default=0.15,
-        help="refuse when a marker's tilt is more uncertain than this, degrees, in (0, 45] (default 0.15)",
+    add_survey_limits(
+        p,
+        views="views used",
+        position="refuse when a marker's position is more uncertain than this",
+        tilt="refuse when a marker's tilt is more uncertain than this",
     )
     p.add_argument("--force", action="store_true", help="overwrite --out")
     p.set_defaults(func=run_layout)
@@ -65,7 +78,7 @@ def run_layout(args: argparse.Namespace) -> int:
     robot = RobotConfig.load(args.robot) if args.robot else None
     camera = CameraModel.load(args.camera) if args.camera else None
     views, skipped, camera, offset = views_from_inputs(args.images, camera, nominal, max_views=args.max_views)
-    limits = SurveyLimits(args.max_position_sd / 1e3, math.radians(args.max_angle_sd), args.max_position_sd / 1e3)
+    limits = survey_limits(args)
     survey = survey_layout(views, camera, nominal, robot=robot, limits=limits, skipped=skipped, edge_offset=offset)
     print(survey.summary())
     write_text_atomic(Path(args.out), surveyed_layout_text(survey), force=args.force)
@@ -83,10 +96,12 @@ def add_mount_parser(calibrate_subparsers: SubParsers) -> None:
         "also the dock's lean against the floor and the odometry's errors. z is measured against the layout's "
         "heights (a drive on a flat floor cannot tell a camera's height).",
     )
-    p.add_argument("recording", metavar="RECORDING", help="rosbag2 or ROS 1 bag of the drive")
-    p.add_argument("--layout", required=True, help="the dock's layout YAML (surveyed: calibrate layout)")
-    p.add_argument("--robot", required=True, help="the nominal robot YAML (its camera mount is the start)")
-    p.add_argument("--camera", help="camera file (default: the recording's CameraInfo)")
+    add_recording_inputs(
+        p,
+        of="the drive",
+        layout="the dock's layout YAML (surveyed: calibrate layout)",
+        robot="the nominal robot YAML (its camera mount is the start)",
+    )
     p.add_argument("--out", required=True, help="the robot YAML to write, with the calibrated camera mount")
     p.add_argument(
         "--layout-out", help="also write the layout as the drive measured it (stood up on the floor, scaled)"
@@ -110,9 +125,7 @@ def run_mount(args: argparse.Namespace) -> int:
         raise InputError("--out and --layout-out must be different files")
     for o in outputs:
         check_writable(o, force=args.force, inputs=(args.recording, args.layout, args.robot, args.camera))
-    layout = DockLayout.load(args.layout)
-    nominal = RobotConfig.load(args.robot)
-    camera = CameraModel.load(args.camera) if args.camera else None
+    layout, nominal, camera = recording_inputs(args)
     drive = frames_from_recording(args.recording, layout, camera=camera, image_topic=args.image_topic)
     result = calibrate_mount_of(drive, layout, nominal, scale_from=args.scale_from)
     print(result.summary())

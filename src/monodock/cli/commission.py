@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import math
 
 from monodock.calibrate.commission import commission
-from monodock.calibrate.survey import SurveyLimits, surveyed_layout_text
+from monodock.calibrate.survey import surveyed_layout_text
 from monodock.calibrate.teach import taught_config_text
-from monodock.cli.options import SubParsers, float_in, int_in
+from monodock.cli.calibrate_dock import add_survey_limits, survey_limits
+from monodock.cli.options import SubParsers
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -46,13 +46,12 @@ def add_parser(subparsers: SubParsers) -> None:
     p.add_argument("--out", required=True, help="folder to write")
     p.add_argument("--scale-from", choices=("print", "odometry"), default="print",
                    help="the ruler of lengths: the printed markers (default) or the wheels")  # fmt: skip
-    p.add_argument("--max-views", type=int_in(6, 1000), default=40, help="survey views used, 6-1000 (default 40)")
-    p.add_argument("--max-position-sd", type=float_in(0.0, 100.0, low_open=True), default=0.3,
-                   help="refuse a survey whose marker positions are more uncertain, mm, "
-                        "in (0, 100] (default 0.3)")  # fmt: skip
-    p.add_argument("--max-angle-sd", type=float_in(0.0, 45.0, low_open=True), default=0.15,
-                   help="refuse a survey whose marker tilts are more uncertain, degrees, "
-                        "in (0, 45] (default 0.15)")  # fmt: skip
+    add_survey_limits(
+        p,
+        views="survey views used",
+        position="refuse a survey whose marker positions are more uncertain",
+        tilt="refuse a survey whose marker tilts are more uncertain",
+    )
     p.add_argument("--docked-at-start", action="store_true",
                    help="the teach recording has no battery state and starts on the contacts")  # fmt: skip
     p.add_argument("--force", action="store_true", help="replace --out")
@@ -66,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     camera = CameraModel.load(args.camera)
     survey_camera = CameraModel.load(args.survey_camera) if args.survey_camera else None
     nominal_layout, nominal_robot = DockLayout.load(args.layout), RobotConfig.load(args.robot)
-    limits = SurveyLimits(args.max_position_sd / 1e3, math.radians(args.max_angle_sd), args.max_position_sd / 1e3)
+    limits = survey_limits(args)
     result = commission(
         args.survey, args.drive, args.teach, camera, nominal_layout, nominal_robot, scale_from=args.scale_from,
         max_views=args.max_views, limits=limits, survey_camera=survey_camera, docked_at_start=args.docked_at_start,

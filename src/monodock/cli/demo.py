@@ -14,7 +14,7 @@ import shutil
 import sys
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -59,16 +59,22 @@ FRAME_DEPTH = 1.2
 
 @dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; the defaults take about four minutes on two cores (most of it training the models)."""
+    """Sizes of the demo; the defaults take about four minutes on two cores (most of it training the models).
 
-    train_stops: int = 3000
+    ``train``: the data-collection drive and the papers' models trained on it, as any self-trained bundle; its seed
+    is the demo's (the held-out drive's and the docking's derive from it).
+    """
+
+    train: SelfTrainConfig = field(default_factory=SelfTrainConfig)
     test_stops: int = 500
-    trials: int = 4
-    seed: int = 0
     jobs: int = 2
-    train_supersample: int = 16  # the renderer's S of the training drive (Nuisances.supersample)
     focal_errors: tuple[float, ...] = (1.05, 1.5)
     dock_trials: int = 1  # closed-loop docking runs per case and method
+
+    @property
+    def seed(self) -> int:
+        """The demo's seed: the training drive's."""
+        return self.train.seed
 
 
 @dataclass(frozen=True)
@@ -150,10 +156,9 @@ def _lidar_overlay(frame: SimFrame, sim: Simulator, estimates: FrameEstimates) -
 
 def _simulate_and_train(tmp: Path, work: Path, config: DemoConfig) -> _Trained:
     """Stages 1-3: the data-collection drive, its LiDAR labels and the papers' models, into tmp/bundle."""
-    selftrain = SelfTrainConfig(config.train_stops, config.trials, config.seed, config.train_supersample)
     started = time.perf_counter()
     dataset, run, result = simulate_and_train(
-        work, tmp / "bundle", Simulator(seed=config.seed), selftrain, jobs=config.jobs, steps="[1-3/6] "
+        work, tmp / "bundle", Simulator(seed=config.seed), config.train, jobs=config.jobs, steps="[1-3/6] "
     )
     seconds = time.perf_counter() - started
     write_dataset(tmp / "train.parquet", dataset)
@@ -251,9 +256,9 @@ def demo_settings(config: DemoConfig, sim: Simulator, test_seed: int) -> dict[st
     """What the demo ran, as a person would write it in a YAML file (``sim``: the held-out drive's simulator)."""
     return {
         "training drive": {
-            "stops": config.train_stops,
+            "stops": config.train.stops,
             "seed": config.seed,
-            "edge supersampling": f"{config.train_supersample}x{config.train_supersample}",
+            "edge supersampling": f"{config.train.supersample}x{config.train.supersample}",
             "depth_cm": [25, 250],
             "lateral_cm": [-40, 40],
             "yaw_deg": [-30, 30],
@@ -267,7 +272,7 @@ def demo_settings(config: DemoConfig, sim: Simulator, test_seed: int) -> dict[st
             "ids": [m.id for m in sim.layout.markers],
         },
         "training": {
-            "hyperparameter draws per model": config.trials,
+            "hyperparameter draws per model": config.train.trials,
             "split": "80/20, best by test MSE",
             "marker sets": list(DEFAULT_MARKER_SETS),
         },
@@ -289,7 +294,7 @@ def _report(
         label_run=trained.run,
         label_errors=tuple(label_errors(trained.dataset)),
         settings=demo_settings(config, held.sim, held.seed),
-        trials=config.trials,
+        trials=config.train.trials,
         train_seconds=trained.seconds,
     )
     write_demo_report(tmp, page)
@@ -320,27 +325,22 @@ def run_demo(out: str | Path, config: DemoConfig, *, force: bool = False) -> Dem
 
 # --- the command ---------------------------------------------------------------------------------------
 
+_DEFAULT = DemoConfig()
+# The demo's sizes, whole numbers from 1, their defaults DemoConfig's: flag, the most, the default, what it counts.
+_SIZES = (
+    ("--train-stops", 100_000, _DEFAULT.train.stops, "stops of the data-collection drive"),
+    ("--test-stops", 100_000, _DEFAULT.test_stops, "stops of the held-out drive"),
+    ("--trials", 1000, _DEFAULT.train.trials, "hyperparameter draws per model"),
+    ("--dock-trials", 1000, _DEFAULT.dock_trials, "closed-loop docking starts per case and method"),
+)
+
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``demo``."""
     d = subparsers.add_parser("demo", help="simulate, label, train, evaluate every method, and write the report")
     d.add_argument("--out", default="demo_report", help="report folder (default: demo_report)")
-    d.add_argument(
-        "--train-stops",
-        type=int_in(1, 100_000),
-        default=3000,
-        help="stops of the data-collection drive, 1-100000 (3000)",
-    )
-    d.add_argument(
-        "--test-stops", type=int_in(1, 100_000), default=500, help="stops of the held-out drive, 1-100000 (500)"
-    )
-    d.add_argument("--trials", type=int_in(1, 1000), default=4, help="hyperparameter draws per model, 1-1000 (4)")
-    d.add_argument(
-        "--dock-trials",
-        type=int_in(1, 1000),
-        default=1,
-        help="closed-loop docking starts per case and method, 1-1000 (1)",
-    )
+    for flag, most, default, what in _SIZES:
+        d.add_argument(flag, type=int_in(1, most), default=default, help=f"{what}, 1-{most} ({default})")
     add_seed(d)
     add_jobs(d)
     add_cluster(d)
@@ -360,10 +360,8 @@ def run(args: argparse.Namespace) -> int:
             raise MonodockError(f"{flag} must be at least 1")
     check_writable(args.out, force=args.force)
     config = DemoConfig(
-        train_stops=args.train_stops,
+        train=SelfTrainConfig(stops=args.train_stops, trials=args.trials, seed=args.seed),
         test_stops=args.test_stops,
-        trials=args.trials,
-        seed=args.seed,
         jobs=jobs(args.jobs),
         dock_trials=args.dock_trials,
     )

@@ -23,6 +23,8 @@ __all__ = ["add_parser", "parse_tolerance", "run"]
 
 _TOL = re.compile(r"^\s*([0-9.eE+-]+)\s*(mm|cm|m)\s*,\s*([0-9.eE+-]+)\s*(deg|°)\s*$")
 _UNIT = {"mm": 0.001, "cm": 0.01, "m": 1.0}
+# The largest charger face the design may propose, each in (0, 10] m: the flag, its default, what it bounds.
+_FACE_LIMITS = (("--max-width", 1.0, "charger face width"), ("--max-height", 1.2, "charger face height from the floor"))
 
 
 def parse_tolerance(text: str) -> tuple[float, float]:
@@ -72,18 +74,9 @@ def add_parser(subparsers: SubParsers) -> None:
         help="final pose accuracy wanted: the bound's σ of x and y, and of yaw, near the dock, e.g. 5mm,0.5deg "
         "(default 1cm,1deg)",
     )
-    p.add_argument(
-        "--max-width",
-        type=float_in(0.0, 10.0, low_open=True),
-        default=1.0,
-        help="charger face width, m (0-10, default 1.0)",
-    )
-    p.add_argument(
-        "--max-height",
-        type=float_in(0.0, 10.0, low_open=True),
-        default=1.2,
-        help="charger face height from the floor, m (0-10, default 1.2)",
-    )
+    for flag, default, what in _FACE_LIMITS:
+        text = f"{what}, m (0-10, default {default})"
+        p.add_argument(flag, type=float_in(0.0, 10.0, low_open=True), default=default, help=text)
     p.add_argument(
         "--blur",
         action="store_true",

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from monodock.cli.options import add_cluster, add_jobs, add_seed, comma_list, float_in, int_in
+from monodock.cli.options import add_camera_rate, add_cluster, add_jobs, add_seed, comma_list, float_in, int_in
 from monodock.core import settings
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
@@ -160,9 +160,7 @@ def add_parser(subparsers: Any) -> None:
         action="store_true",
         help="the charger reports contact and the robot stops on it (default: it stops on its own estimate)",
     )
-    d.add_argument(
-        "--camera-rate", type=float_in(1.0, 240.0), default=15.0, help="camera frames per second, 1-240 (15)"
-    )
+    add_camera_rate(d, "camera frames per second, 1-240 (15)")
     d.add_argument(
         "--supersample",
         type=int_in(1, MAX_SUPERSAMPLE),

@@ -10,12 +10,10 @@ import os
 
 from tqdm import tqdm
 
-from monodock.cli.options import SubParsers, add_calibration, build_estimator
+from monodock.cli.options import SubParsers, add_calibration, add_model_and_method, add_refinement, build_estimator
 from monodock.core.atomic import check_writable, write_text_atomic
 from monodock.errors import InputError
 from monodock.estimation.estimator import Estimator, FrameEstimates
-from monodock.estimation.factory import REFINEMENTS
-from monodock.estimation.methods import METHOD_NAMES
 from monodock.io.frames import open_frames
 from monodock.io.nav2 import UNSTAMPED_BAG, write_pose_bag
 from monodock.io.rows import estimates_csv
@@ -27,17 +25,10 @@ def add_parser(subparsers: SubParsers) -> None:
     """Add ``estimate``."""
     e = subparsers.add_parser("estimate", help="estimate the DockPose in images, folders, videos or recordings")
     e.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders of images, videos, or recordings")
-    e.add_argument("--model", help="model bundle (carries its camera, layout and mounts; --camera may override)")
-    e.add_argument(
-        "--method",
-        choices=METHOD_NAMES,
-        help="regression: the papers' models (default with --model); pnp: marker 2 alone (IPPE_SQUARE), the "
-        "papers' baseline; board: all visible markers (default without --model); fused: planar PnP on "
-        "bias-free corners combined with the regression, with a covariance (needs --model)",
-    )
+    add_model_and_method(e)
     e.add_argument("--out", required=True, help="EST.csv to write")
     e.add_argument("--bag", metavar="OUT_BAG", help="also write the valid poses as a Nav2 detected_dock_pose rosbag2")
-    e.add_argument("--refinement", choices=REFINEMENTS, default="subpix", help="ArUco corner refinement")
+    add_refinement(e)
     e.add_argument("--skip-bad", action="store_true", help="an unreadable image gives an invalid row, not an error")
     e.add_argument("--force", action="store_true", help="overwrite an existing output")
     add_calibration(e, required=False)

@@ -21,25 +21,11 @@ from monodock.errors import MonodockError
 
 __all__ = ["COMMANDS", "main", "parser"]
 
-# Each command's module (with its ``add_parser`` and ``run``), in the order of ``monodock --help``. A module is
-# loaded only when its command runs, so that a command starts without the libraries of the others (the report's
-# matplotlib, the trainer's scikit-learn).
-COMMANDS = {
-    "simulate": "monodock.cli.simulate",
-    "estimate": "monodock.cli.estimate",
-    "show": "monodock.cli.show",
-    "label": "monodock.cli.label",
-    "train": "monodock.cli.train",
-    "evaluate": "monodock.cli.evaluate",
-    "calibrate": "monodock.cli.calibrate",
-    "dock-kit": "monodock.cli.dock_kit",
-    "design": "monodock.cli.design",
-    "teach": "monodock.cli.teach",
-    "commission": "monodock.cli.commission",
-    "run": "monodock.cli.run",
-    "dock-sim": "monodock.cli.dock_sim",
-    "demo": "monodock.cli.demo",
-}
+# The commands in the order of ``monodock --help``, each with its module (its ``add_parser`` and ``run``), named
+# after it. A module is loaded only when its command runs, so that a command starts without the libraries of the
+# others (the report's matplotlib, the trainer's scikit-learn).
+_NAMES = "simulate estimate show label train evaluate calibrate dock-kit design teach commission run dock-sim demo"
+COMMANDS = {name: "monodock.cli." + name.replace("-", "_") for name in _NAMES.split()}
 
 
 def _command(argv: Sequence[str]) -> str | None:

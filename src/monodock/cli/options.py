@@ -30,10 +30,15 @@ __all__ = [
     "SEED_MAX",
     "SubParsers",
     "add_calibration",
+    "add_camera_rate",
     "add_cluster",
     "add_estimator_options",
     "add_flags",
     "add_jobs",
+    "add_model_and_method",
+    "add_pairing_tolerance",
+    "add_recording_inputs",
+    "add_refinement",
     "add_seed",
     "add_topics",
     "build_estimator",
@@ -45,6 +50,7 @@ __all__ = [
     "load_calibration",
     "positive_seconds",
     "range_option",
+    "recording_inputs",
 ]
 
 
@@ -61,6 +67,23 @@ def load_calibration(args: argparse.Namespace) -> tuple[CameraModel, DockLayout,
     layout = DockLayout.load(args.layout) if args.layout else DockLayout.default()
     robot = RobotConfig.load(args.robot) if args.robot else RobotConfig.default()
     return camera, layout, robot
+
+
+def add_recording_inputs(p: argparse.ArgumentParser, *, of: str, layout: str, robot: str) -> None:
+    """A recording of the robot at its dock and the files it is read with (``recording_inputs``): RECORDING,
+    ``--layout`` and ``--robot`` (required), ``--camera`` (default: the recording's CameraInfo). ``of``: what the
+    recording is of; ``layout``, ``robot``: the two files' help."""
+    p.add_argument("recording", metavar="RECORDING", help=f"rosbag2 or ROS 1 bag of {of}")
+    p.add_argument("--layout", required=True, help=layout)
+    p.add_argument("--robot", required=True, help=robot)
+    p.add_argument("--camera", help="camera file (default: the recording's CameraInfo)")
+
+
+def recording_inputs(args: argparse.Namespace) -> tuple[DockLayout, RobotConfig, CameraModel | None]:
+    """The layout, robot and camera of ``add_recording_inputs``' options, loaded in that order (the camera None
+    without --camera: the recording's CameraInfo)."""
+    layout, robot = DockLayout.load(args.layout), RobotConfig.load(args.robot)
+    return layout, robot, CameraModel.load(args.camera) if args.camera else None
 
 
 def comma_list(what: str, available: tuple[str, ...], *, everything: bool = False) -> Callable[[str], tuple[str, ...]]:
@@ -192,18 +215,24 @@ def positive_seconds(flag: str, value: float) -> float:
     return value
 
 
+def add_pairing_tolerance(p: argparse.ArgumentParser | argparse._ArgumentGroup, what: str) -> None:
+    """``--tolerance``: an image and a scan pair when their stamps are at most this far apart, s, in (0, 10] (default
+    0.05, ``calibrate.extrinsics.PAIRING_TOLERANCE_S``); ``what``: its help."""
+    p.add_argument("--tolerance", type=float_in(0.0, 10.0, low_open=True), default=0.05, help=what)
+
+
+def add_camera_rate(p: argparse.ArgumentParser | argparse._ArgumentGroup, what: str) -> None:
+    """``--camera-rate``: the simulated camera's frames per second, 1-240 (default 15); ``what``: its help."""
+    p.add_argument("--camera-rate", type=float_in(1.0, 240.0), default=15.0, help=what)
+
+
 def add_topics(p: argparse.ArgumentParser) -> None:
     """A recording's topics (found by message type by default) and the image/scan pairing tolerance."""
     g = p.add_argument_group("recording topics (default: found by message type)")
     g.add_argument("--image-topic", help="sensor_msgs/Image or CompressedImage topic")
     g.add_argument("--camera-info-topic", help="sensor_msgs/CameraInfo topic")
     g.add_argument("--scan-topic", help="sensor_msgs/LaserScan topic")
-    g.add_argument(
-        "--tolerance",
-        type=float_in(0.0, 10.0, low_open=True),
-        default=0.05,
-        help="pair an image with a scan at most this far in stamp, s, in (0, 10] (0.05)",
-    )
+    add_pairing_tolerance(g, "pair an image with a scan at most this far in stamp, s, in (0, 10] (0.05)")
 
 
 def _flag_help(setting: Setting, helps: Mapping[str, str]) -> str | None:
@@ -269,10 +298,8 @@ def add_flags(
         p.add_argument(flag, **kw)
 
 
-def add_estimator_options(
-    p: argparse.ArgumentParser, *, methods: tuple[str, ...] = METHOD_NAMES, camera_help: str, robot_help: str
-) -> None:
-    """The options of ``build_estimator``."""
+def add_model_and_method(p: argparse.ArgumentParser, methods: tuple[str, ...] = METHOD_NAMES) -> None:
+    """``--model`` and ``--method``: the estimator's bundle and method (``build_estimator``)."""
     p.add_argument("--model", help="model bundle (carries its camera, layout and mounts; --camera may override)")
     p.add_argument(
         "--method",
@@ -281,10 +308,22 @@ def add_estimator_options(
         "papers' baseline; board: all visible markers (default without --model); fused: planar PnP on "
         "bias-free corners combined with the regression, with a covariance (needs --model)",
     )
+
+
+def add_refinement(p: argparse.ArgumentParser) -> None:
+    """``--refinement``: the ArUco corner refinement (``build_estimator``)."""
+    p.add_argument("--refinement", choices=REFINEMENTS, default="subpix", help="ArUco corner refinement")
+
+
+def add_estimator_options(
+    p: argparse.ArgumentParser, *, methods: tuple[str, ...] = METHOD_NAMES, camera_help: str, robot_help: str
+) -> None:
+    """The options of ``build_estimator``."""
+    add_model_and_method(p, methods)
     p.add_argument("--camera", help=camera_help)
     p.add_argument("--layout", help="dock layout YAML (with --model: must match the bundle's)")
     p.add_argument("--robot", help=robot_help)
-    p.add_argument("--refinement", choices=REFINEMENTS, default="subpix", help="ArUco corner refinement")
+    add_refinement(p)
 
 
 def build_estimator(args: argparse.Namespace) -> Estimator:

@@ -12,6 +12,7 @@ import numpy as np
 from monodock.cli.options import (
     SubParsers,
     add_calibration,
+    add_camera_rate,
     add_cluster,
     add_jobs,
     add_seed,
@@ -112,9 +113,7 @@ def add_parser(subparsers: SubParsers) -> None:
         default="uniform",
         help="stops per 5 cm depth segment: uniform (default), paper (Table 2's N), or 45 comma-separated weights",
     )
-    g.add_argument(
-        "--camera-rate", type=float_in(1.0, 240.0), default=15.0, help="camera frame rate, Hz, 1-240 (default 15)"
-    )
+    add_camera_rate(g, "camera frame rate, Hz, 1-240 (default 15)")
     g.add_argument(
         "--lidar-rate", type=float_in(1.0, 100.0), default=10.0, help="LiDAR scan rate, Hz, 1-100 (default 10)"
     )

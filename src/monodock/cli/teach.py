@@ -6,11 +6,8 @@ import argparse
 from pathlib import Path
 
 from monodock.calibrate.teach import taught_config_text, teach_from_recording
-from monodock.cli.options import SubParsers
+from monodock.cli.options import SubParsers, add_recording_inputs, recording_inputs
 from monodock.core.atomic import check_writable, write_text_atomic
-from monodock.core.camera import CameraModel
-from monodock.core.layout import DockLayout
-from monodock.core.robot import RobotConfig
 from monodock.dock.config import load_docking_config
 
 __all__ = ["add_parser", "run"]
@@ -25,10 +22,12 @@ def add_parser(subparsers: SubParsers) -> None:
         "straight while recording (images, camera_info, nav_msgs/Odometry, sensor_msgs/BatteryState). Writes a "
         "docking config with the charging_offset that dock-sim (--config) and the docking node (config:=) read.",
     )
-    p.add_argument("recording", metavar="RECORDING", help="rosbag2 or ROS 1 bag of the back-off")
-    p.add_argument("--layout", required=True, help="the dock's layout YAML (commissioned)")
-    p.add_argument("--robot", required=True, help="the robot YAML (commissioned: mount and odometry)")
-    p.add_argument("--camera", help="camera file (default: the recording's CameraInfo)")
+    add_recording_inputs(
+        p,
+        of="the back-off",
+        layout="the dock's layout YAML (commissioned)",
+        robot="the robot YAML (commissioned: mount and odometry)",
+    )
     p.add_argument("--out", required=True, help="docking config YAML to write")
     p.add_argument("--config", help="a docking config to start from: the output is it with the charging_offset")
     p.add_argument("--method", choices=("fused", "board"), default="fused", help="the estimator (default fused)")
@@ -47,13 +46,9 @@ def run(args: argparse.Namespace) -> int:
         args.out, force=args.force, inputs=(args.recording, args.layout, args.robot, args.camera, args.config)
     )
     base = load_docking_config(args.config) if args.config else None
+    layout, robot, camera = recording_inputs(args)
     taught = teach_from_recording(
-        args.recording,
-        DockLayout.load(args.layout),
-        RobotConfig.load(args.robot),
-        camera=CameraModel.load(args.camera) if args.camera else None,
-        method=args.method,
-        docked_at_start=args.docked_at_start,
+        args.recording, layout, robot, camera=camera, method=args.method, docked_at_start=args.docked_at_start
     )
     print(taught.summary())
     write_text_atomic(Path(args.out), taught_config_text(taught, base, Path(args.recording).name), force=args.force)
