@@ -413,8 +413,17 @@ def ros1_transform(parent: str, child: str, T: NDArray[np.float64]) -> Any:
     )
 
 
-def write_ros1_bag(path: Path, sim: Simulator, stops: list[Stop], images: list[NDArray[np.uint8]]) -> list[LaserScan]:
-    """A ROS 1 bag as a real robot records it: rgb8 with padded rows, CameraInfo K/D, a tf chain via camera_link.
+def write_ros1_bag(
+    path: Path,
+    sim: Simulator,
+    stops: list[Stop],
+    images: list[NDArray[np.uint8]],
+    *,
+    image_frame: str = "/camera_optical",
+    scan_frame: str = "laser",
+) -> list[LaserScan]:
+    """A ROS 1 bag as a real robot records it: rgb8 with padded rows, CameraInfo K/D, a tf chain via camera_link
+    (the images' and the scans' header frames as given).
 
     Returns the scans written, straight from the simulator.
     """
@@ -440,7 +449,7 @@ def write_ros1_bag(path: Path, sim: Simulator, stops: list[Stop], images: list[N
             pad = np.zeros((cam.height, 3 * cam.width + 8), np.uint8)
             pad[:, : 3 * cam.width] = rgb.reshape(cam.height, -1)
             msg = t["sensor_msgs/msg/Image"](
-                header=ros1_header(s.image_stamp, "/camera_optical"),
+                header=ros1_header(s.image_stamp, image_frame),
                 height=cam.height,
                 width=cam.width,
                 encoding="rgb8",
@@ -466,7 +475,7 @@ def write_ros1_bag(path: Path, sim: Simulator, stops: list[Stop], images: list[N
             w.write(info, late, ROS1.serialize_ros1(ci, "sensor_msgs/msg/CameraInfo"))
         for sc in scans:
             msg = t["sensor_msgs/msg/LaserScan"](
-                header=ros1_header(sc.stamp, "laser"),
+                header=ros1_header(sc.stamp, scan_frame),
                 angle_min=sc.angle_min,
                 angle_max=sc.angle_max,
                 angle_increment=sc.angle_increment,
@@ -528,6 +537,37 @@ def test_ros1_bag_cut_short(
     for f, image in zip(frames, truth_images, strict=False):
         assert f.image is not None
         np.testing.assert_array_equal(f.image[:, :, 2], 255 - image)
+
+
+@pytest.mark.parametrize(
+    ("image_frame", "warning"),
+    [
+        ("camera_link", "image frame camera_link is not an optical frame (its z is up)"),
+        ("elsewhere", "/tf_static has no base_link -> elsewhere; camera mount from the robot"),
+    ],
+)
+def test_sensor_frames_the_tf_tree_cannot_place_are_told(
+    tmp_path: Path,
+    sim: Simulator,
+    stops: list[Stop],
+    truth_images: list[NDArray[np.uint8]],
+    image_frame: str,
+    warning: str,
+) -> None:
+    """An image frame that is a body frame is taken as the camera mount as it is; one the tf tree does not reach,
+    like a scan frame it does not reach, keeps the robot file's mount; each with its warning."""
+    path = tmp_path / "robot.bag"
+    write_ros1_bag(path, sim, stops[:1], truth_images[:1], image_frame=image_frame, scan_frame="lidar")
+    with open_recording(path) as rec:
+        robot = rec.robot(RobotConfig())
+        warnings = rec.warnings
+    lidar = "/tf_static has no base_link -> lidar; LiDAR mount from the robot"
+    assert warnings == [f"{path}: {warning}", f"{path}: {lidar}"]
+    if image_frame == "camera_link":
+        np.testing.assert_allclose(robot.camera_mount.matrix(), sim.robot.base_T_camera_link(), atol=1e-9)
+    else:
+        assert robot.camera_mount == RobotConfig().camera_mount
+    assert robot.laser_mount == RobotConfig().laser_mount
 
 
 def write_ros2_bag(path: Path, messages: list[tuple[str, str, Any, float]], storage: str = "mcap") -> Path:

@@ -12,7 +12,7 @@ import logging
 import math
 import os
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -193,10 +193,18 @@ def parse_yaml(text: str, source: str) -> Any:
 
 def load_yaml(path: str | os.PathLike[str], what: str, *, max_bytes: int = MAX_FILE_BYTES) -> dict[str, Any]:
     """Read a YAML mapping, or raise ConfigError naming the file and the problem."""
+    return _load_mapping(path, what, max_bytes, parse_yaml, "a YAML mapping")
+
+
+def _load_mapping(
+    path: str | os.PathLike[str], what: str, max_bytes: int, parse: Callable[[str, str], Any], expected: str
+) -> dict[str, Any]:
+    """``load_yaml`` and ``load_json``: the file's text read with ``parse``, which must give ``expected`` (a
+    mapping) at the top level."""
     p, text = _read_text(path, what, max_bytes)
-    data = parse_yaml(text, str(p))
+    data = parse(text, str(p))
     if not isinstance(data, dict):
-        raise ConfigError(f"{p}: expected a YAML mapping at the top level")
+        raise ConfigError(f"{p}: expected {expected} at the top level")
     return data
 
 
@@ -251,11 +259,7 @@ def _refuse_constant(name: str) -> Any:
 
 def load_json(path: str | os.PathLike[str], what: str, *, max_bytes: int = MAX_FILE_BYTES) -> dict[str, Any]:
     """Read a JSON object, or raise ConfigError naming the file and the problem."""
-    p, text = _read_text(path, what, max_bytes)
-    data = parse_json(text, str(p))
-    if not isinstance(data, dict):
-        raise ConfigError(f"{p}: expected a JSON object at the top level")
-    return data
+    return _load_mapping(path, what, max_bytes, parse_json, "a JSON object")
 
 
 class Fields:

@@ -25,7 +25,7 @@ import dataclasses
 import math
 import types
 import typing
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import MISSING, dataclass
 from typing import Any, Literal, Protocol, TypeVar
 
@@ -392,15 +392,18 @@ def _any_numbers(f: Fields, key: str) -> list[float]:
     return f.numbers(key, len(value)) if isinstance(value, list) and value else f.numbers(key, 1)
 
 
-def _known(cls: type[Any]) -> list[str]:
-    """The keys of one mapping of ``cls`` (spread sections' keys in their place), aliases after them."""
-    out: list[str] = []
+def _mapping_fields(cls: type[Any]) -> Iterator[_Field]:
+    """The fields that have a key in one mapping of ``cls``: a spread section's fields in its place."""
     for fld in _fields(cls):
         if fld.section is not None and fld.key == "":
-            out.extend(_known(fld.section))
+            yield from _mapping_fields(fld.section)
         else:
-            out.append(fld.key)
-    return out
+            yield fld
+
+
+def _known(cls: type[Any]) -> list[str]:
+    """The keys of one mapping of ``cls`` (spread sections' keys in their place); ``_aliases`` has the others."""
+    return [fld.key for fld in _mapping_fields(cls)]
 
 
 def _spread_sections(cls: type[Any]) -> dict[str, type[Any]]:
@@ -414,13 +417,7 @@ def _spread_sections(cls: type[Any]) -> dict[str, type[Any]]:
 
 
 def _aliases(cls: type[Any]) -> list[str]:
-    out: list[str] = []
-    for fld in _fields(cls):
-        if fld.section is not None and fld.key == "":
-            out.extend(_aliases(fld.section))
-        else:
-            out.extend(fld.meta.aliases)
-    return out
+    return [alias for fld in _mapping_fields(cls) for alias in fld.meta.aliases]
 
 
 def _read_level(cls: type[Any], f: Fields, policy: Policy) -> tuple[dict[str, Any], list[tuple[str, Any]]]:
@@ -441,14 +438,22 @@ def _read_level(cls: type[Any], f: Fields, policy: Policy) -> tuple[dict[str, An
             elif fld.meta.required:
                 f.raw(fld.key)  # "missing field"
             continue
-        key = next((k for k in (fld.key, *fld.meta.aliases) if f.has(k)), None)
-        if key is None:
-            if fld.meta.required or fld.default is MISSING:
-                f.raw(fld.key)  # "missing field"
-            continue
-        values[fld.name] = _read_value(f, key, fld, policy)
-        leaves.append((fld.key, {fld.name: values[fld.name]}))
+        value = _read_leaf(f, fld, policy)
+        if value is not MISSING:
+            values[fld.name] = value
+            leaves.append((fld.key, {fld.name: value}))
     return values, leaves
+
+
+def _read_leaf(f: Fields, fld: _Field, policy: Policy) -> Any:
+    """A field's value under its key or the first alias the mapping has; MISSING when it has none (and the field
+    has a default and is not required: otherwise the "missing field" error)."""
+    key = next((k for k in (fld.key, *fld.meta.aliases) if f.has(k)), None)
+    if key is None:
+        if fld.meta.required or fld.default is MISSING:
+            f.raw(fld.key)  # "missing field"
+        return MISSING
+    return _read_value(f, key, fld, policy)
 
 
 def _check_unknown(cls: type[Any], f: Fields, policy: Policy) -> None:
@@ -539,12 +544,9 @@ def from_fields(cls: type[T], fields: Fields, **given: Any) -> T:
     declared = [f for f in _fields(cls) if f.name not in given]
     values = dict(given)
     for f in declared:
-        key = next((k for k in (f.key, *f.meta.aliases) if fields.has(k)), None)
-        if key is None:
-            if f.meta.required or f.default is MISSING:
-                fields.raw(f.key)  # "missing field"
-            continue
-        values[f.name] = _read_value(fields, key, f, policy)
+        value = _read_leaf(fields, f, policy)
+        if value is not MISSING:
+            values[f.name] = value
     fields.warn_unknown([*(f.key for f in declared), *(a for f in declared for a in f.meta.aliases), *policy.ignore])
     return cls(**values)
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 from monodock.core.pose2d import Pose2D
 from monodock.dock.controller import DockingMission
@@ -14,7 +15,11 @@ from monodock.dock.interface import Odometry, RobotInterface
 from monodock.dock.states import FailureReason, State
 from monodock.dock.tracking import Perceive
 
-__all__ = ["MissionResult", "run_mission"]
+__all__ = ["VERDICT_FIELDS", "MissionResult", "run_mission", "verdict"]
+
+# How the mission ended by its own account: the mission, its MissionResult and a simulated trial's record
+# (evaluation.dock_results.TrialResult) all carry these under the same names.
+VERDICT_FIELDS = ("state", "failure", "reason", "retries", "reseats", "charging", "recoveries", "obstacle_waits")
 
 
 @dataclass
@@ -78,17 +83,15 @@ def run_mission(
             robot.sleep(mission.config.limits.control_period)
     robot.send_velocity(0.0, 0.0)
     return MissionResult(
-        state=mission.state,
-        failure=mission.failure,
-        reason=mission.reason,
+        **verdict(mission),
         case=mission.case,
-        retries=mission.retries,
         duration=robot.now() - start,
         estimated_final=mission.estimated_final(),
         impact_speed=mission.impact_speed,
         log=list(mission.log),
-        reseats=mission.reseats,
-        charging=mission.charging,
-        recoveries=mission.recoveries,
-        obstacle_waits=mission.obstacle_waits,
     )
+
+
+def verdict(source: DockingMission | MissionResult) -> dict[str, Any]:
+    """The ``VERDICT_FIELDS`` of a mission or its result, as keywords for the record that carries them on."""
+    return {name: getattr(source, name) for name in VERDICT_FIELDS}

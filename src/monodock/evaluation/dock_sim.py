@@ -17,6 +17,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -33,7 +34,7 @@ from monodock.dock.controller import DockingMission
 from monodock.dock.interface import Odometry
 from monodock.dock.planner import CASES, PlannerConfig, classify, point_a
 from monodock.dock.pose_filter import FilterConfig, MeasurementNoise, OdometryNoise
-from monodock.dock.run import run_mission
+from monodock.dock.run import run_mission, verdict
 from monodock.dock.states import State
 from monodock.dock.tracking import Observation, Perceive, make_perceive
 from monodock.errors import InputError
@@ -268,6 +269,8 @@ def _environment(config: DockSimConfig) -> _Environment:
 
 @dataclass(frozen=True)
 class _Task:
+    """Which run to make; its TrialResult names every field alike."""
+
     case: int
     trial: int
     method: str
@@ -275,6 +278,10 @@ class _Task:
     planner: str = "monodock"
     fault: str = "none"
     variant: str = ""
+
+    def keywords(self) -> dict[str, Any]:
+        """The task's fields as keywords for its TrialResult."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
 def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
@@ -337,16 +344,10 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
     path = tuple((s.pose.x, s.pose.y, s.pose.theta) for s in samples)
     m = mission.manoeuvre
     return TrialResult(
-        case=task.case,
-        trial=task.trial,
-        method=task.method,
-        start=task.start,
+        **task.keywords(),
         classified_case=result.case,
-        state=result.state,
-        reason=result.reason,
-        failure=result.failure,
+        **verdict(result),
         success=success,
-        retries=result.retries,
         time_s=result.duration,
         lateral_cm=lateral * 100,
         longitudinal_cm=gap * 100,
@@ -360,17 +361,10 @@ def _run_trial(config: DockSimConfig, task: _Task) -> TrialResult:
         path_t=(*(s.t for s in samples), robot.t),
         log=tuple(result.log),
         filter_frames=tuple(frames),
-        planner=task.planner,
         point_a=None if m is None else (m.point_a.x, m.point_a.y),
-        fault=task.fault,
         fault_triggered=faults.triggered,
-        charging=result.charging,
-        reseats=result.reseats,
-        recoveries=result.recoveries,
-        obstacle_waits=result.obstacle_waits,
         collided=robot.collided,
         redock=redock,
-        variant=task.variant,
         cpu_s=time.process_time() - c0,
         render_cpu_s=robot.render_cpu_seconds,
         perceive_cpu_s=perceive_cpu_s,

@@ -14,13 +14,13 @@ import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from monodock.core.closing import Closing
 from monodock.core.frame import Frame
 from monodock.core.images import ImageError, decode, printable
 from monodock.core.quiet import library_output
@@ -93,7 +93,7 @@ def _expand(inputs: Sequence[str | Path]) -> list[Path]:
     return paths
 
 
-class FrameSource:
+class FrameSource(Closing):
     """Frames of image files, folders, videos, a camera, a stream or recordings, in order; a context manager.
 
     Make one with ``open_frames`` (or ``FrameSource.of_capture`` for a capture object you already hold).
@@ -218,7 +218,7 @@ class FrameSource:
                 return
             time.sleep(0.01)
 
-    # --- context manager --------------------------------------------------------------------------------------
+    # --- context manager (Closing) ----------------------------------------------------------------------------
 
     def close(self) -> None:
         """Release the device, file or recording."""
@@ -226,14 +226,6 @@ class FrameSource:
             self._capture.release()
         if self._recording is not None:
             self._recording.close()
-
-    def __enter__(self) -> FrameSource:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
 
 
 def open_frames(

@@ -13,7 +13,6 @@ import os
 from collections import deque
 from collections.abc import Collection, Iterator, Sequence
 from pathlib import Path
-from types import TracebackType
 from typing import Any, Protocol
 
 import numpy as np
@@ -22,6 +21,7 @@ from rosbags.highlevel import AnyReader
 
 from monodock.core import transforms
 from monodock.core.camera import CameraModel
+from monodock.core.closing import Closing
 from monodock.core.frame import Frame
 from monodock.core.pose import DockPose
 from monodock.core.robot import Mount, RobotConfig
@@ -227,16 +227,20 @@ def _short(msgtype: str) -> str:
     return msgtype.replace("/msg/", "/")
 
 
-class Recording:
+class Recording(Closing):
     """An open recording: its topics, camera model, sensor mounts, images, scans and ground truth.
 
-    Use as a context manager (``with open_recording(path) as rec:``). ``warnings`` collects what the caller
-    should tell the user (a bag cut short, a frame missing from tf); nothing here prints.
+    Opened by ``open_recording`` (this class under the name its callers use): a rosbag2 folder, a bare .mcap or
+    .db3 file, or a ROS 1 .bag; a context manager (``with open_recording(path) as rec:``). ``warnings`` collects
+    what the caller should tell the user (a bag cut short, a frame missing from tf); nothing here prints.
+
+    Raises:
+        InputError: not found, not a recording, unreadable, no image topic, an ambiguous or unknown topic.
     """
 
     def __init__(
         self,
-        path: Path,
+        path: str | os.PathLike[str],
         *,
         image_topic: str | None = None,
         camera_info_topic: str | None = None,
@@ -244,6 +248,9 @@ class Recording:
         truth_topic: str | None = "/monodock/ground_truth",
         odometry_topic: str | None = None,
     ) -> None:
+        path = Path(path)
+        if not path.exists():
+            raise InputError(f"recording not found: {path}")
         self.path = path
         self.warnings: list[str] = []
         self._edges: dict[tuple[str, str], NDArray[np.float64]] | None = None
@@ -268,14 +275,6 @@ class Recording:
             raise
 
     # --- plumbing -------------------------------------------------------------------------------
-
-    def __enter__(self) -> Recording:
-        return self
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
 
     def close(self) -> None:
         """Close the bag's files."""
@@ -419,26 +418,31 @@ class Recording:
             return base
         robot = base
         image_frame = self._frame_id(self.image_topic)
-        if image_frame:
-            T = self._lookup(edges, base_frame, image_frame)
-            if T is None:
-                self._warn(f"{self.path}: /tf_static has no {base_frame} -> {image_frame}; camera mount from the robot")
+        T = self._mount_lookup(edges, base_frame, image_frame, "camera")
+        if T is not None:
+            link = T.copy()
+            if T[2, 2] > 0.7:
+                # The frame's z points up: a body frame (camera_link), not an optical one (REP 103).
+                self._warn(f"{self.path}: image frame {image_frame} is not an optical frame (its z is up)")
             else:
-                link = T.copy()
-                if T[2, 2] > 0.7:
-                    # The frame's z points up: a body frame (camera_link), not an optical one (REP 103).
-                    self._warn(f"{self.path}: image frame {image_frame} is not an optical frame (its z is up)")
-                else:
-                    link[:3, :3] = T[:3, :3] @ transforms.LINK_R_OPTICAL.T
-                robot = dataclasses.replace(robot, camera_mount=Mount.from_matrix(link))
-        scan_frame = self._frame_id(self.scan_topic)
-        if scan_frame:
-            T = self._lookup(edges, base_frame, scan_frame)
-            if T is None:
-                self._warn(f"{self.path}: /tf_static has no {base_frame} -> {scan_frame}; LiDAR mount from the robot")
-            else:
-                robot = dataclasses.replace(robot, laser_mount=Mount.from_matrix(T))
+                link[:3, :3] = T[:3, :3] @ transforms.LINK_R_OPTICAL.T
+            robot = dataclasses.replace(robot, camera_mount=Mount.from_matrix(link))
+        T = self._mount_lookup(edges, base_frame, self._frame_id(self.scan_topic), "LiDAR")
+        if T is not None:
+            robot = dataclasses.replace(robot, laser_mount=Mount.from_matrix(T))
         return robot
+
+    def _mount_lookup(
+        self, edges: dict[tuple[str, str], NDArray[np.float64]], base_frame: str, frame: str | None, sensor: str
+    ) -> NDArray[np.float64] | None:
+        """base_frame_T_frame for ``robot``; None for a topic without a frame, or (with a warning that the
+        ``sensor``'s mount stays the robot description's) a frame the tf tree does not reach."""
+        if not frame:
+            return None
+        T = self._lookup(edges, base_frame, frame)
+        if T is None:
+            self._warn(f"{self.path}: /tf_static has no {base_frame} -> {frame}; {sensor} mount from the robot")
+        return T
 
     def _image_stamps(self) -> list[float]:
         stamps = []
@@ -511,28 +515,5 @@ class Recording:
         return sorted(out, key=lambda item: item[0])
 
 
-def open_recording(
-    path: str | os.PathLike[str],
-    *,
-    image_topic: str | None = None,
-    camera_info_topic: str | None = None,
-    scan_topic: str | None = None,
-    truth_topic: str | None = "/monodock/ground_truth",
-    odometry_topic: str | None = None,
-) -> Recording:
-    """Open a rosbag2 folder, a bare .mcap or .db3 file, or a ROS 1 .bag; a context manager.
-
-    Raises:
-        InputError: not found, not a recording, unreadable, no image topic, an ambiguous or unknown topic.
-    """
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"recording not found: {p}")
-    return Recording(
-        p,
-        image_topic=image_topic,
-        camera_info_topic=camera_info_topic,
-        scan_topic=scan_topic,
-        truth_topic=truth_topic,
-        odometry_topic=odometry_topic,
-    )
+# Opening a recording is making a Recording; callers say what they do: ``with open_recording(path) as rec:``.
+open_recording = Recording

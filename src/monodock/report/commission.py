@@ -14,7 +14,7 @@ from monodock.core import transforms
 from monodock.core.config import json_text
 from monodock.core.layout import ROLES
 from monodock.report.html import HtmlReport
-from monodock.report.plotting import plt
+from monodock.report.plotting import saved_figure
 
 __all__ = ["write_commission_report"]
 
@@ -62,8 +62,7 @@ def _layout_png(c: Commissioning, path: Path) -> None:
     """The charger's face from the front: the nominal markers (grey) and the surveyed ones (green), their centres'
     moves drawn 20x; and from above: each marker's standing off the face and its yaw, 20x."""
     nominal, final = c.nominal_layout, c.layout
-    fig, (front, top) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [3, 2]})
-    try:
+    with saved_figure(path, 1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [3, 2]}) as (_, (front, top)):
         for layout, colour, style in ((nominal, "0.6", "--"), (final, "tab:green", "-")):
             for role in ROLES:
                 corners = layout.corners_in_dock(role)
@@ -92,25 +91,16 @@ def _layout_png(c: Commissioning, path: Path) -> None:
         top.set_xlabel("across the face, robot's left to right (m)")
         top.set_ylabel("into the charger (m, x20)")
         top.set_title("from above: stand-off and yaw, x20")
-        fig.tight_layout()
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
 
 
 def _survey_residuals_png(c: Commissioning, path: Path) -> None:
     assert c.survey is not None
     used = c.survey.used
-    fig, ax = plt.subplots(figsize=(9, 2.8))
-    try:
+    with saved_figure(path, figsize=(9, 2.8)) as (_, ax):
         ax.bar(range(len(used)), [v.rms_px for v in used], color="tab:blue")
         ax.set_xlabel("view")
         ax.set_ylabel("RMS reprojection (px)")
         ax.set_title(f"survey: {len(used)} views, RMS {c.survey.rms_px:.3f} px over every corner")
-        fig.tight_layout()
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
 
 
 def _drive_png(c: Commissioning, path: Path) -> None:
@@ -118,8 +108,7 @@ def _drive_png(c: Commissioning, path: Path) -> None:
     reprojection error, and the dock's face."""
     assert c.mount is not None
     p, res = c.mount.path, c.mount.residuals_px
-    fig, (top, series) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1, 1]})
-    try:
+    with saved_figure(path, 1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1, 1]}) as (fig, (top, series)):
         sc = top.scatter(-p[:, 1], p[:, 0], c=res, s=9, cmap="viridis")
         step = max(1, len(p) // 25)
         top.quiver(-p[::step, 1], p[::step, 0], -np.sin(p[::step, 2]), np.cos(p[::step, 2]), width=0.004, scale=25)
@@ -135,17 +124,12 @@ def _drive_png(c: Commissioning, path: Path) -> None:
         series.set_xlabel("frame")
         series.set_ylabel("RMS reprojection (px)")
         series.set_title(f"mount fit: {c.mount.frames} frames, RMS {c.mount.rms_px:.3f} px")
-        fig.tight_layout()
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
 
 
 def _teach_png(c: Commissioning, path: Path) -> None:
     assert c.teach is not None
     r = c.teach.residuals
-    fig, axes = plt.subplots(1, 3, figsize=(11, 3.0))
-    try:
+    with saved_figure(path, 1, 3, figsize=(11, 3.0)) as (fig, axes):
         for ax, k, label, scale in (
             (axes[0], 1, "x (mm)", 1e3),
             (axes[1], 2, "y (mm)", 1e3),
@@ -156,10 +140,6 @@ def _teach_png(c: Commissioning, path: Path) -> None:
             ax.set_xlabel("backed off (m)")
             ax.set_ylabel(label)
         fig.suptitle("teaching: each frame's estimate of the dock from the charging pose, minus the taught one")
-        fig.tight_layout()
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
 
 
 def _values_table(c: Commissioning) -> str:

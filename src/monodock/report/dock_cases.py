@@ -154,36 +154,24 @@ def case_diagram(
     )
     ax.add_patch(FancyArrowPatch(top_uv(a.x, a.y), top_uv(docked.x, docked.y), color="tab:green", **style))
     words = f"back out {m.back_out:.2f} m,\n" if m.back_out > 0 else ""
-    ax.annotate(
+    _phase_label(
+        ax,
         f"Moving₁: {words}turn {math.degrees(m.first_turn):+.0f}°,\n"
         f"{'reverse' if m.reverse else 'drive'} {m.drive_distance:.2f} m",
         top_uv(start.x, start.y),
-        xytext=(12 * side, -28),
-        textcoords="offset points",
-        fontsize=9,
+        (12 * side, -28),
+        "tab:purple",
         ha="right" if side > 0 else "left",
-        color="tab:purple",
-        bbox=_LABEL_BOX,
     )
-    ax.annotate(
+    _phase_label(
+        ax,
         f"Moving₂: turn {math.degrees(m.second_turn):+.0f}°",
         top_uv(a.x, a.y),
-        xytext=(-12 * side, -18),
-        textcoords="offset points",
-        fontsize=9,
+        (-12 * side, -18),
+        "tab:orange",
         ha="left" if side > 0 else "right",
-        color="tab:orange",
-        bbox=_LABEL_BOX,
     )
-    ax.annotate(
-        "Moving₃: P-control",
-        top_uv(0.5 * (a.x - robot.front_offset), 0.0),
-        xytext=(8, 0),
-        textcoords="offset points",
-        fontsize=9,
-        color="tab:green",
-        bbox=_LABEL_BOX,
-    )
+    _phase_label(ax, "Moving₃: P-control", top_uv(0.5 * (a.x - robot.front_offset), 0.0), (8, 0), "tab:green")
     ax.set_aspect("equal")
     ax.set_xlim(-1.3, 1.3)
     ax.set_ylim(-3.0, 0.45)
@@ -194,6 +182,13 @@ def case_diagram(
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _phase_label(
+    ax: Axes, text: str, at: tuple[float, float], offset: tuple[float, float], color: str, ha: str = "left"
+) -> None:
+    """A phase's words ``offset`` points from where it acts, in its colour on a white box (``ha``: matplotlib's)."""
+    ax.annotate(text, at, xytext=offset, textcoords="offset points", fontsize=9, ha=ha, color=color, bbox=_LABEL_BOX)
 
 
 _PLANNER_TITLES = {

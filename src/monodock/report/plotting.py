@@ -6,12 +6,18 @@ pyplot is first imported, and no figure ever needs a display.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
+from matplotlib.figure import Figure
 
-__all__ = ["METHOD_COLOURS", "METHOD_LABELS", "plt"]
+__all__ = ["METHOD_COLOURS", "METHOD_LABELS", "plt", "saved_figure"]
 
 # One colour per method across every figure of the reports (the LiDAR labels are a reference, drawn in blue).
 METHOD_COLOURS = {
@@ -30,3 +36,16 @@ METHOD_LABELS = {
     "fused": "fused",
     "fused (stale tables)": "fused (stale tables)",
 }
+
+
+@contextmanager
+def saved_figure(path: Path, *args: Any, dpi: int = 100, **kwargs: Any) -> Iterator[tuple[Figure, Any]]:
+    """``plt.subplots(*args, **kwargs)`` to draw on in the block, laid out tight and written to ``path`` when the
+    block ends without an error; closed either way."""
+    fig, axes = plt.subplots(*args, **kwargs)
+    try:
+        yield fig, axes
+        fig.tight_layout()
+        fig.savefig(path, dpi=dpi)
+    finally:
+        plt.close(fig)
