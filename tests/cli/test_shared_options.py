@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -12,6 +15,7 @@ from monodock.calibrate.survey import SurveyLimits
 from monodock.cli.calibrate_dock import survey_limits
 from monodock.cli.demo import DemoConfig
 from monodock.cli.main import parser
+from monodock.cli.options import SubParsers, add_command
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -54,3 +58,56 @@ def test_the_demo_flags_default_to_demo_config() -> None:
         config.dock_trials,
         config.seed,
     )
+
+
+def _documented(_args: argparse.Namespace) -> int:
+    """the help, on
+    two lines, at 100 %
+
+    The description: the rest,
+    re-flowed."""
+    return 0
+
+
+def _undocumented(_args: argparse.Namespace) -> int:
+    return 0
+
+
+def _command_line() -> tuple[argparse.ArgumentParser, SubParsers]:
+    top = argparse.ArgumentParser(prog="top")
+    return top, top.add_subparsers(dest="command", required=True)
+
+
+def test_a_commands_help_and_description_are_its_run_functions_docstring(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("COLUMNS", "120")
+    top, sub = _command_line()
+    p = add_command(sub, "doc", _documented, epilog="the end")
+    p.add_argument("--x", type=int)
+    (choice,) = sub._choices_actions
+    assert choice.help == "the help, on two lines, at 100 %%"  # argparse %-formats a help: it shows 100 %
+    assert p.description == "The description: the rest, re-flowed."
+    assert "the help, on two lines, at 100 %\n" in top.format_help()
+    assert "The description: the rest, re-flowed.\n" in p.format_help()
+    assert p.epilog == "the end"
+    args = top.parse_args(["doc", "--x", "3"])
+    assert (args.func, args.x) == (_documented, 3)
+
+
+def test_a_run_function_without_a_docstring_still_gives_a_working_command() -> None:
+    top, sub = _command_line()
+    p = add_command(sub, "bare", _undocumented)
+    assert (sub._choices_actions[0].help, p.description) == (None, None)
+    assert "bare" in top.format_help()
+    assert p.format_help().startswith("usage: top bare [-h]")
+    assert top.parse_args(["bare"]).func is _undocumented
+    # python -OO strips every docstring: the command line still builds and prints its help.
+    env = {**os.environ, "COLUMNS": "80"}
+    done = subprocess.run(
+        [sys.executable, "-OO", "-m", "monodock.cli.main", "--help"],
+        capture_output=True,
+        text=True,
+        env=env,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "    teach\n" in done.stdout

@@ -36,7 +36,7 @@ from monodock.calibrate.intrinsics import (
 )
 from monodock.calibrate.target import DiamondTarget, read_target_views
 from monodock.cli.calibrate_dock import add_layout_parser, add_mount_parser
-from monodock.cli.options import SubParsers, add_pairing_tolerance
+from monodock.cli.options import SubParsers, add_command, add_pairing_tolerance
 from monodock.core import transforms
 from monodock.core.atomic import check_writable, resolved, write_bytes_atomic, write_text_atomic
 from monodock.core.camera import CameraModel
@@ -52,7 +52,8 @@ __all__ = ["add_parser", "run_extrinsics", "run_intrinsics"]
 
 
 def add_parser(subparsers: SubParsers) -> None:
-    """Add ``calibrate`` with its two sub-commands."""
+    """Add ``calibrate`` with its four sub-commands."""
+    # A group with no run function of its own (add_command): its help is written here.
     cal = subparsers.add_parser(
         "calibrate",
         help="camera intrinsics; camera-LiDAR extrinsics; the dock's layout from photos; the camera mount from a drive",
@@ -66,12 +67,7 @@ def add_parser(subparsers: SubParsers) -> None:
 
 def _add_intrinsics(calibrate_subparsers: SubParsers) -> None:
     """Add ``intrinsics`` to the ``monodock calibrate`` sub-commands."""
-    p = calibrate_subparsers.add_parser(
-        "intrinsics",
-        help="camera intrinsics and distortion from checkerboard images, a video or a recording",
-        description="Calibrate fx, fy, cx, cy and plumb_bob distortion from views of a checkerboard; write ROS "
-        "camera_info YAML and a PNG of how the corners covered the image.",
-    )
+    p = add_command(calibrate_subparsers, "intrinsics", run_intrinsics)
     p.add_argument("images", nargs="+", metavar="IMAGES", help="image files, folders of images, videos or recordings")
     p.add_argument("--board", default="8x6", help="inner corners per row x per column (default: 8x6, 9x7 squares)")
     p.add_argument("--square", type=float, default=0.025, help="square side, metres, in (0, 10] (default: 0.025)")
@@ -89,7 +85,6 @@ def _add_intrinsics(calibrate_subparsers: SubParsers) -> None:
     p.add_argument("--min-views", type=int, default=5, help="fewest usable views, 1-1000 (default: 5)")
     p.add_argument("--name", default="camera", help="camera_name in the YAML (default: camera)")
     p.add_argument("--force", action="store_true", help="replace existing output files")
-    p.set_defaults(func=run_intrinsics)
 
 
 def _input_views(args: argparse.Namespace, board: tuple[int, int]) -> Iterable[tuple[str, NDArray[np.generic]]]:
@@ -106,7 +101,10 @@ def _input_views(args: argparse.Namespace, board: tuple[int, int]) -> Iterable[t
 
 
 def run_intrinsics(args: argparse.Namespace) -> int:
-    """Run ``monodock calibrate intrinsics``: calibrate, print a summary, write the YAML and coverage PNG."""
+    """camera intrinsics and distortion from checkerboard images, a video or a recording
+
+    Calibrate fx, fy, cx, cy and plumb_bob distortion from views of a checkerboard; write ROS camera_info YAML and a PNG
+    of how the corners covered the image."""
     board = parse_board(args.board)
     if not (math.isfinite(args.square) and args.square > 0):
         raise InputError(f"--square must be a positive length in metres, got {args.square}")
@@ -147,15 +145,7 @@ def run_intrinsics(args: argparse.Namespace) -> int:
 
 def _add_extrinsics(calibrate_subparsers: SubParsers) -> None:
     """Add ``extrinsics`` to the ``monodock calibrate`` sub-commands."""
-    p = calibrate_subparsers.add_parser(
-        "extrinsics",
-        help="the LiDAR mount relative to the camera: from point/pixel pairs, or from a recording of the dock",
-        description=(
-            "Calibrate the LiDAR mount in base_link, given the camera mount. With --pairs: SolvePnP on LiDAR "
-            "points (laser frame) matched to pixels (CSV x,y,u,v). With --recording: the charger face the camera "
-            "sees (board PnP) must hold the LiDAR's face points; solves x, y, yaw and keeps z, roll, pitch."
-        ),
-    )
+    p = add_command(calibrate_subparsers, "extrinsics", run_extrinsics)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--pairs", help="CSV of LiDAR point / pixel pairs: x,y,u,v (optional z), metres and pixels")
     src.add_argument("--recording", help="recording with camera images and LiDAR scans of the charger")
@@ -179,11 +169,14 @@ def _add_extrinsics(calibrate_subparsers: SubParsers) -> None:
     )
     add_pairing_tolerance(p, "image/scan pairing tolerance, s, in (0, 10] (default 0.05)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.set_defaults(func=run_extrinsics)
 
 
 def run_extrinsics(args: argparse.Namespace) -> int:
-    """``monodock calibrate extrinsics``: the LiDAR mount from pairs, a recording of the dock, or the target."""
+    """the LiDAR mount relative to the camera: from point/pixel pairs, or from a recording of the dock
+
+    Calibrate the LiDAR mount in base_link, given the camera mount. With --pairs: SolvePnP on LiDAR points (laser frame)
+    matched to pixels (CSV x,y,u,v). With --recording: the charger face the camera sees (board PnP) must hold the
+    LiDAR's face points; solves x, y, yaw and keeps z, roll, pitch."""
     outputs = [o for o in (args.out, args.tf, args.robot_out, args.overlay) if o]
     if len({os.path.abspath(o) for o in outputs}) < len(outputs):
         raise InputError("--out, --tf, --robot-out and --overlay must be different files")

@@ -11,7 +11,7 @@ from pathlib import Path
 from monodock.calibrate.mount import calibrate_mount_of, frames_from_recording
 from monodock.calibrate.survey import SurveyLimits, survey_layout, surveyed_layout_text
 from monodock.calibrate.survey_views import views_from_inputs
-from monodock.cli.options import SubParsers, add_recording_inputs, float_in, int_in, recording_inputs
+from monodock.cli.options import SubParsers, add_command, add_recording_inputs, float_in, int_in, recording_inputs
 from monodock.core.atomic import check_writable, write_text_atomic
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -48,14 +48,7 @@ def survey_limits(args: argparse.Namespace) -> SurveyLimits:
 
 def add_layout_parser(calibrate_subparsers: SubParsers) -> None:
     """Add ``layout`` to the ``monodock calibrate`` sub-commands."""
-    p = calibrate_subparsers.add_parser(
-        "layout",
-        help="survey the dock from 10-40 photographs: every marker's pose and printed side",
-        description="Bundle adjustment over every refined marker corner of the views (photos, a video, frames of "
-        "a recording; any calibrated camera): each marker's x, y, z, roll, pitch, yaw and side, with its standard "
-        "deviation. The nominal layout gives the dictionary, the ids and the start. With --robot the views are the "
-        "robot's own camera on the floor: the heights and the dock's up are measured.",
-    )
+    p = add_command(calibrate_subparsers, "layout", run_layout)
     p.add_argument("images", nargs="+", metavar="IMAGES", help="image files, folders of images, videos or recordings")
     p.add_argument("--camera", help="camera file of the views (default: a recording's CameraInfo)")
     p.add_argument("--layout", required=True, help="the nominal layout YAML (dictionary, ids, where you put them)")
@@ -68,11 +61,15 @@ def add_layout_parser(calibrate_subparsers: SubParsers) -> None:
         tilt="refuse when a marker's tilt is more uncertain than this",
     )
     p.add_argument("--force", action="store_true", help="overwrite --out")
-    p.set_defaults(func=run_layout)
 
 
 def run_layout(args: argparse.Namespace) -> int:
-    """``monodock calibrate layout``: survey, print each value with its standard deviation, write the layout."""
+    """survey the dock from 10-40 photographs: every marker's pose and printed side
+
+    Bundle adjustment over every refined marker corner of the views (photos, a video, frames of a recording; any
+    calibrated camera): each marker's x, y, z, roll, pitch, yaw and side, with its standard deviation. The nominal
+    layout gives the dictionary, the ids and the start. With --robot the views are the robot's own camera on the floor:
+    the heights and the dock's up are measured."""
     check_writable(args.out, force=args.force, inputs=[*args.images, args.camera, args.layout, args.robot])
     nominal = DockLayout.load(args.layout)
     robot = RobotConfig.load(args.robot) if args.robot else None
@@ -88,14 +85,7 @@ def run_layout(args: argparse.Namespace) -> int:
 
 def add_mount_parser(calibrate_subparsers: SubParsers) -> None:
     """Add ``mount`` to the ``monodock calibrate`` sub-commands."""
-    p = calibrate_subparsers.add_parser(
-        "mount",
-        help="the camera mount from a minute's drive before the dock (images, camera_info, nav_msgs/Odometry)",
-        description="Hand-eye calibration for planar motion: the camera mount (x, y, z, roll, pitch, yaw) that "
-        "makes what the camera sees of the dock agree with the wheel odometry, each with its standard deviation; "
-        "also the dock's lean against the floor and the odometry's errors. z is measured against the layout's "
-        "heights (a drive on a flat floor cannot tell a camera's height).",
-    )
+    p = add_command(calibrate_subparsers, "mount", run_mount)
     add_recording_inputs(
         p,
         of="the drive",
@@ -115,11 +105,15 @@ def add_mount_parser(calibrate_subparsers: SubParsers) -> None:
     )
     p.add_argument("--image-topic", help="the recording's image topic, when it has several")
     p.add_argument("--force", action="store_true", help="overwrite the outputs")
-    p.set_defaults(func=run_mount)
 
 
 def run_mount(args: argparse.Namespace) -> int:
-    """``monodock calibrate mount``: the mount from the drive; write the robot (and the layout) file."""
+    """the camera mount from a minute's drive before the dock (images, camera_info, nav_msgs/Odometry)
+
+    Hand-eye calibration for planar motion: the camera mount (x, y, z, roll, pitch, yaw) that makes what the camera sees
+    of the dock agree with the wheel odometry, each with its standard deviation; also the dock's lean against the floor
+    and the odometry's errors. z is measured against the layout's heights (a drive on a flat floor cannot tell a
+    camera's height)."""
     outputs = [o for o in (args.out, args.layout_out) if o]
     if len({str(Path(o).resolve()) for o in outputs}) < len(outputs):
         raise InputError("--out and --layout-out must be different files")

@@ -8,7 +8,7 @@ from monodock.calibrate.commission import commission
 from monodock.calibrate.survey import surveyed_layout_text
 from monodock.calibrate.teach import taught_config_text
 from monodock.cli.calibrate_dock import add_survey_limits, survey_limits
-from monodock.cli.options import SubParsers
+from monodock.cli.options import SubParsers, add_command
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -28,14 +28,7 @@ FILES = {
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``commission``."""
-    p = subparsers.add_parser(
-        "commission",
-        help="commission a new robot and dock: survey, camera mount, charging pose; one report with a verdict",
-        description="Runs calibrate layout on the survey photos, calibrate mount on the drive and teach on the "
-        "back-off, each with what the step before it found, and writes the commissioned layout, robot file and "
-        "docking config with an HTML report: every value with its uncertainty, the residuals, the survey's views "
-        "with the fitted markers, the drive's path, and a verdict (ready to dock, or what to redo).",
-    )
+    p = add_command(subparsers, "commission", run)
     p.add_argument("--survey", nargs="+", required=True, metavar="IMAGES", help="the survey's photographs (10-40)")
     p.add_argument("--drive", required=True, help="recording of a minute's drive before the dock (with odometry)")
     p.add_argument("--teach", required=True, help="recording of the back-off from the contacts (with battery state)")
@@ -55,11 +48,15 @@ def add_parser(subparsers: SubParsers) -> None:
     p.add_argument("--docked-at-start", action="store_true",
                    help="the teach recording has no battery state and starts on the contacts")  # fmt: skip
     p.add_argument("--force", action="store_true", help="replace --out")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock commission``: the three steps, the files, the report; exit 2 when the robot is not ready."""
+    """commission a new robot and dock: survey, camera mount, charging pose; one report with a verdict
+
+    Runs calibrate layout on the survey photos, calibrate mount on the drive and teach on the back-off, each with what
+    the step before it found, and writes the commissioned layout, robot file and docking config with an HTML report:
+    every value with its uncertainty, the residuals, the survey's views with the fitted markers, the drive's path, and a
+    verdict (ready to dock, or what to redo)."""
     inputs = [*args.survey, args.drive, args.teach, args.camera, args.survey_camera, args.layout, args.robot]
     check_writable(args.out, force=args.force, inputs=inputs)
     camera = CameraModel.load(args.camera)
@@ -87,6 +84,6 @@ def run(args: argparse.Namespace) -> int:
     for line in result.verdict():
         print(line)
     print(f"-> {args.out}/report.html")
-    if not result.ready:
+    if not result.ready:  # exit 2: the files and the report are written, the robot is not ready
         raise InputError(f"not ready: {result.verdict()[0]} (the report says more: {args.out}/report.html)")
     return 0

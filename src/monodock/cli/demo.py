@@ -20,7 +20,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from monodock.cli.options import SubParsers, add_cluster, add_jobs, add_seed, int_in, jobs
+from monodock.cli.options import SubParsers, add_cluster, add_command, add_jobs, add_seed, int_in, jobs
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.projection import project_to_image, scan_in_base
@@ -337,7 +337,7 @@ _SIZES = (
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``demo``."""
-    d = subparsers.add_parser("demo", help="simulate, label, train, evaluate every method, and write the report")
+    d = add_command(subparsers, "demo", run)
     d.add_argument("--out", default="demo_report", help="report folder (default: demo_report)")
     for flag, most, default, what in _SIZES:
         d.add_argument(flag, type=int_in(1, most), default=default, help=f"{what}, 1-{most} ({default})")
@@ -345,11 +345,10 @@ def add_parser(subparsers: SubParsers) -> None:
     add_jobs(d)
     add_cluster(d)
     d.add_argument("--force", action="store_true", help="replace an existing report folder")
-    d.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock demo``: the whole pipeline on the simulator, and a summary of its report."""
+    """simulate, label, train, evaluate every method, and write the report"""
     for flag, value in (
         ("--train-stops", args.train_stops),
         ("--test-stops", args.test_stops),

@@ -10,7 +10,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from monodock.cli.options import SubParsers, add_seed, float_in, int_in
+from monodock.cli.options import SubParsers, add_command, add_seed, float_in, int_in
 from monodock.core.atomic import atomic_directory, check_writable, write_bytes_atomic
 from monodock.core.camera import CameraModel
 from monodock.core.robot import RobotConfig
@@ -43,15 +43,7 @@ def parse_tolerance(text: str) -> tuple[float, float]:
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``design``."""
-    p = subparsers.add_parser(
-        "design",
-        help="design a dock for a start envelope: markers, sizes, dictionary, spacing, far marker; report and kit",
-        description="Propose the smallest charger face whose markers a robot facing it detects from every start "
-        "0.5 m to --max-distance from the face centre within ±--max-bearing of its axis (the detection model of "
-        "bench/detection_range.py), with the papers' three markers all in view near the dock and the near-field "
-        "Cramér–Rao bound within --tolerance. Writes DIR/layout.yaml, report.html with the maps, design.json, "
-        "and the printable kit in DIR/kit/; the prediction is checked in the simulator (docs/design.md).",
-    )
+    p = add_command(subparsers, "design", run)
     p.add_argument("--camera", required=True, help="camera YAML (ROS camera_info / OpenCV calibration)")
     p.add_argument("--robot", help="robot YAML: the camera mount (default: the papers' robot)")
     p.add_argument(
@@ -92,11 +84,17 @@ def add_parser(subparsers: SubParsers) -> None:
     add_seed(p)
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write (a new one, or replaced with --force)")
     p.add_argument("--force", action="store_true", help="replace an existing DIR")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock design``: load, design (or say in one line why nothing fits), check, write DIR in one rename."""
+    """design a dock for a start envelope: markers, sizes, dictionary, spacing, far marker; report and kit
+
+    Propose the smallest charger face whose markers a robot facing it detects from every start 0.5 m to --max-distance
+    from the face centre within ±--max-bearing of its axis (the detection model of bench/detection_range.py), with the
+    papers' three markers all in view near the dock and the near-field Cramér–Rao bound within --tolerance. Writes
+    DIR/layout.yaml, report.html with the maps, design.json, and the printable kit in DIR/kit/; the prediction is
+    checked in the simulator (docs/design.md)."""
+    # Load, design (or say in one line why nothing fits), check in the simulator, write DIR in one rename.
     check_writable(args.out, force=args.force, inputs=(args.camera, args.robot))
     camera = CameraModel.load(args.camera)
     robot = RobotConfig.load(args.robot) if args.robot else RobotConfig.default()

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from monodock.cli.options import SubParsers
+from monodock.cli.options import SubParsers, add_command
 from monodock.core.atomic import atomic_directory, check_writable, write_bytes_atomic
 from monodock.core.layout import DockLayout
 from monodock.errors import InputError
@@ -18,12 +18,7 @@ PAPER_CHOICES = (*PAPERS, "both")
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``dock-kit``."""
-    p = subparsers.add_parser(
-        "dock-kit",
-        help="a printable dock kit: the layout's markers at exact scale and where they go on the charger (PDF)",
-        description="Write DIR with dock_kit_a4.pdf and/or dock_kit_letter.pdf (one page per marker, or --sheet, "
-        "and a placement drawing) and layout.yaml. Print at 100 % / actual size and check the 10 cm scale bar.",
-    )
+    p = add_command(subparsers, "dock-kit", run)
     p.add_argument("--layout", required=True, help="dock layout YAML: the markers to print")
     p.add_argument("--out", required=True, metavar="DIR", help="folder to write (a new one, or replaced with --force)")
     p.add_argument(
@@ -35,11 +30,14 @@ def add_parser(subparsers: SubParsers) -> None:
     )
     p.add_argument("--sheet", action="store_true", help="as many markers per page as fit, not one page each")
     p.add_argument("--force", action="store_true", help="replace an existing DIR")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock dock-kit``: check every paper fits before drawing, then write the folder in one rename."""
+    """a printable dock kit: the layout's markers at exact scale and where they go on the charger (PDF)
+
+    Write DIR with dock_kit_a4.pdf and/or dock_kit_letter.pdf (one page per marker, or --sheet, and a placement drawing)
+    and layout.yaml. Print at 100 % / actual size and check the 10 cm scale bar."""
+    # Every paper is checked to fit before anything is drawn; the folder is then written in one rename.
     check_writable(args.out, force=args.force, inputs=(args.layout,))
     layout = DockLayout.load(args.layout)
     keys = ["a4", "letter"] if args.paper == "both" else [args.paper]

@@ -9,7 +9,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-from monodock.cli.options import add_camera_rate, add_cluster, add_jobs, add_seed, comma_list, float_in, int_in
+from monodock.cli.options import (
+    SubParsers,
+    add_camera_rate,
+    add_cluster,
+    add_command,
+    add_jobs,
+    add_seed,
+    comma_list,
+    float_in,
+    int_in,
+)
 from monodock.core import settings
 from monodock.core.atomic import atomic_directory, check_writable
 from monodock.core.camera import CameraModel
@@ -35,7 +45,7 @@ from monodock.report.docking import write_dock_report
 from monodock.sim.diffdrive import DiffDriveConfig
 from monodock.sim.render import MAX_SUPERSAMPLE
 
-__all__ = ["add_parser"]
+__all__ = ["add_parser", "run"]
 
 
 def _cases(value: str) -> tuple[int, ...]:
@@ -64,12 +74,9 @@ def _rate(value: str) -> float:
     return r
 
 
-def add_parser(subparsers: Any) -> None:
+def add_parser(subparsers: SubParsers) -> None:
     """Add ``dock-sim`` to the ``monodock`` sub-command parsers."""
-    d = subparsers.add_parser(
-        "dock-sim",
-        help="closed-loop docking in the simulator, camera in the loop: every case, many starts, every method",
-    )
+    d = add_command(subparsers, "dock-sim", run)
     d.add_argument("--cases", type=_cases, help="'all' (default) or e.g. 1,3,5 (not with --starts room)")
     d.add_argument(
         "--starts",
@@ -179,11 +186,10 @@ def add_parser(subparsers: Any) -> None:
     d.add_argument("--camera", help="simulate this camera (ROS camera_info YAML); default: the built-in webcam")
     d.add_argument("--layout", help="simulate this dock layout; default: the papers'")
     d.add_argument("--robot", help="simulate this robot (mounts, front_offset); default: the papers'")
-    d.set_defaults(func=_cmd_dock_sim)
 
 
-def _cmd_dock_sim(args: argparse.Namespace) -> int:
-
+def run(args: argparse.Namespace) -> int:
+    """closed-loop docking in the simulator, camera in the loop: every case, many starts, every method"""
     if args.out:
         inputs = (args.config, args.model, args.camera, args.layout, args.robot, args.cache)
         check_writable(args.out, force=args.force, inputs=inputs)

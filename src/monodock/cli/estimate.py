@@ -10,7 +10,14 @@ import os
 
 from tqdm import tqdm
 
-from monodock.cli.options import SubParsers, add_calibration, add_model_and_method, add_refinement, build_estimator
+from monodock.cli.options import (
+    SubParsers,
+    add_calibration,
+    add_command,
+    add_model_and_method,
+    add_refinement,
+    build_estimator,
+)
 from monodock.core.atomic import check_writable, write_text_atomic
 from monodock.errors import InputError
 from monodock.estimation.estimator import Estimator, FrameEstimates
@@ -23,7 +30,7 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``estimate``."""
-    e = subparsers.add_parser("estimate", help="estimate the DockPose in images, folders, videos or recordings")
+    e = add_command(subparsers, "estimate", run)
     e.add_argument("inputs", nargs="+", metavar="INPUT", help="image files, folders of images, videos, or recordings")
     add_model_and_method(e)
     e.add_argument("--out", required=True, help="EST.csv to write")
@@ -32,7 +39,6 @@ def add_parser(subparsers: SubParsers) -> None:
     e.add_argument("--skip-bad", action="store_true", help="an unreadable image gives an invalid row, not an error")
     e.add_argument("--force", action="store_true", help="overwrite an existing output")
     add_calibration(e, required=False)
-    e.set_defaults(func=run)
 
 
 def _estimate_all(args: argparse.Namespace, estimator: Estimator) -> list[FrameEstimates]:
@@ -53,7 +59,7 @@ def _estimate_all(args: argparse.Namespace, estimator: Estimator) -> list[FrameE
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock estimate``."""
+    """estimate the DockPose in images, folders, videos or recordings"""
     estimator = build_estimator(args)
     inputs = (*args.inputs, args.model, args.camera, args.layout, args.robot)
     check_writable(args.out, force=args.force, inputs=inputs)

@@ -12,6 +12,7 @@ from monodock.cli.label import label
 from monodock.cli.options import (
     SubParsers,
     add_cluster,
+    add_command,
     add_jobs,
     add_seed,
     add_topics,
@@ -35,11 +36,7 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``evaluate``."""
-    ev = subparsers.add_parser(
-        "evaluate",
-        help="every method on a held-out recording against LiDAR labels and truth; --robustness: against "
-        "one simulated nuisance or calibration error at a time",
-    )
+    ev = add_command(subparsers, "evaluate", run)
     ev.add_argument(
         "recording",
         nargs="?",
@@ -75,7 +72,6 @@ def add_parser(subparsers: SubParsers) -> None:
     add_jobs(g)
     add_cluster(g)
     add_topics(ev)
-    ev.set_defaults(func=run)
 
 
 def _inputs(args: argparse.Namespace) -> tuple[str | None, ...]:
@@ -120,7 +116,8 @@ def _robustness(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock evaluate``."""
+    """every method on a held-out recording against LiDAR labels and truth; --robustness: against one simulated nuisance
+    or calibration error at a time"""
     if args.robustness:
         return _robustness(args)
     if args.recording is None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from monodock.cli.options import SubParsers, add_jobs, add_topics, jobs, positive_seconds
+from monodock.cli.options import SubParsers, add_command, add_jobs, add_topics, jobs, positive_seconds
 from monodock.core.atomic import check_writable
 from monodock.core.camera import CameraModel
 from monodock.core.layout import DockLayout
@@ -18,7 +18,7 @@ __all__ = ["add_parser", "label", "run"]
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``label``."""
-    lb = subparsers.add_parser("label", help="LiDAR labels for a recording: detect, pair with scans, write the dataset")
+    lb = add_command(subparsers, "label", run)
     lb.add_argument("recording", help="rosbag2 (directory, .mcap, .db3) or ROS 1 .bag")
     lb.add_argument("--layout", required=True, help="dock layout YAML")
     lb.add_argument("--out", required=True, help="dataset Parquet file to write")
@@ -27,7 +27,6 @@ def add_parser(subparsers: SubParsers) -> None:
     lb.add_argument("--force", action="store_true", help="overwrite an existing dataset")
     add_topics(lb)
     add_jobs(lb)
-    lb.set_defaults(func=run)
 
 
 def label(args: argparse.Namespace, layout: DockLayout, camera: CameraModel | None) -> Dataset:
@@ -58,7 +57,7 @@ def label(args: argparse.Namespace, layout: DockLayout, camera: CameraModel | No
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock label``."""
+    """LiDAR labels for a recording: detect, pair with scans, write the dataset"""
     positive_seconds("--tolerance", args.tolerance)
     layout = DockLayout.load(args.layout)
     check_writable(args.out, force=args.force, inputs=(args.recording, args.layout, args.camera, args.robot))

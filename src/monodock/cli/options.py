@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import inspect
 import math
 import os
+import re
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -32,6 +34,7 @@ __all__ = [
     "add_calibration",
     "add_camera_rate",
     "add_cluster",
+    "add_command",
     "add_estimator_options",
     "add_flags",
     "add_jobs",
@@ -52,6 +55,21 @@ __all__ = [
     "range_option",
     "recording_inputs",
 ]
+
+
+def add_command(
+    subparsers: SubParsers, name: str, run: Callable[[argparse.Namespace], int], **kwargs: Any
+) -> argparse.ArgumentParser:
+    """The sub-command ``name``, run by ``run``: its help is the first paragraph of ``run``'s docstring and its
+    description the rest (argparse re-flows both), so a command's words are written once, where its code is. A ``%``
+    in them is a percent sign; without a docstring (``python -OO``) the command has neither help nor description."""
+    first, *rest = re.split(r"\n\s*\n", inspect.getdoc(run) or "", maxsplit=1)
+    summary, description = " ".join(first.split()), " ".join(" ".join(rest).split())
+    p: argparse.ArgumentParser = subparsers.add_parser(
+        name, help=summary.replace("%", "%%") or None, description=description or None, **kwargs
+    )
+    p.set_defaults(func=run)
+    return p
 
 
 def add_calibration(p: argparse.ArgumentParser, *, required: bool) -> None:

@@ -12,7 +12,7 @@ from typing import IO
 import numpy as np
 from numpy.typing import NDArray
 
-from monodock.cli.options import SubParsers, add_estimator_options, build_estimator, int_in
+from monodock.cli.options import SubParsers, add_command, add_estimator_options, build_estimator, int_in
 from monodock.core.atomic import check_writable
 from monodock.errors import InputError, MonodockError
 from monodock.estimation.estimator import Estimator, FrameEstimates
@@ -27,10 +27,7 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``run``."""
-    r = subparsers.add_parser(
-        "run",
-        help="live estimation from a camera, stream, video or recording: one row per frame as it comes",
-    )
+    r = add_command(subparsers, "run", run)
     r.add_argument(
         "--source",
         required=True,
@@ -63,7 +60,6 @@ def add_parser(subparsers: SubParsers) -> None:
         "bad frame always does)",
     )
     r.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    r.set_defaults(func=run)
 
 
 def _output_format(args: argparse.Namespace) -> str:
@@ -95,9 +91,10 @@ def _say(text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock run``: rows streamed to stdout or a file as they are made (see ``io.live``)."""
+    """live estimation from a camera, stream, video or recording: one row per frame as it comes"""
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be at least 1, got {args.max_frames}")
+    # Rows go to stdout or --out as they are made (io.live.run_live).
     to_stdout = args.out == "-"
     inputs = (args.source, args.model, args.camera, args.layout, args.robot)
     if not to_stdout:

@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from monodock.cli.options import SubParsers, add_calibration, load_calibration
+from monodock.cli.options import SubParsers, add_calibration, add_command, load_calibration
 from monodock.core.atomic import check_writable, write_bytes_atomic
 from monodock.estimation.estimator import Estimator
 from monodock.estimation.overlay import estimates_png
@@ -17,16 +17,15 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``show``."""
-    w = subparsers.add_parser("show", help="overlay PNG: detected markers, ids and the board estimate's dock axes")
+    w = add_command(subparsers, "show", run)
     w.add_argument("image")
     w.add_argument("--out", required=True, help="PNG to write")
     w.add_argument("--force", action="store_true")
     add_calibration(w, required=True)
-    w.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock show``."""
+    """overlay PNG: detected markers, ids and the board estimate's dock axes"""
     camera, layout, robot = load_calibration(args)
     check_writable(args.out, force=args.force, inputs=(args.image, args.camera, args.layout, args.robot))
     image = read_image(args.image)

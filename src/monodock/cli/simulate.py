@@ -14,6 +14,7 @@ from monodock.cli.options import (
     add_calibration,
     add_camera_rate,
     add_cluster,
+    add_command,
     add_jobs,
     add_seed,
     float_in,
@@ -43,7 +44,7 @@ MAX_FRAMES = 100_000
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``simulate``."""
-    s = subparsers.add_parser("simulate", help="render camera frames, LiDAR scans and ground truth to a folder")
+    s = add_command(subparsers, "simulate", run)
     s.add_argument("--out", required=True, help="output folder")
     s.add_argument(
         "--frames",
@@ -122,7 +123,6 @@ def add_parser(subparsers: SubParsers) -> None:
     s.add_argument("--force", action="store_true", help="replace an existing output folder")
     add_calibration(s, required=False)
     add_nuisances(s)
-    s.set_defaults(func=run)
 
 
 def add_nuisances(p: argparse.ArgumentParser) -> None:
@@ -180,7 +180,7 @@ def nuisances(args: argparse.Namespace) -> Nuisances:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock simulate``: frames to a folder, or a data-collection drive to a rosbag2 recording."""
+    """render camera frames, LiDAR scans and ground truth to a folder"""
     camera, layout, robot = load_calibration(args)
     # Before any rendering: the outputs must be free (or --force), and none of them an input.
     check_writable(args.out, force=args.force, inputs=(args.camera, args.layout, args.robot))

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from monodock.calibrate.teach import taught_config_text, teach_from_recording
-from monodock.cli.options import SubParsers, add_recording_inputs, recording_inputs
+from monodock.cli.options import SubParsers, add_command, add_recording_inputs, recording_inputs
 from monodock.core.atomic import check_writable, write_text_atomic
 from monodock.dock.config import load_docking_config
 
@@ -15,13 +15,7 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``teach``."""
-    p = subparsers.add_parser(
-        "teach",
-        help="teach the charging pose: a recording of the robot backing off the charger's contacts",
-        description="Drive or push the robot onto the contacts until it charges, then back off about a metre "
-        "straight while recording (images, camera_info, nav_msgs/Odometry, sensor_msgs/BatteryState). Writes a "
-        "docking config with the charging_offset that dock-sim (--config) and the docking node (config:=) read.",
-    )
+    p = add_command(subparsers, "teach", run)
     add_recording_inputs(
         p,
         of="the back-off",
@@ -37,11 +31,14 @@ def add_parser(subparsers: SubParsers) -> None:
         help="the recording has no battery state and starts with the robot on the contacts",
     )
     p.add_argument("--force", action="store_true", help="overwrite --out")
-    p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock teach``: teach, print the pose with its standard deviation, write the config."""
+    """teach the charging pose: a recording of the robot backing off the charger's contacts
+
+    Drive or push the robot onto the contacts until it charges, then back off about a metre straight while recording
+    (images, camera_info, nav_msgs/Odometry, sensor_msgs/BatteryState). Writes a docking config with the charging_offset
+    that dock-sim (--config) and the docking node (config:=) read."""
     check_writable(
         args.out, force=args.force, inputs=(args.recording, args.layout, args.robot, args.camera, args.config)
     )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from monodock.cli.options import SubParsers, add_cluster, add_jobs, add_seed, float_in, int_in, jobs
+from monodock.cli.options import SubParsers, add_cluster, add_command, add_jobs, add_seed, float_in, int_in, jobs
 from monodock.core.atomic import check_writable
 from monodock.errors import MonodockError
 from monodock.learning.dataset import read_dataset
@@ -19,9 +19,7 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers: SubParsers) -> None:
     """Add ``train``."""
-    tr = subparsers.add_parser(
-        "train", help="the papers' seven regressors per segment, best by MSE, into an ONNX bundle"
-    )
+    tr = add_command(subparsers, "train", run)
     tr.add_argument("dataset", help="dataset Parquet file from monodock label")
     tr.add_argument("--out", required=True, help="bundle directory to write")
     tr.add_argument(
@@ -45,7 +43,6 @@ def add_parser(subparsers: SubParsers) -> None:
     add_jobs(tr, "all cores")
     add_cluster(tr)
     tr.add_argument("--force", action="store_true", help="replace an existing bundle")
-    tr.set_defaults(func=run)
 
 
 def _sets(value: str) -> tuple[str, ...]:
@@ -59,7 +56,7 @@ def _sets(value: str) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    """``monodock train``: the pipeline (``learning.pipeline``), with the training report inside the bundle."""
+    """the papers' seven regressors per segment, best by MSE, into an ONNX bundle"""
     if args.trials < 1:
         raise MonodockError("--trials must be at least 1")
     if not 0.0 <= args.fusion_holdout < 0.5:
@@ -77,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.out, force=args.force, inputs=(args.dataset,))
     ds = read_dataset(args.dataset)
 
+    # The pipeline (learning.pipeline), with the training report inside the bundle.
     def report(folder: Path, result: TrainingResult) -> None:
         write_training_report(folder / "report", result, title=f"monodock training report: {args.dataset}")
 
