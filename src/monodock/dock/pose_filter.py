@@ -89,15 +89,17 @@ class MeasurementNoise:
     grow about as d² to d³). Fewer than three markers seen: the yaw's base is the one-marker one.
     """
 
-    depth_base: float = setting(0.005, unit="m", help="a frame without its own covariance: depth sd at 0 m")
-    depth_per_metre: float = setting(0.004, unit="m/m", help="… growing per metre of distance")
-    lateral_base: float = setting(0.0012, unit="m", help="lateral sd at 0 m")
-    lateral_per_metre: float = setting(0.0006, unit="m/m", help="… growing per metre")
-    yaw_three_markers_deg: float = setting(2.5, unit="°", help="yaw sd with three markers seen")
-    yaw_one_marker_deg: float = setting(8.0, unit="°", help="yaw sd with fewer")
-    depth_per_metre3: float = setting(0.0, unit="m/m³", help="… and per cubic metre")
-    lateral_per_metre3: float = setting(0.0, unit="m/m³", help="… and per cubic metre")
-    yaw_per_metre3_deg: float = setting(0.0, unit="°/m³", help="yaw sd growing per cubic metre")
+    depth_base: float = setting(
+        0.005, unit="m", positive=True, help="a frame without its own covariance: depth sd at 0 m"
+    )
+    depth_per_metre: float = setting(0.004, unit="m/m", non_negative=True, help="… growing per metre of distance")
+    lateral_base: float = setting(0.0012, unit="m", positive=True, help="lateral sd at 0 m")
+    lateral_per_metre: float = setting(0.0006, unit="m/m", non_negative=True, help="… growing per metre")
+    yaw_three_markers_deg: float = setting(2.5, unit="°", positive=True, help="yaw sd with three markers seen")
+    yaw_one_marker_deg: float = setting(8.0, unit="°", positive=True, help="yaw sd with fewer")
+    depth_per_metre3: float = setting(0.0, unit="m/m³", non_negative=True, help="… and per cubic metre")
+    lateral_per_metre3: float = setting(0.0, unit="m/m³", non_negative=True, help="… and per cubic metre")
+    yaw_per_metre3_deg: float = setting(0.0, unit="°/m³", non_negative=True, help="yaw sd growing per cubic metre")
 
     @classmethod
     def for_method(cls, method: str) -> MeasurementNoise:
@@ -146,13 +148,15 @@ class OdometryNoise:
     """
 
     track_width: float = setting(0.40, unit="m", positive=True, help="the base's wheel track, for the odometry noise")
-    wheel_scale_sd: float = setting(0.005, help="per-run relative error of a wheel's distance")
+    wheel_scale_sd: float = setting(0.005, non_negative=True, help="per-run relative error of a wheel's distance")
     scale_correlation: float = setting(
         1.0, unit="m", positive=True, help="distance over which that error is one random-walk step"
     )
-    wheel_noise_sd: float = setting(0.05, help="per-step relative noise of a wheel's speed")
+    wheel_noise_sd: float = setting(0.05, non_negative=True, help="per-step relative noise of a wheel's speed")
     noise_period: float = setting(0.005, unit="s", positive=True, help="seconds between those noise draws")
-    floor_per_metre: float = setting(0.001, unit="m", help="unmodelled drift per metre driven, per wheel")
+    floor_per_metre: float = setting(
+        0.001, unit="m", non_negative=True, help="unmodelled drift per metre driven, per wheel"
+    )
 
     def wheel_variance(self, distance: float, dt: float) -> float:
         """Variance (m²) of one wheel's ground distance after it rolled ``distance`` metres in ``dt`` seconds.
