@@ -191,7 +191,7 @@ def _cast(
     return best_k, best_s, best_u
 
 
-@kernel
+@inlined
 def _area(px: NDArray[np.float64], py: NDArray[np.float64], n: int) -> float:
     """Signed shoelace area (positive counter-clockwise in x right, y down... i.e. by the formula's sign)."""
     a = 0.0
@@ -202,24 +202,25 @@ def _area(px: NDArray[np.float64], py: NDArray[np.float64], n: int) -> float:
 
 
 @kernel
-def _clip_line(
-    px: NDArray[np.float64], py: NDArray[np.float64], n: int, a: float, b: float, c: float,
-    ox: NDArray[np.float64], oy: NDArray[np.float64],
-) -> int:  # fmt: skip
-    """One Sutherland-Hodgman step: the convex polygon (px, py)[:n] clipped to a x + b y + c >= 0."""
+def _clip_line(buf: NDArray[np.float64], src: int, n: int, a: float, b: float, c: float, dst: int) -> int:
+    """One Sutherland-Hodgman step: the convex polygon buf[src] (rows src, src+1: x, y; n vertices) clipped to
+    a x + b y + c >= 0 into buf[dst].
+
+    Rows of one buffer, not array views: a view passed to a compiled call costs reference counting, and this runs
+    several times per edge pixel."""
     m = 0
     for i in range(n):
         j = i + 1 if i + 1 < n else 0
-        fi = a * px[i] + b * py[i] + c
-        fj = a * px[j] + b * py[j] + c
+        fi = a * buf[src, i] + b * buf[src + 1, i] + c
+        fj = a * buf[src, j] + b * buf[src + 1, j] + c
         if fi >= 0.0:
-            ox[m] = px[i]
-            oy[m] = py[i]
+            buf[dst, m] = buf[src, i]
+            buf[dst + 1, m] = buf[src + 1, i]
             m += 1
         if (fi >= 0.0) != (fj >= 0.0):
             f = fi / (fi - fj)
-            ox[m] = px[i] + f * (px[j] - px[i])
-            oy[m] = py[i] + f * (py[j] - py[i])
+            buf[dst, m] = buf[src, i] + f * (buf[src, j] - buf[src, i])
+            buf[dst + 1, m] = buf[src + 1, i] + f * (buf[src + 1, j] - buf[src + 1, i])
             m += 1
     return m
 
@@ -235,13 +236,14 @@ def _edge(px: NDArray[np.float64], py: NDArray[np.float64], i: int, n: int) -> t
 
 @kernel
 def _clip_polygon(
-    buf: NDArray[np.float64], src: int, n: int, qx: NDArray[np.float64], qy: NDArray[np.float64], m: int,
-    dst: int,
-) -> int:  # fmt: skip
-    """Polygon buf[src] (rows src, src+1: x, y) clipped to the convex polygon (qx, qy)[:m] into buf[dst].
+    buf: NDArray[np.float64], src: int, n: int, q: NDArray[np.float64], q_row: int, m: int, dst: int
+) -> int:
+    """Polygon buf[src] (rows src, src+1: x, y) clipped to the convex polygon q[q_row] (rows q_row, q_row+1;
+    m vertices) into buf[dst].
 
-    (qx, qy) is counter-clockwise by ``_area``'s sign (positive); uses rows _CLIP.._CLIP+3 as scratch.
+    q[q_row] is counter-clockwise by ``_area``'s sign (positive); uses rows _CLIP.._CLIP+3 as scratch.
     """
+    qx, qy = q[q_row], q[q_row + 1]
     # Wholly inside (the common case away from a silhouette): a copy.
     inside = True
     for i in range(m):
@@ -258,7 +260,7 @@ def _clip_polygon(
             break
         a, b, c = _edge(qx, qy, i, m)
         out = _CLIP if cur != _CLIP else _CLIP + 2
-        n = _clip_line(buf[cur], buf[cur + 1], n, a, b, c, buf[out], buf[out + 1])
+        n = _clip_line(buf, cur, n, a, b, c, out)
         cur = out
     for i in range(n):
         buf[dst, i] = buf[cur, i]
@@ -266,7 +268,7 @@ def _clip_polygon(
     return n
 
 
-@kernel
+@inlined
 def _image_area(ps: NDArray[np.float64], pu: NDArray[np.float64], n: int, surf: NDArray[np.float64], k: int) -> float:
     """Area on the normalised image plane of a polygon given in surface k's (s, u) coordinates.
 
@@ -342,13 +344,12 @@ def _texture_integral(
             value = cells[offset + r * cols + c]
             if value == albedo:
                 continue
-            # The polygon clipped to the cell's rectangle: four half-planes, ping-ponging between rows 12..15.
-            a_s, a_u, b_s, b_u = buf[_TEX + 2], buf[_TEX + 3], buf[_TEX + 4], buf[_TEX + 5]
-            m = _clip_line(ps, pu, n, 1.0, 0.0, -(s0 + c * cw), a_s, a_u)
-            m = _clip_line(a_s, a_u, m, -1.0, 0.0, s0 + (c + 1) * cw, b_s, b_u)
-            m = _clip_line(b_s, b_u, m, 0.0, 1.0, -(t0 + r * ch), a_s, a_u)
-            m = _clip_line(a_s, a_u, m, 0.0, -1.0, t0 + (r + 1) * ch, b_s, b_u)
-            total += (value - albedo) * _image_area(b_s, b_u, m, surf, k)
+            # The polygon clipped to the cell's rectangle: four half-planes, ping-ponging between rows _TEX + 2..5.
+            m = _clip_line(buf, _TEX, n, 1.0, 0.0, -(s0 + c * cw), _TEX + 2)
+            m = _clip_line(buf, _TEX + 2, m, -1.0, 0.0, s0 + (c + 1) * cw, _TEX + 4)
+            m = _clip_line(buf, _TEX + 4, m, 0.0, 1.0, -(t0 + r * ch), _TEX + 2)
+            m = _clip_line(buf, _TEX + 2, m, 0.0, -1.0, t0 + (r + 1) * ch, _TEX + 4)
+            total += (value - albedo) * _image_area(buf[_TEX + 4], buf[_TEX + 5], m, surf, k)
     return float(total)
 
 
@@ -606,14 +607,15 @@ def _sample(
     stats[2] = hi
 
 
-@kernel
+@inlined
 def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
     r: int, c: int, rays: NDArray[np.float64], surf: NDArray[np.float64], patch_start: NDArray[np.int64],
     patches: NDArray[np.float64], cells: NDArray[np.float64], no_hit: float, polys: NDArray[np.float64],
     poly_counts: NDArray[np.int64], boxes: NDArray[np.float64], candidates: NDArray[np.int64], tile: int,
     count: int, cover: int, buf: NDArray[np.float64], scratch: NDArray[np.int64],
 ) -> float:  # fmt: skip
-    """The pixel's mean albedo by exact area over its footprint quad; NaN where it must be sampled.
+    """The pixel's mean albedo by exact area over its footprint quad; NaN where it must be sampled (inlined into
+    ``shade_pixels``, its one caller: a call per edge pixel cost its array arguments' reference counting).
 
     The surfaces whose polygon overlaps the quad are found first; one that is behind another wherever both
     could be seen (a side of the charger behind its face) is dropped. One or two left: their parts of the quad,
@@ -645,7 +647,7 @@ def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
         if n_seen == _SEEN:
             return np.nan
         row = _PART + 2 * n_seen
-        n = _clip_polygon(buf, _QUAD, 4, polys[k, 0], polys[k, 1], poly_counts[k], row)
+        n = _clip_polygon(buf, _QUAD, 4, polys[k], 0, poly_counts[k], row)
         if n < 3:
             continue
         area = abs(_area(buf[row], buf[row + 1], n))
@@ -661,11 +663,9 @@ def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
             for i in range(n_seen):
                 if i == j or hidden[i] or hidden[j]:
                     continue
-                m = _clip_polygon(
-                    buf, _PART + 2 * j, sizes[j], buf[_PART + 2 * i], buf[_PART + 2 * i + 1], sizes[i], _OVERLAP
-                )
+                m = _clip_polygon(buf, _PART + 2 * j, sizes[j], buf, _PART + 2 * i, sizes[i], _OVERLAP)
                 la, lb, lc = _depth_line(surf, seen[i], seen[j])
-                m = _clip_line(buf[_OVERLAP], buf[_OVERLAP + 1], m, la, lb, lc, buf[_SIDE], buf[_SIDE + 1])
+                m = _clip_line(buf, _OVERLAP, m, la, lb, lc, _SIDE)
                 if abs(_area(buf[_SIDE], buf[_SIDE + 1], m)) >= areas[j] * (1.0 - 1e-9):
                     hidden[j] = True
                     left -= 1
@@ -688,14 +688,13 @@ def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
         total += _texture_integral(seen[b], buf, row_b, sizes[b], surf, patch_start, patches, cells)
         covered += areas[b]
         # Where both parts overlap, each plane is seen only on its side of the line where their depths cross.
-        n_ab = _clip_polygon(buf, row_a, sizes[a], buf[row_b], buf[row_b + 1], sizes[b], _OVERLAP)
+        n_ab = _clip_polygon(buf, row_a, sizes[a], buf, row_b, sizes[b], _OVERLAP)
         if n_ab >= 3:
             covered -= abs(_area(buf[_OVERLAP], buf[_OVERLAP + 1], n_ab))
             la, lb, lc = _depth_line(surf, seen[a], seen[b])
-            ox, oy, sx, sy = buf[_OVERLAP], buf[_OVERLAP + 1], buf[_SIDE], buf[_SIDE + 1]
-            m = _clip_line(ox, oy, n_ab, -la, -lb, -lc, sx, sy)  # b nearer: a is hidden there
+            m = _clip_line(buf, _OVERLAP, n_ab, -la, -lb, -lc, _SIDE)  # b nearer: a is hidden there
             total -= _texture_integral(seen[a], buf, _SIDE, m, surf, patch_start, patches, cells)
-            m = _clip_line(ox, oy, n_ab, la, lb, lc, sx, sy)  # a nearer: b is hidden there
+            m = _clip_line(buf, _OVERLAP, n_ab, la, lb, lc, _SIDE)  # a nearer: b is hidden there
             total -= _texture_integral(seen[b], buf, _SIDE, m, surf, patch_start, patches, cells)
     return float((total + no_hit * max(quad - covered, 0.0)) / quad)
 
