@@ -563,14 +563,18 @@ def cast_vertices(
     tiles_y = (H1 - 2) // TILE + 1
     for i in range(H1):
         ty = min(i // TILE, tiles_y - 1)
-        for j in range(W1):
-            t = ty * tiles_x + min(j // TILE, tiles_x - 1)
+        # A tile's span of the row at a time: its flat colour and its counts are read once, not at every corner.
+        for tx in range(tiles_x):
+            t = ty * tiles_x + tx
+            j1 = (tx + 1) * TILE if tx < tiles_x - 1 else W1  # the last tile takes the last corner column too
             f = flat[t]
             if not np.isnan(f):  # the tile is one colour
-                albedo[i, j] = f if f >= 0.0 else no_hit
+                albedo[i, tx * TILE : j1] = f if f >= 0.0 else no_hit
                 continue
-            k, s, u = _cast(rays[i, j, 0], rays[i, j, 1], surf, candidates, t, counts[t])
-            albedo[i, j] = _shade(k, s, u, surf, patches, patch_surface, cells, no_hit, tile_patches, t, patch_count[t])
+            count, n_patches = counts[t], patch_count[t]
+            for j in range(tx * TILE, j1):
+                k, s, u = _cast(rays[i, j, 0], rays[i, j, 1], surf, candidates, t, count)
+                albedo[i, j] = _shade(k, s, u, surf, patches, patch_surface, cells, no_hit, tile_patches, t, n_patches)
     return albedo
 
 
