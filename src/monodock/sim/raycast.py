@@ -709,8 +709,8 @@ def shade_pixels(
     patch_start: NDArray[np.int64], patches: NDArray[np.float64], patch_surface: NDArray[np.int64],
     cells: NDArray[np.float64], no_hit: float, polys: NDArray[np.float64], poly_counts: NDArray[np.int64],
     candidates: NDArray[np.int64], counts: NDArray[np.int64], tile_patches: NDArray[np.int64],
-    patch_count: NDArray[np.int64], covered: NDArray[np.int64], tiles_x: int, full: NDArray[np.float64],
-    probe: NDArray[np.float64],
+    patch_count: NDArray[np.int64], flat: NDArray[np.float64], covered: NDArray[np.int64], tiles_x: int,
+    full: NDArray[np.float64], probe: NDArray[np.float64],
 ) -> tuple[NDArray[np.float32], NDArray[np.int64]]:  # fmt: skip
     """The image from its corners' albedos: flat pixels take their corners' mean, edge pixels their area.
 
@@ -724,17 +724,29 @@ def shade_pixels(
     image = np.empty((H, W), dtype=np.float32)
     edge = np.zeros((H, W), dtype=np.uint8)  # 2: straddles an edge, 1: next to one, 0: flat
     tally = np.zeros(3, dtype=np.int64)
-    for r in range(H):
-        for c in range(W):
-            a, b, d, e = vert[r, c], vert[r, c + 1], vert[r + 1, c], vert[r + 1, c + 1]
-            image[r, c] = (a + b + d + e) / 4.0
-            if max(a, b, d, e) - min(a, b, d, e) > FLAT:
-                tally[0] += 1
-                for i in range(max(r - 1, 0), min(r + 2, H)):
-                    for j in range(max(c - 1, 0), min(c + 2, W)):
-                        edge[i, j] = max(edge[i, j], 1)
-                edge[r, c] = 2
     tiles_y = (H - 1) // TILE + 1
+    for r in range(H):
+        ty = min(r // TILE, tiles_y - 1)
+        lower_inside = (r + 1) % TILE != 0 or ty == tiles_y - 1  # the pixels' lower corners lie in their tile too
+        for tx in range(tiles_x):
+            c0, c1 = tx * TILE, ((tx + 1) * TILE if tx < tiles_x - 1 else W)
+            f = flat[ty * tiles_x + tx]
+            if lower_inside and not np.isnan(f):
+                # A flat tile's corners are all one albedo (cast_vertices): so are its pixels' but in its last column,
+                # whose right corners lie in the next tile. Their mean, computed as below, once.
+                v = f if f >= 0.0 else no_hit
+                inner = c1 if tx == tiles_x - 1 else c1 - 1
+                image[r, c0:inner] = (v + v + v + v) / 4.0
+                c0 = inner
+            for c in range(c0, c1):
+                a, b, d, e = vert[r, c], vert[r, c + 1], vert[r + 1, c], vert[r + 1, c + 1]
+                image[r, c] = (a + b + d + e) / 4.0
+                if max(a, b, d, e) - min(a, b, d, e) > FLAT:
+                    tally[0] += 1
+                    for i in range(max(r - 1, 0), min(r + 2, H)):
+                        for j in range(max(c - 1, 0), min(c + 2, W)):
+                            edge[i, j] = max(edge[i, j], 1)
+                    edge[r, c] = 2
     boxes = np.empty((polys.shape[0], 4))  # each surface polygon's bounding box: x0, x1, y0, y1
     for k in range(polys.shape[0]):
         n = poly_counts[k]

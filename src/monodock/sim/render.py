@@ -97,7 +97,7 @@ def render_radiance(
     vert = raycast.cast_vertices(rays, surf, *texture, *tiles, flat, tiles_x)
     t2 = time.perf_counter()
     image, tally = raycast.shade_pixels(
-        vert, rays, surf, scene.patch_start, *texture, polys, poly_counts, *tiles, covered, tiles_x,
+        vert, rays, surf, scene.patch_start, *texture, polys, poly_counts, *tiles, flat, covered, tiles_x,
         nrooks(supersample), nrooks(_PROBE),
     )  # fmt: skip
     if stats is not None:
