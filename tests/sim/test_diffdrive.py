@@ -392,3 +392,26 @@ def test_frames_with_every_marker_cut_by_the_border_are_blank_and_nothing_else_c
             assert detector.detect(render).observations == {}  # and the detector finds none in the render
         else:
             assert np.array_equal(image, render)
+
+
+# With k = 8 samples the farthest warp moves a pixel 7/8 of the grid's shift: 8/7 px moves it one whole pixel.
+@pytest.mark.parametrize("shift", [0.4, 8 / 7 - 1e-4, 8 / 7, 8 / 7 + 1e-4, 1.999, 16 / 7, 24 / 7 - 1e-4, 5.5])
+@pytest.mark.parametrize("direction", [(1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (1.0, -1.0)])
+def test_the_blurs_edge_mask_reaches_every_pixel_a_warp_reads(shift: float, direction: tuple[float, float]) -> None:
+    """Only pixels within a warp's reach of an edge are warped, the tightest such box: lone bright pixels (each an
+    edge on its own) streaked by whole pixels and by a hair under and over, along both axes and diagonals, both
+    ways, must give OpenCV's whole-image warps. A pixel outside the box keeps its own value."""
+    from monodock.sim.diffdrive import _Streak
+
+    blur = _robot(Pose2D(-0.9, 0.0, 0.0))._blur
+    h, w = SIM.camera.height, SIM.camera.width
+    rng = np.random.default_rng(7)
+    radiance = np.full((h, w), 0.2, dtype=np.float32)
+    radiance[rng.integers(8, h - 8, 300), rng.integers(8, w - 8, 300)] = 0.9
+    start = np.tile(shift * np.asarray(direction), (len(blur.grid), 1))  # the same shift everywhere: no smoothing
+    k = 8
+    streak = _Streak(start, -start, length=1.5 * k)  # k samples, as the robot's blur draws for this length
+    expected = _opencv_blur(radiance, start, -start, k)
+    got = blur.blur(radiance, streak)
+    assert np.abs(got - expected).max() <= 1e-6
+    assert np.count_nonzero(expected != radiance) > 300  # it did blur

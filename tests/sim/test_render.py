@@ -217,13 +217,21 @@ def _setup(name: str, seed: int) -> Any:
         )
     if name == "rational":
         return Simulator(camera=RATIONAL, seed=seed)
+    if name == "odd":  # neither side a multiple of the renderer's 16-px tile: its last tiles take the remainder
+        base = CameraModel.default()
+        w, h = 648, 486
+        K = (base.fx * w / 640, 0.0, w / 2 - 0.3, 0.0, base.fy * w / 640, h / 2 + 0.2, 0.0, 0.0, 1.0)
+        return Simulator(camera=CameraModel(w, h, K, base.D), seed=seed)
     return Simulator(seed=seed)
 
 
-@pytest.mark.parametrize(("setup", "seed"), [("default", 3), ("default", 11), ("wide", 5), ("rational", 7)])
+@pytest.mark.parametrize(
+    ("setup", "seed"), [("default", 3), ("default", 11), ("wide", 5), ("rational", 7), ("odd", 13)]
+)
 def test_compiled_renderer_matches_the_reference_and_dense_sampling(setup: str, seed: int) -> None:
-    """A cluttered dock scene with an occluder, on the default set-up and on two it was not built on (another
-    layout, camera and mounts behind a wide barrel lens; a rational_polynomial lens): off the edges the compiled
+    """A cluttered dock scene with an occluder, on the default set-up and on three it was not built on (another
+    layout, camera and mounts behind a wide barrel lens; a rational_polynomial lens; a 648x486 image, whose last
+    tiles are part tiles): off the edges the compiled
     image is the reference's to 1/255; on them both are compared with 16384 rays per pixel, and the compiled one
     is the closer."""
     from monodock.sim.scene import occluder_for
