@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from monodock.core.compiled import inlined, kernel
+from monodock.sim.polygon import box_inside, clip_half_plane, edge_line, overlaps_box, signed_area
 from monodock.sim.world import World
 
 __all__ = [
@@ -191,49 +192,6 @@ def _cast(
     return best_k, best_s, best_u
 
 
-@inlined
-def _area(px: NDArray[np.float64], py: NDArray[np.float64], n: int) -> float:
-    """Signed shoelace area (positive counter-clockwise in x right, y down... i.e. by the formula's sign)."""
-    a = 0.0
-    for i in range(n):
-        j = i + 1 if i + 1 < n else 0
-        a += px[i] * py[j] - px[j] * py[i]
-    return 0.5 * a
-
-
-@kernel
-def _clip_line(buf: NDArray[np.float64], src: int, n: int, a: float, b: float, c: float, dst: int) -> int:
-    """One Sutherland-Hodgman step: the convex polygon buf[src] (rows src, src+1: x, y; n vertices) clipped to
-    a x + b y + c >= 0 into buf[dst].
-
-    Rows of one buffer, not array views: a view passed to a compiled call costs reference counting, and this runs
-    several times per edge pixel."""
-    m = 0
-    for i in range(n):
-        j = i + 1 if i + 1 < n else 0
-        fi = a * buf[src, i] + b * buf[src + 1, i] + c
-        fj = a * buf[src, j] + b * buf[src + 1, j] + c
-        if fi >= 0.0:
-            buf[dst, m] = buf[src, i]
-            buf[dst + 1, m] = buf[src + 1, i]
-            m += 1
-        if (fi >= 0.0) != (fj >= 0.0):
-            f = fi / (fi - fj)
-            buf[dst, m] = buf[src, i] + f * (buf[src, j] - buf[src, i])
-            buf[dst + 1, m] = buf[src + 1, i] + f * (buf[src + 1, j] - buf[src + 1, i])
-            m += 1
-    return m
-
-
-@inlined
-def _edge(px: NDArray[np.float64], py: NDArray[np.float64], i: int, n: int) -> tuple[float, float, float]:
-    """Edge i -> i+1 of a polygon as the line a x + b y + c = 0 whose side a x + b y + c >= 0 is the polygon's
-    inside when it is positively oriented (cross(edge, p - p_i) >= 0)."""
-    j = i + 1 if i + 1 < n else 0
-    a, b = -(py[j] - py[i]), px[j] - px[i]
-    return a, b, -(a * px[i] + b * py[i])
-
-
 @kernel
 def _clip_polygon(
     buf: NDArray[np.float64], src: int, n: int, q: NDArray[np.float64], q_row: int, m: int, dst: int
@@ -241,13 +199,13 @@ def _clip_polygon(
     """Polygon buf[src] (rows src, src+1: x, y) clipped to the convex polygon q[q_row] (rows q_row, q_row+1;
     m vertices) into buf[dst].
 
-    q[q_row] is counter-clockwise by ``_area``'s sign (positive); uses rows _CLIP.._CLIP+3 as scratch.
+    q[q_row] is counter-clockwise by ``signed_area``'s sign (positive); uses rows _CLIP.._CLIP+3 as scratch.
     """
     qx, qy = q[q_row], q[q_row + 1]
     # Wholly inside (the common case away from a silhouette): a copy.
     inside = True
     for i in range(m):
-        a, b, c = _edge(qx, qy, i, m)
+        a, b, c = edge_line(qx, qy, i, m)
         for v in range(n):
             if a * buf[src, v] + b * buf[src + 1, v] + c < 0.0:
                 inside = False
@@ -258,9 +216,9 @@ def _clip_polygon(
     for i in range(m):
         if n == 0 or inside:
             break
-        a, b, c = _edge(qx, qy, i, m)
+        a, b, c = edge_line(qx, qy, i, m)
         out = _CLIP if cur != _CLIP else _CLIP + 2
-        n = _clip_line(buf, cur, n, a, b, c, out)
+        n = clip_half_plane(buf, cur, n, a, b, c, out)
         cur = out
     for i in range(n):
         buf[dst, i] = buf[cur, i]
@@ -303,7 +261,7 @@ def _texture_integral(
     NaN when more than one patch reaches the polygon (their painting order would need a polygon boolean) or it
     spans more than MAX_CELLS cells: the caller samples the pixel instead. Uses rows _TEX.._TEX+5 of ``buf``.
     """
-    area = abs(_area(buf[row], buf[row + 1], n))
+    area = abs(signed_area(buf[row], buf[row + 1], n))
     albedo = surf[k, _ALB]
     if area == 0.0 or patch_start[k + 1] == patch_start[k]:
         return float(albedo * area)
@@ -345,55 +303,12 @@ def _texture_integral(
             if value == albedo:
                 continue
             # The polygon clipped to the cell's rectangle: four half-planes, ping-ponging between rows _TEX + 2..5.
-            m = _clip_line(buf, _TEX, n, 1.0, 0.0, -(s0 + c * cw), _TEX + 2)
-            m = _clip_line(buf, _TEX + 2, m, -1.0, 0.0, s0 + (c + 1) * cw, _TEX + 4)
-            m = _clip_line(buf, _TEX + 4, m, 0.0, 1.0, -(t0 + r * ch), _TEX + 2)
-            m = _clip_line(buf, _TEX + 2, m, 0.0, -1.0, t0 + (r + 1) * ch, _TEX + 4)
+            m = clip_half_plane(buf, _TEX, n, 1.0, 0.0, -(s0 + c * cw), _TEX + 2)
+            m = clip_half_plane(buf, _TEX + 2, m, -1.0, 0.0, s0 + (c + 1) * cw, _TEX + 4)
+            m = clip_half_plane(buf, _TEX + 4, m, 0.0, 1.0, -(t0 + r * ch), _TEX + 2)
+            m = clip_half_plane(buf, _TEX + 2, m, 0.0, -1.0, t0 + (r + 1) * ch, _TEX + 4)
             total += (value - albedo) * _image_area(buf[_TEX + 4], buf[_TEX + 5], m, surf, k)
     return float(total)
-
-
-@kernel
-def _polygon_overlaps_box(
-    px: NDArray[np.float64], py: NDArray[np.float64], n: int, x0: float, x1: float, y0: float, y1: float
-) -> bool:
-    """Separating-axis test of a convex polygon (n vertices, either winding) against an axis-aligned box."""
-    if n < 3:
-        return False
-    lo_x = hi_x = px[0]
-    lo_y = hi_y = py[0]
-    for i in range(1, n):
-        lo_x = min(lo_x, px[i])
-        hi_x = max(hi_x, px[i])
-        lo_y = min(lo_y, py[i])
-        hi_y = max(hi_y, py[i])
-    if hi_x < x0 or lo_x > x1 or hi_y < y0 or lo_y > y1:
-        return False
-    for i in range(n):
-        nx, ny, _ = _edge(px, py, i, n)  # the edge's normal
-        pmin = pmax = nx * px[0] + ny * py[0]
-        for m in range(1, n):
-            v = nx * px[m] + ny * py[m]
-            pmin = min(pmin, v)
-            pmax = max(pmax, v)
-        b00, b01, b10, b11 = nx * x0 + ny * y0, nx * x0 + ny * y1, nx * x1 + ny * y0, nx * x1 + ny * y1
-        if max(b00, b01, b10, b11) < pmin or min(b00, b01, b10, b11) > pmax:
-            return False
-    return True
-
-
-@kernel
-def _box_inside_polygon(
-    px: NDArray[np.float64], py: NDArray[np.float64], n: int, x0: float, x1: float, y0: float, y1: float
-) -> bool:
-    """Whether the box lies inside the positively oriented convex polygon (all four corners inside)."""
-    if n < 3:
-        return False
-    for i in range(n):
-        a, b, c = _edge(px, py, i, n)
-        if a * x0 + b * y0 + c < 0 or a * x0 + b * y1 + c < 0 or a * x1 + b * y0 + c < 0 or a * x1 + b * y1 + c < 0:
-            return False
-    return True
 
 
 @kernel
@@ -403,7 +318,7 @@ def _project_rectangle(
 ) -> int:  # fmt: skip
     """The rectangle o + [0, 1] a + [0, 1] b (optical frame) clipped to z >= NEAR and projected to (x/z, y/z).
 
-    Returns the vertex count; the polygon is oriented positively (``_area`` > 0).
+    Returns the vertex count; the polygon is oriented positively (``area`` > 0).
     """
     cx = (ox, ox + ax, ox + ax + bx, ox + bx)
     cy = (oy, oy + ay, oy + ay + by, oy + by)
@@ -422,7 +337,7 @@ def _project_rectangle(
             out_x[n] = (cx[c] + f * (cx[d] - cx[c])) / NEAR
             out_y[n] = (cy[c] + f * (cy[d] - cy[c])) / NEAR
             n += 1
-    if n >= 3 and _area(out_x, out_y, n) < 0.0:
+    if n >= 3 and signed_area(out_x, out_y, n) < 0.0:
         for i in range(n // 2):
             j = n - 1 - i
             out_x[i], out_x[j] = out_x[j], out_x[i]
@@ -505,14 +420,14 @@ def tile_candidates(  # noqa: PLR0912 - a compiled kernel
     for i in range(n_tiles):
         x0, x1, y0, y1 = tile_boxes[i, 0], tile_boxes[i, 1], tile_boxes[i, 2], tile_boxes[i, 3]
         for k in range(K):
-            if _polygon_overlaps_box(polys[k, 0], polys[k, 1], poly_counts[k], x0, x1, y0, y1):
+            if overlaps_box(polys[k, 0], polys[k, 1], poly_counts[k], x0, x1, y0, y1):
                 out[i, counts[i]] = k
                 counts[i] += 1
         # Occlusion: a surface that covers the whole tile and is nearer than another on all of it hides it (the
         # wall behind the charger's face). The depth order is linear in the ray, so the box's corners decide.
         for a in range(counts[i]):
             k = out[i, a]
-            if k < 0 or not _box_inside_polygon(polys[k, 0], polys[k, 1], poly_counts[k], x0, x1, y0, y1):
+            if k < 0 or not box_inside(polys[k, 0], polys[k, 1], poly_counts[k], x0, x1, y0, y1):
                 continue
             for b in range(counts[i]):
                 j = out[i, b]
@@ -536,18 +451,24 @@ def tile_candidates(  # noqa: PLR0912 - a compiled kernel
             visible = False
             for a in range(kept):
                 visible = visible or out[i, a] == patch_surface[p]
-            if visible and _polygon_overlaps_box(patch_polys[p, 0], patch_polys[p, 1], patch_counts[p], x0, x1, y0, y1):
+            if visible and overlaps_box(patch_polys[p, 0], patch_polys[p, 1], patch_counts[p], x0, x1, y0, y1):
                 tile_patches[i, patch_count[i]] = p
                 patch_count[i] += 1
         if counts[i] == 0:
             flat[i] = -1.0
         elif counts[i] == 1:
             k = out[i, 0]
-            if _box_inside_polygon(polys[k, 0], polys[k, 1], poly_counts[k], x0, x1, y0, y1):
+            if box_inside(polys[k, 0], polys[k, 1], poly_counts[k], x0, x1, y0, y1):
                 covered[i] = k
                 if patch_count[i] == 0:
                     flat[i] = surf[k, _ALB]
     return out, counts, tile_patches, patch_count, flat, covered
+
+
+@inlined
+def _flat_albedo(flat: float, no_hit: float) -> float:
+    """A flat tile's albedo from ``tile_candidates``' code for it (-1: nothing to hit, the background's)."""
+    return flat if flat >= 0.0 else no_hit
 
 
 @kernel
@@ -569,7 +490,7 @@ def cast_vertices(
             j1 = (tx + 1) * TILE if tx < tiles_x - 1 else W1  # the last tile takes the last corner column too
             f = flat[t]
             if not np.isnan(f):  # the tile is one colour
-                albedo[i, tx * TILE : j1] = f if f >= 0.0 else no_hit
+                albedo[i, tx * TILE : j1] = _flat_albedo(f, no_hit)
                 continue
             count, n_patches = counts[t], patch_count[t]
             for j in range(tx * TILE, j1):
@@ -630,7 +551,7 @@ def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
     qx[1], qy[1] = rays[r, c + 1, 0], rays[r, c + 1, 1]
     qx[2], qy[2] = rays[r + 1, c + 1, 0], rays[r + 1, c + 1, 1]
     qx[3], qy[3] = rays[r + 1, c, 0], rays[r + 1, c, 1]
-    quad = _area(qx, qy, 4)
+    quad = signed_area(qx, qy, 4)
     if quad < 0.0:  # orient the quad positively, like the polygons
         qx[1], qx[3] = qx[3], qx[1]
         qy[1], qy[3] = qy[3], qy[1]
@@ -654,7 +575,7 @@ def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
         n = _clip_polygon(buf, _QUAD, 4, polys[k], 0, poly_counts[k], row)
         if n < 3:
             continue
-        area = abs(_area(buf[row], buf[row + 1], n))
+        area = abs(signed_area(buf[row], buf[row + 1], n))
         if area <= tiny:
             continue
         seen[n_seen], sizes[n_seen], areas[n_seen] = k, n, area
@@ -669,8 +590,8 @@ def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
                     continue
                 m = _clip_polygon(buf, _PART + 2 * j, sizes[j], buf, _PART + 2 * i, sizes[i], _OVERLAP)
                 la, lb, lc = _depth_line(surf, seen[i], seen[j])
-                m = _clip_line(buf, _OVERLAP, m, la, lb, lc, _SIDE)
-                if abs(_area(buf[_SIDE], buf[_SIDE + 1], m)) >= areas[j] * (1.0 - 1e-9):
+                m = clip_half_plane(buf, _OVERLAP, m, la, lb, lc, _SIDE)
+                if abs(signed_area(buf[_SIDE], buf[_SIDE + 1], m)) >= areas[j] * (1.0 - 1e-9):
                     hidden[j] = True
                     left -= 1
     if left > 2:
@@ -694,11 +615,11 @@ def _by_area(  # noqa: PLR0912,PLR0915 - a compiled kernel
         # Where both parts overlap, each plane is seen only on its side of the line where their depths cross.
         n_ab = _clip_polygon(buf, row_a, sizes[a], buf, row_b, sizes[b], _OVERLAP)
         if n_ab >= 3:
-            covered -= abs(_area(buf[_OVERLAP], buf[_OVERLAP + 1], n_ab))
+            covered -= abs(signed_area(buf[_OVERLAP], buf[_OVERLAP + 1], n_ab))
             la, lb, lc = _depth_line(surf, seen[a], seen[b])
-            m = _clip_line(buf, _OVERLAP, n_ab, -la, -lb, -lc, _SIDE)  # b nearer: a is hidden there
+            m = clip_half_plane(buf, _OVERLAP, n_ab, -la, -lb, -lc, _SIDE)  # b nearer: a is hidden there
             total -= _texture_integral(seen[a], buf, _SIDE, m, surf, patch_start, patches, cells)
-            m = _clip_line(buf, _OVERLAP, n_ab, la, lb, lc, _SIDE)  # a nearer: b is hidden there
+            m = clip_half_plane(buf, _OVERLAP, n_ab, la, lb, lc, _SIDE)  # a nearer: b is hidden there
             total -= _texture_integral(seen[b], buf, _SIDE, m, surf, patch_start, patches, cells)
     return float((total + no_hit * max(quad - covered, 0.0)) / quad)
 
@@ -734,7 +655,7 @@ def shade_pixels(
             if lower_inside and not np.isnan(f):
                 # A flat tile's corners are all one albedo (cast_vertices): so are its pixels' but in its last column,
                 # whose right corners lie in the next tile. Their mean, computed as below, once.
-                v = f if f >= 0.0 else no_hit
+                v = _flat_albedo(f, no_hit)
                 inner = c1 if tx == tiles_x - 1 else c1 - 1
                 image[r, c0:inner] = (v + v + v + v) / 4.0
                 c0 = inner
