@@ -654,7 +654,9 @@ def shade_pixels(
             f = flat[ty * tiles_x + tx]
             if lower_inside and not np.isnan(f):
                 # A flat tile's corners are all one albedo (cast_vertices): so are its pixels' but in its last column,
-                # whose right corners lie in the next tile. Their mean, computed as below, once.
+                # whose right corners lie in the next tile. Their mean, computed as below, once. (The tile's box of
+                # rays reaches those corners too, so they are that albedo but at a float tie on a polygon's boundary;
+                # left to the loop below, as they were before, the image stays the same bit for bit.)
                 v = _flat_albedo(f, no_hit)
                 inner = c1 if tx == tiles_x - 1 else c1 - 1
                 image[r, c0:inner] = (v + v + v + v) / 4.0
