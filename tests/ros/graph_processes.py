@@ -66,7 +66,9 @@ def end_nodes(processes: Mapping[str, subprocess.Popen[str]], timeout: float) ->
         reader.join(timeout=10)
     logs = {name: logs.get(name, "(its log was still being read 10 s after it ended)") for name in processes}
     for name, stacks in hung.items():
-        logs[name] = f"{logs.get(name, '')}\nstill running {timeout:g} s after SIGTERM; its native stacks:\n{stacks}"
+        # The log last: its end is the Python stacks SIGABRT wrote, which a driver's trimmed copy must keep.
+        said = f"still running {timeout:g} s after SIGTERM; its native stacks:\n{stacks}\n"
+        logs[name] = f"{said}its log, ending with its Python stacks:\n{logs.get(name, '')}"
     return logs
 
 
@@ -90,7 +92,9 @@ def native_stacks(pid: int) -> str:
         done = subprocess.run(command, capture_output=True, text=True, timeout=60, check=False)
     except subprocess.TimeoutExpired:
         return "(gdb took over 60 s: no native stacks)"
-    return "\n".join(line for line in done.stdout.splitlines() if line.startswith(("Thread", "#")))
+    # A thread's innermost frames say where it waits; its outer ones (Python's eval loop) would crowd out the rest.
+    lines = [line for line in done.stdout.splitlines() if line.startswith(("Thread", "#"))]
+    return "\n".join(line for line in lines if not line.startswith("#") or int(line[1:].split()[0]) < 12)
 
 
 def emit(kind: str, /, **values: Any) -> None:

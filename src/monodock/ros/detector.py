@@ -53,6 +53,7 @@ from monodock.ros._rclpy import Node, rclpy
 from monodock.ros.lifecycle import ManagerBond, autostart, autostart_setting, bond_heartbeat_setting
 from monodock.ros.options import EstimatorOptions
 from monodock.ros.parameters import Parameter, declare_settings, parameters_of
+from monodock.ros.shutdown import ShutdownFlag, spin
 from monodock.ros.tf import CameraMountFromTF, set_transform
 
 __all__ = [
@@ -718,27 +719,26 @@ class _Reply:
 
 
 def run_detector(options: DetectorOptions, argv: Sequence[str]) -> int:
-    """Run the node until shut down (Ctrl-C, SIGTERM); ``argv`` carries the ROS arguments. User errors: one line, 2."""
-    from rclpy.executors import ExternalShutdownException  # type: ignore[import-not-found, unused-ignore]
-    from rclpy.impl.implementation_singleton import (  # type: ignore[import-not-found, unused-ignore]
-        rclpy_implementation as impl,
-    )
+    """Run the node until shut down (Ctrl-C, SIGTERM); ``argv`` carries the ROS arguments. User errors: one line, 2.
 
+    SIGINT and SIGTERM set a flag (ros/shutdown.py) from before rclpy starts: rclpy's own SIGTERM handling can leave
+    ``rclpy.spin`` waiting forever on a context it has shut down, and did so in CI.
+    """
+    from rclpy.executors import SingleThreadedExecutor  # type: ignore[import-not-found, unused-ignore]
+    from rclpy.signals import SignalHandlerOptions  # type: ignore[import-not-found, unused-ignore]
+
+    stop = ShutdownFlag()
     node: DockPoseNode | None = None
     try:
         with _rcl_arguments():
-            rclpy.init(args=list(argv))
+            rclpy.init(args=list(argv), signal_handler_options=SignalHandlerOptions.NO)
         node = managed_detector(options) if options.lifecycle else DockPoseNode(options)
-        rclpy.spin(node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin(executor, stop)
     except MonodockError as exc:
         print(f"monodock-ros: error: {exc}", file=sys.stderr)
         return 2
-    except (KeyboardInterrupt, ExternalShutdownException):  # Ctrl-C, or SIGTERM: a clean exit, no traceback
-        pass
-    except impl.RCLError:
-        if rclpy.ok():
-            raise
-        # else Ctrl-C or SIGTERM came while rclpy was creating something ("the given context is not valid")
     finally:
         if node is not None:
             node.stop()

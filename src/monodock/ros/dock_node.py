@@ -69,7 +69,7 @@ from monodock.ros.parameters import (
     refuse_unknown_overrides,
 )
 from monodock.ros.ros2_robot import ChargingSignal, RobotTopics, Ros2Robot
-from monodock.ros.shutdown import ShutdownFlag
+from monodock.ros.shutdown import ShutdownFlag, spin
 from monodock.ros.tf import CameraMountFromTF, TransformListener
 
 __all__ = ["DockNode", "StopCheck", "run_dock"]
@@ -497,6 +497,10 @@ class DockNode(LifecycleNode):  # type: ignore[misc, unused-ignore]
         if self._on_mission_tick is not None:
             self._on_mission_tick(mission)
 
+    def count_spin(self) -> None:
+        """One more ``spin_once`` of the executor (run_dock's loop calls it after each)."""
+        self.spins += 1
+
     def _odometry_lost(self) -> bool:
         """Odometry older than odom_timeout, and still so after the executor has taken what was already waiting.
 
@@ -683,8 +687,8 @@ def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
 
     # monodock handles SIGINT and SIGTERM itself: rclpy's handlers would shut the context down before the last
     # zero velocity could be published.
-    rclpy.init(args=list(argv), signal_handler_options=SignalHandlerOptions.NO)
     stop = ShutdownFlag()
+    rclpy.init(args=list(argv), signal_handler_options=SignalHandlerOptions.NO)
     node: DockNode | None = None
     try:
         node = DockNode(options)
@@ -694,14 +698,10 @@ def run_dock(options: DockOptions, argv: Sequence[str]) -> int:
         # odometry, the clock and the sensors bring a few hundred callbacks a second.
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while rclpy.ok() and not stop:
-            executor.spin_once(timeout_sec=0.1)
-            node.spins += 1
+        spin(executor, stop, each=node.count_spin)
     except (MonodockError, ConfigError) as exc:
         print(f"monodock-dock-ros: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:  # a Ctrl-C before the flag was installed
-        pass
     finally:
         if node is not None:
             node.stop("cancelled: the node is shutting down")
