@@ -41,7 +41,7 @@ def phase(name: str, end: object) -> None:
     last: list[float] = []
 
     def act() -> None:
-        time.sleep(0.5)  # the executor is inside its wait
+        time.sleep(0.55)  # the executor is halfway through a wait (they are 0.1 s)
         if callable(end):
             end(executor)
         else:
