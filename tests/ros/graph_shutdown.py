@@ -3,7 +3,8 @@ on an idle node (nothing to wake it: no timer, no message), ended as rclpy's SIG
 
 rclpy's signal thread wakes the executor and then shuts the context down, without waking it again. Phase
 ``woken, then shut down``: a thread wakes the executor, waits 0.3 s (the executor is waiting again by then) and shuts
-the context down as rclpy's signal thread does (``rcl_shutdown``, no Python callbacks). Phase ``SIGTERM``: this
+the context down as rclpy's signal thread does (``rcl_shutdown``, no Python callbacks). Phase ``shut down by another
+thread``: ``rclpy.try_shutdown()`` from a thread, as the detector's worker does on a failure. Phase ``SIGTERM``: this
 process sends itself SIGTERM. Phase ``SIGINT``: the same with SIGINT. Each prints how long ``spin`` took to return
 after the last event (or that it had not returned after 5 s).
 """
@@ -68,6 +69,7 @@ def phase(name: str, end: object) -> None:
 
 
 phase("woken, then shut down", woken_then_shut_down)
+phase("shut down by another thread", lambda _executor: rclpy.try_shutdown())  # the detector's worker on a failure
 phase("SIGTERM", signal.SIGTERM)
 phase("SIGINT", signal.SIGINT)
 sys.exit(0)
