@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import subprocess
 import sys
 import tempfile
@@ -39,7 +38,7 @@ import numpy as np
 from _common import emit, environment, fmt, markdown_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from private_graph import claim_domain_id
+from private_graph import rerun_in_private_network
 
 # Each node's process gets SIGTERM when its parent ends, however it ends (PR_SET_PDEATHSIG): none outlives its run.
 _ORPHANS_END = "import ctypes, signal; ctypes.CDLL(None).prctl(1, signal.SIGTERM); "
@@ -48,22 +47,6 @@ DETECTOR = (
 )
 SIM = _ORPHANS_END + "from monodock.ros.sim_node import run_sim; import sys; run_sim(sys.argv, duration={duration})"
 WARM_UP = 3.0  # s of the graph's first frames left out: discovery, the estimator's first call
-
-
-def in_private_network(argv: list[str]) -> int:
-    """Run this script again, with ``argv``, in a fresh network namespace with only loopback (tests/private_graph)."""
-    unshare = ["unshare", "--net"] if os.geteuid() == 0 else ["unshare", "--net", "--map-root-user"]
-    inner = 'ip link set lo up && exec "$@"'
-    command = [*unshare, "sh", "-c", inner, "sh", sys.executable, __file__, "--inside", *argv]
-    with claim_domain_id() as domain:  # no other graph on this machine on it, the tests' included
-        env = dict(os.environ)
-        env |= {
-            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
-            "ROS_DOMAIN_ID": str(domain),
-            "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp",
-            "PYTHONUNBUFFERED": "1",
-        }
-        return subprocess.run(command, env=env, check=False).returncode
 
 
 def listen(args: argparse.Namespace) -> dict[str, Any]:
@@ -220,7 +203,7 @@ def main() -> int:
     if not (math.isfinite(args.seconds) and args.seconds > 0):
         p.error(f"--seconds must be a positive number, got {args.seconds}")
     if not args.inside:
-        return in_private_network(sys.argv[1:])
+        return rerun_in_private_network(__file__, sys.argv[1:])
     heard = listen(args)
     if len(heard["images"]) < 10 or not heard["poses"]:
         print("ros_latency: the graph gave too few images or no pose; see the nodes' messages above", file=sys.stderr)

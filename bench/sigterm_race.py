@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
-import os
 import random
 import subprocess
 import sys
@@ -34,7 +33,7 @@ from typing import Any
 from _common import _positive, emit, environment, markdown_table
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from private_graph import claim_domain_id
+from private_graph import rerun_in_private_network
 
 GRACE = 5.0  # s after SIGTERM before a node counts as hung
 BARE_RCLPY = """
@@ -63,16 +62,6 @@ rclpy.try_shutdown()
 """
 DETECTOR = "from monodock.cli.ros_nodes import detector_main; import sys; sys.exit(detector_main(sys.argv[1:]))"
 KINDS = ("rclpy.spin", "monodock spin", "monodock-ros")
-
-
-def in_private_network(argv: list[str]) -> int:
-    """Run this script again, with ``argv``, in a fresh network namespace with only loopback (tests/private_graph)."""
-    unshare = ["unshare", "--net"] if os.geteuid() == 0 else ["unshare", "--net", "--map-root-user"]
-    inner = 'ip link set lo up && exec "$@"'
-    command = [*unshare, "sh", "-c", inner, "sh", sys.executable, __file__, "--inside", *argv]
-    with claim_domain_id() as domain:  # no other graph on this machine on it, the tests' included
-        env = dict(os.environ) | {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST", "ROS_DOMAIN_ID": str(domain)}
-        return subprocess.run(command, env=env, check=False).returncode
 
 
 def command(kind: str, name: str, folder: Path) -> list[str]:
@@ -202,7 +191,7 @@ def main() -> int:
     if unknown or not args.kinds:
         parser.error(f"--kinds: {', '.join(unknown) or 'none given'} (one or more of: {', '.join(KINDS)})")
     if not args.inside:
-        return in_private_network(sys.argv[1:])
+        return rerun_in_private_network(__file__, sys.argv[1:])
     inside(args)
     return 0
 

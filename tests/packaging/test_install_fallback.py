@@ -4,7 +4,6 @@ one line, and its nodes run without the Nav2 actions and TF, saying what is miss
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import shutil
 import subprocess
@@ -14,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from private_graph import can_isolate, run_private_graph
+from private_graph import needs_graph, run_private_graph
 
 ROOT = Path(__file__).resolve().parents[2]
 UV = Path(sys.executable).with_name("uv")
@@ -61,8 +60,7 @@ def test_without_a_compiler_monodock_installs_without_the_interfaces_and_says_so
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine")
-@pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed")
+@needs_graph()
 def test_without_the_interfaces_the_nodes_run_and_say_what_is_missing() -> None:
     run = run_private_graph(ROOT / "tests" / "ros" / "graph_without_interfaces.py", timeout=180)
     assert run.returncode == 0, run.stderr

@@ -8,7 +8,6 @@ the fused method."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import re
 from pathlib import Path
@@ -18,15 +17,12 @@ import numpy as np
 import pytest
 import yaml
 
-from private_graph import GraphRun, can_isolate, run_private_graph
+from private_graph import GraphRun, needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 SHIPPED = HERE.parents[1] / "config" / "monodock_detector.yaml"
 
-pytestmark = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-]
+pytestmark = needs_graph()
 
 
 @pytest.fixture(scope="module")

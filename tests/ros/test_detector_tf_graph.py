@@ -4,7 +4,6 @@ debug image, and ~/toggle as Nav2's ``detector_service_name`` calls it (tests/ro
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from pathlib import Path
 from typing import Any
@@ -12,14 +11,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from private_graph import GraphRun, can_isolate, run_private_graph
+from private_graph import GraphRun, needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 
-pytestmark = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-]
+pytestmark = needs_graph()
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,6 @@ cites the lines).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 from pathlib import Path
@@ -20,7 +19,7 @@ import pytest
 from monodock.core.pose2d import Pose2D
 from monodock.core.robot import RobotConfig
 from monodock.dock.config import DockingConfig
-from private_graph import can_isolate, run_private_graph
+from private_graph import needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 TOL = DockingConfig()
@@ -28,11 +27,7 @@ TOL = DockingConfig()
 NAV_TO_STAGING_POSE, INITIAL_PERCEPTION, CONTROLLING, WAIT_FOR_CHARGE, RETRY = 1, 2, 3, 4, 5
 BT_DEFAULT = {"action": "dock", "goal": {"dock_id": "home_dock", "navigate_to_staging_pose": True}}
 
-pytestmark = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-    pytest.mark.skipif(importlib.util.find_spec("nav2_msgs") is None, reason="nav2_msgs was not built here"),
-]
+pytestmark = needs_graph("nav2_msgs")
 
 
 def _docked_by_truth(goal: dict[str, object]) -> None:

@@ -7,7 +7,6 @@ dock-sim's (``DockingConfig``: 2 cm lateral and gap, 3.07° heading).
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import os
@@ -24,15 +23,12 @@ import pytest
 from monodock.core.layout import DockLayout
 from monodock.core.robot import RobotConfig
 from monodock.dock.config import DockingConfig
-from private_graph import GraphRun, can_isolate, run_private_graph
+from private_graph import GraphRun, needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 TOL = DockingConfig()
 
-pytestmark = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-]
+pytestmark = needs_graph()
 
 
 def recording_folder(request: pytest.FixtureRequest, tmp_path: Path) -> Path:

@@ -10,19 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from private_graph import can_isolate, claim_domain_id, run_private_graph
+from private_graph import can_isolate, claim_domain_id, needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 
+
 # rclpy is never imported in the test process (tests/conftest.py keeps it out): only the graph's processes use it.
-needs_graph = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-]
-
-
-@needs_graph[0]
-@needs_graph[1]
+@needs_graph()
 def test_a_graph_sees_only_loopback_and_talks_over_it() -> None:
     run = run_private_graph(HERE / "graph_smoke.py", timeout=120)
     assert run.returncode == 0, run.stderr

@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 import yaml
 
-from private_graph import can_isolate, run_private_graph
+from private_graph import needs_graph, run_private_graph
 
 ROOT = Path(__file__).resolve().parents[2]
 LAUNCH = ROOT / "launch" / "monodock_docking.launch.py"
@@ -117,8 +117,7 @@ def test_the_params_file_is_for_the_docking_server_and_holds_nav2_s_default_dock
 
 @pytest.mark.slow
 @pytest.mark.timeout(120)
-@pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine")
-@pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed")
+@needs_graph()
 def test_the_docking_node_takes_the_params_file_as_the_launch_passes_it() -> None:
     """The node started as the launch starts it (its name, the layout and robot, the params file, then what the launch
     fixes): it declares every key of the file and holds the values, unconfigured until a manager brings it up."""

@@ -4,22 +4,17 @@ managed detector, over Fast DDS in a private network namespace."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
 
-from private_graph import can_isolate, run_private_graph
+from private_graph import needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 UNCONFIGURED, INACTIVE, ACTIVE = 1, 2, 3  # lifecycle_msgs/msg/State
 BOND_TIMEOUT = 4.0
 
-pytestmark = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-    pytest.mark.skipif(importlib.util.find_spec("bond") is None, reason="the bond interfaces were not built here"),
-]
+pytestmark = needs_graph("bond")
 
 
 @pytest.mark.slow

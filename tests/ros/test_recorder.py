@@ -4,7 +4,6 @@ against the sim's ground truth in the same bag."""
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 from pathlib import Path
 from typing import Any
@@ -32,14 +31,10 @@ from monodock.ros.recorder import (
     parse_topic,
     subscription_qos,
 )
-from private_graph import can_isolate, run_private_graph
+from private_graph import needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 
-needs_graph = pytest.mark.skipif(
-    importlib.util.find_spec("rclpy") is None or not can_isolate(),
-    reason="needs ROS 2 (rclpy) and a private network namespace",
-)
 
 # --- without ROS 2 ------------------------------------------------------------------------------
 
@@ -198,7 +193,7 @@ def _expected(stamps: list[float], rate: float) -> float:
     return (stamps[-1] - stamps[0]) * rate + 1
 
 
-@needs_graph
+@needs_graph()
 def test_a_recorded_drive_matches_the_sims_ground_truth(tmp_path: Path) -> None:
     bag = tmp_path / "drive"
     run = run_private_graph(HERE / "graph_recorder.py", str(bag), "drive", timeout=180)
@@ -280,7 +275,7 @@ def test_a_recorded_drive_matches_the_sims_ground_truth(tmp_path: Path) -> None:
     assert np.all(x[odom_log < first_cmd] == x[0])
 
 
-@needs_graph
+@needs_graph()
 def test_a_latched_result_is_recorded_and_sigterm_closes_the_bag(tmp_path: Path) -> None:
     bag = tmp_path / "latched"
     run = run_private_graph(HERE / "graph_recorder.py", str(bag), "latched", timeout=120)

@@ -4,19 +4,13 @@ left the detector waiting forever in CI (tests/ros/graph_shutdown.py; bench/sigt
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
-import pytest
-
-from private_graph import can_isolate, run_private_graph
+from private_graph import needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 
-pytestmark = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-]
+pytestmark = needs_graph()
 
 
 def test_spin_ends_on_signals_and_on_a_context_shut_down_under_its_wait() -> None:

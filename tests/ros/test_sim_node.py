@@ -3,21 +3,17 @@ odometry, ground truth, battery and the rear range, drives by cmd_vel and stops 
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from monodock.core.robot import RobotConfig
-from private_graph import can_isolate, run_private_graph
+from private_graph import needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 
-pytestmark = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-]
+pytestmark = needs_graph()
 
 
 def test_the_simulated_robot_publishes_and_drives() -> None:

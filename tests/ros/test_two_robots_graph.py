@@ -9,7 +9,6 @@ docking node is given a robot file whose camera mount is 5 cm and 2° off and mu
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 from pathlib import Path
@@ -17,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from monodock.dock.config import DockingConfig
-from private_graph import can_isolate, run_private_graph
+from private_graph import needs_graph, run_private_graph
 
 HERE = Path(__file__).parent
 TOL = DockingConfig()
@@ -27,12 +26,7 @@ INITIAL_PERCEPTION, CONTROLLING, WAIT_FOR_CHARGE = 2, 3, 4
 # Absolute by design, one for the whole graph (/diagnostics' statuses carry each node's namespaced name).
 SHARED = {"/tf", "/tf_static", "/rosout", "/parameter_events", "/diagnostics"}
 
-pytestmark = [
-    pytest.mark.skipif(not can_isolate(), reason="no private network namespace on this machine"),
-    pytest.mark.skipif(importlib.util.find_spec("rclpy") is None, reason="ROS 2 (rclpy) is not installed"),
-    pytest.mark.skipif(importlib.util.find_spec("nav2_msgs") is None, reason="nav2_msgs was not built here"),
-    pytest.mark.skipif(importlib.util.find_spec("tf2_msgs") is None, reason="tf2_msgs was not built here"),
-]
+pytestmark = needs_graph("nav2_msgs", "tf2_msgs")
 
 
 @pytest.mark.slow
